@@ -1,0 +1,1 @@
+"""Tri-modal (RGB + thermal + event) dataparser, installed as ``agrinerf_ns.dataparsers``."""

@@ -1,0 +1,165 @@
+"""AgriNeRF dataparser: Nerfstudio's ``transforms.json`` plus per-frame thermal and event frames.
+
+The dataset contract is in ``docs/formats.md``. Cameras, poses, scene box, scale and the train/eval split are
+Nerfstudio's own (this parser subclasses :class:`Nerfstudio` and calls it), so the split is the one that
+``ns-train nerfacto`` makes on the same folder. On top of it this parser finds, for every frame kept in the split,
+the thermal and event frames (and their valid masks) and hands their paths to the dataset in
+``DataparserOutputs.metadata``:
+
+- ``"thermal_filenames"``, ``"thermal_mask_filenames"``, ``"event_filenames"``, ``"event_mask_filenames"``:
+  lists of paths in the order of ``image_filenames``; a key is absent when its files are absent from the dataset
+  (or the modality is not requested in ``modalities``).
+- ``"modalities"``: the tuple of modalities that are both present and requested, among ("rgb", "thermal", "events").
+- ``"agrinerf"``: the dataset's top-level ``agrinerf`` block (a dict; empty when the file has none).
+
+The thermal and event frames are aligned to the RGB camera, so they must have the RGB frame's full resolution
+(``w`` x ``h`` in ``transforms.json``); the dataset resizes them like the image when the image is downscaled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Literal, Optional, Tuple, Type
+
+from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
+from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
+from nerfstudio.plugins.registry_dataparser import DataParserSpecification
+from nerfstudio.utils.io import load_from_json
+from nerfstudio.utils.rich_utils import CONSOLE
+from PIL import Image
+
+Modality = Literal["rgb", "thermal", "events"]
+ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
+
+# (modality, per-frame key in transforms.json, metadata key in DataparserOutputs, is_mask)
+FRAME_KEYS: Tuple[Tuple[Modality, str, str, bool], ...] = (
+    ("thermal", "thermal_file_path", "thermal_filenames", False),
+    ("thermal", "thermal_mask_path", "thermal_mask_filenames", True),
+    ("events", "event_file_path", "event_filenames", False),
+    ("events", "event_mask_path", "event_mask_filenames", True),
+)
+
+
+class AgriNeRFDataError(ValueError):
+    """A tri-modal dataset does not follow the contract of docs/formats.md."""
+
+
+@dataclass
+class AgriNeRFDataParserConfig(NerfstudioDataParserConfig):
+    """Nerfstudio dataset config plus the thermal and event frames of an AgriNeRF dataset."""
+
+    _target: Type = field(default_factory=lambda: AgriNeRFDataParser)
+    """target class to instantiate"""
+    modalities: Tuple[Modality, ...] = ALL_MODALITIES
+    """Modalities to load when the dataset has them; a modality the dataset lacks is simply absent."""
+
+
+@dataclass
+class AgriNeRFDataParser(Nerfstudio):
+    """Nerfstudio's dataparser, extended with the per-frame thermal and event frames of an AgriNeRF dataset."""
+
+    config: AgriNeRFDataParserConfig
+
+    def _generate_dataparser_outputs(self, split: str = "train") -> DataparserOutputs:
+        outputs = super()._generate_dataparser_outputs(split)
+        transforms_path = (
+            self.config.data if self.config.data.suffix == ".json" else self.config.data / "transforms.json"
+        )
+        meta = load_from_json(transforms_path)
+        data_dir = transforms_path.parent
+        frames: List[Dict[str, Any]] = meta["frames"]
+
+        present = _present_frame_keys(frames, transforms_path)
+        block = meta.get("agrinerf", {}) or {}
+        _warn_on_block_mismatch(block, present, transforms_path)
+
+        # Nerfstudio sorts the frames and keeps those of the split: map its image paths back to their frames.
+        frame_by_image = {self._get_fname(Path(f["file_path"]), data_dir): f for f in frames}
+        kept = [frame_by_image[path] for path in outputs.image_filenames]
+
+        metadata: Dict[str, Any] = {}
+        for modality, frame_key, metadata_key, _ in FRAME_KEYS:
+            if frame_key not in present or modality not in self.config.modalities:
+                continue
+            paths = [data_dir / frame[frame_key] for frame in kept]
+            for frame, path in zip(kept, paths, strict=True):
+                _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
+            metadata[metadata_key] = paths
+
+        modalities = tuple(
+            m
+            for m in ALL_MODALITIES
+            if m in self.config.modalities
+            and (m == "rgb" or any(k in present for mod, k, _, is_mask in FRAME_KEYS if mod == m and not is_mask))
+        )
+        metadata["modalities"] = modalities
+        metadata["agrinerf"] = dict(block)
+        outputs.metadata.update(metadata)
+        return outputs
+
+
+def _present_frame_keys(frames: List[Dict[str, Any]], transforms_path: Path) -> List[str]:
+    """Per-frame keys given in every frame; raises if one is given in some frames only ("all or none")."""
+    present = []
+    for _, frame_key, _, _ in FRAME_KEYS:
+        missing = [f["file_path"] for f in frames if frame_key not in f]
+        if len(missing) == len(frames):
+            continue
+        if missing:
+            raise AgriNeRFDataError(
+                f"{transforms_path}: '{frame_key}' is given in {len(frames) - len(missing)} of {len(frames)} frames "
+                f"(missing for {missing[:3]}{' ...' if len(missing) > 3 else ''}); give it for every frame or none."
+            )
+        present.append(frame_key)
+    for mask_key, file_key in (("thermal_mask_path", "thermal_file_path"), ("event_mask_path", "event_file_path")):
+        if mask_key in present and file_key not in present:
+            raise AgriNeRFDataError(f"{transforms_path}: frames give '{mask_key}' but no '{file_key}'.")
+    return present
+
+
+def _warn_on_block_mismatch(block: Dict[str, Any], present: List[str], transforms_path: Path) -> None:
+    """Warns when the ``agrinerf.modalities`` list disagrees with the per-frame files (the files win)."""
+    if "modalities" not in block:
+        return
+    listed = set(block["modalities"])
+    for modality, frame_key in (("thermal", "thermal_file_path"), ("events", "event_file_path")):
+        if (modality in listed) != (frame_key in present):
+            CONSOLE.print(
+                f"[bold yellow]Warning: {transforms_path}: agrinerf.modalities {sorted(listed)} "
+                f"{'lists' if modality in listed else 'does not list'} '{modality}' but the frames "
+                f"{'lack' if modality in listed else 'give'} '{frame_key}'; going by the frames."
+            )
+
+
+def _frame_size(frame: Dict[str, Any], meta: Dict[str, Any]) -> Optional[Tuple[int, int]]:
+    """Full-resolution (width, height) of a frame's RGB image, from the frame or the file's top level."""
+    width, height = frame.get("w", meta.get("w")), frame.get("h", meta.get("h"))
+    if width is None or height is None:
+        return None
+    return int(width), int(height)
+
+
+def _check_aligned_frame(
+    path: Path, frame: Dict[str, Any], meta: Dict[str, Any], frame_key: str, transforms_path: Path
+) -> None:
+    """Checks that a thermal/event frame or mask exists and has the RGB frame's full resolution (header read only)."""
+    if not path.is_file():
+        raise AgriNeRFDataError(f"{path}: file named by '{frame_key}' in {transforms_path} does not exist.")
+    try:
+        with Image.open(path) as image:
+            size = image.size
+    except Exception as error:  # PIL raises several types for unreadable files
+        raise AgriNeRFDataError(f"{path}: cannot read the image named by '{frame_key}': {error}") from error
+    expected = _frame_size(frame, meta)
+    if expected is not None and size != expected:
+        raise AgriNeRFDataError(
+            f"{path}: image is {size[0]}x{size[1]} but its RGB frame {frame['file_path']} is "
+            f"{expected[0]}x{expected[1]}; '{frame_key}' frames must be warped into the RGB camera at its resolution."
+        )
+
+
+agrinerf_dataparser = DataParserSpecification(
+    config=AgriNeRFDataParserConfig(),
+    description="AgriNeRF tri-modal dataset: Nerfstudio transforms.json plus aligned thermal and event frames",
+)

@@ -1,0 +1,119 @@
+"""Tiny tri-modal AgriNeRF dataset folders for dataparser and dataset tests.
+
+Writes what ``agrinerf-process`` writes (docs/formats.md): ``transforms.json`` of the RGB camera with per-frame
+``thermal_file_path`` / ``thermal_mask_path`` / ``event_file_path`` / ``event_mask_path`` and the ``agrinerf`` block.
+Pixel values are random (seeded); poses look at the origin from a jittered ring, in Nerfstudio's OpenGL axes.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Callable, Dict, Optional, Sequence
+
+import numpy as np
+from PIL import Image
+
+WIDTH, HEIGHT = 64, 48
+
+
+def _look_at(position: np.ndarray) -> np.ndarray:
+    """Camera-to-world (OpenGL: x right, y up, looking down -z) looking at the origin from ``position``."""
+    forward = -position / np.linalg.norm(position)
+    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, position
+    return c2w
+
+
+def _pixels(rng: np.random.Generator, fill: Optional[int], shape: Sequence[int]) -> np.ndarray:
+    """Random uint8 pixels, or a constant ``fill`` value."""
+    if fill is not None:
+        return np.full(shape, fill, dtype=np.uint8)
+    return rng.integers(0, 256, size=shape, dtype=np.uint8)
+
+
+def write_tridata(
+    root: Path,
+    num_frames: int = 8,
+    modalities: Sequence[str] = ("rgb", "thermal", "events"),
+    masks: bool = True,
+    width: int = WIDTH,
+    height: int = HEIGHT,
+    seed: int = 0,
+    fill: Optional[Dict[str, int]] = None,
+    downscaled_images: Sequence[int] = (),
+) -> Path:
+    """Writes a tiny dataset folder under ``root`` and returns ``root``.
+
+    Args:
+        modalities: which of "thermal" and "events" to write beside the RGB frames.
+        masks: also write thermal/event valid masks (random, about 80 % valid).
+        fill: constant uint8 value per stream instead of random pixels, keys "rgb", "thermal", "event", "mask".
+        downscaled_images: factors N for which an ``images_N/`` copy of the RGB frames is written (as
+            ``ns-process-data`` does); the thermal and event frames stay at full resolution.
+    """
+    rng = np.random.default_rng(seed)
+    fill = fill or {}
+    folders = ["images"] + [f"images_{n}" for n in downscaled_images]
+    if "thermal" in modalities:
+        folders += ["thermal", "thermal_masks"]
+    if "events" in modalities:
+        folders += ["events", "event_masks"]
+    for folder in folders:
+        (root / folder).mkdir(parents=True, exist_ok=True)
+
+    frames = []
+    for i in range(num_frames):
+        angle = 2 * np.pi * i / num_frames + rng.uniform(-0.1, 0.1)
+        position = np.array([3.0 * np.cos(angle), 3.0 * np.sin(angle), 0.5 + rng.uniform(-0.2, 0.2)])
+        name = f"frame_{i:05d}.png"
+        rgb = _pixels(rng, fill.get("rgb"), (height, width, 3))
+        Image.fromarray(rgb).save(root / "images" / name)
+        for n in downscaled_images:
+            Image.fromarray(rgb).resize((width // n, height // n), Image.Resampling.BILINEAR).save(
+                root / f"images_{n}" / name
+            )
+        frame: Dict[str, Any] = {"file_path": f"images/{name}", "transform_matrix": _look_at(position).tolist()}
+        for modality, key, folder in (("thermal", "thermal", "thermal"), ("events", "event", "events")):
+            if modality not in modalities:
+                continue
+            Image.fromarray(_pixels(rng, fill.get(key), (height, width))).save(root / folder / name)
+            frame[f"{key}_file_path"] = f"{folder}/{name}"
+            if masks:
+                if "mask" in fill:
+                    mask = np.full((height, width), fill["mask"], dtype=np.uint8)
+                else:
+                    mask = np.where(rng.uniform(size=(height, width)) < 0.8, 255, 0).astype(np.uint8)
+                Image.fromarray(mask).save(root / f"{key}_masks" / name)
+                frame[f"{key}_mask_path"] = f"{key}_masks/{name}"
+        frames.append(frame)
+
+    transforms = {
+        "camera_model": "OPENCV",
+        "fl_x": 0.9 * width,
+        "fl_y": 0.9 * width,
+        "cx": width / 2,
+        "cy": height / 2,
+        "w": width,
+        "h": height,
+        "frames": frames,
+        "agrinerf": {
+            "modalities": ["rgb"] + [m for m in ("thermal", "events") if m in modalities],
+            "events": {"window": 0.05, "representation": "signed polarity sum, 0.5 = no change"},
+            "thermal_rescale": {"method": "test fixture"},
+            "poses": {"source": "test fixture", "dropped_frames": []},
+        },
+    }
+    (root / "transforms.json").write_text(json.dumps(transforms, indent=2))
+    return root
+
+
+def edit_transforms(root: Path, edit: Callable[[Dict[str, Any]], None]) -> None:
+    """Applies ``edit`` to the parsed ``transforms.json`` under ``root`` and writes it back."""
+    path = root / "transforms.json"
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta, indent=2))
