@@ -1,0 +1,160 @@
+"""AgriNeRF dataparser on tiny tri-modal datasets written to tmp_path (tests/dataset_fixtures.py)."""
+
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from dataset_fixtures import edit_transforms, write_tridata
+from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
+from nerfstudio.plugins.registry_dataparser import DataParserSpecification
+from PIL import Image
+
+from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataError, AgriNeRFDataParserConfig
+
+EXTRA_KEYS = ("thermal_filenames", "thermal_mask_filenames", "event_filenames", "event_mask_filenames")
+
+
+def _outputs(root: Path, split: str = "train", **config):
+    return AgriNeRFDataParserConfig(data=root, **config).setup().get_dataparser_outputs(split=split)
+
+
+def test_all_modalities_metadata(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path)
+    outputs = _outputs(root, train_split_fraction=0.75)
+    assert outputs.metadata["modalities"] == ("rgb", "thermal", "events")
+    assert outputs.metadata["agrinerf"]["events"]["window"] == 0.05
+    folders = {
+        "thermal_filenames": "thermal",
+        "thermal_mask_filenames": "thermal_masks",
+        "event_filenames": "events",
+        "event_mask_filenames": "event_masks",
+    }
+    for key, folder in folders.items():
+        paths = outputs.metadata[key]
+        assert len(paths) == len(outputs.image_filenames) == 6
+        # same frame, same order as image_filenames
+        assert [p.name for p in paths] == [p.name for p in outputs.image_filenames]
+        assert all(p == root / folder / p.name and p.is_file() for p in paths)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [{}, {"eval_mode": "interval", "eval_interval": 3}, {"train_split_fraction": 0.5}],
+    ids=["default", "interval", "fraction"],
+)
+def test_split_matches_nerfstudio(tmp_path: Path, config: dict) -> None:
+    """Same frames, order and poses per split as Nerfstudio's own parser (what `ns-train nerfacto` uses)."""
+    root = write_tridata(tmp_path, num_frames=12)
+    for split in ("train", "val"):
+        ours = _outputs(root, split, **config)
+        theirs = NerfstudioDataParserConfig(data=root, **config).setup().get_dataparser_outputs(split=split)
+        assert ours.image_filenames == theirs.image_filenames
+        assert torch.equal(ours.cameras.camera_to_worlds, theirs.cameras.camera_to_worlds)
+        assert ours.dataparser_scale == theirs.dataparser_scale
+        assert [p.name for p in ours.metadata["thermal_filenames"]] == [p.name for p in ours.image_filenames]
+    train = set(_outputs(root, "train", **config).image_filenames)
+    val = set(_outputs(root, "val", **config).image_filenames)
+    assert train and val and not train & val
+
+
+def test_explicit_split_lists(tmp_path: Path) -> None:
+    """train_filenames / val_filenames in transforms.json decide the split, and the extra frames follow it."""
+    root = write_tridata(tmp_path)
+    val_names = ["images/frame_00001.png", "images/frame_00006.png"]
+
+    def add_lists(meta: dict) -> None:
+        names = [f["file_path"] for f in meta["frames"]]
+        meta["train_filenames"] = [n for n in names if n not in val_names]
+        meta["val_filenames"] = val_names
+        meta["frames"] = meta["frames"][::-1]  # the parser sorts by file name
+
+    edit_transforms(root, add_lists)
+    val = _outputs(root, "val")
+    assert [p.name for p in val.image_filenames] == ["frame_00001.png", "frame_00006.png"]
+    assert [p.name for p in val.metadata["event_filenames"]] == ["frame_00001.png", "frame_00006.png"]
+    train = _outputs(root, "train")
+    assert [p.name for p in train.metadata["thermal_mask_filenames"]] == [p.name for p in train.image_filenames]
+    assert len(train.image_filenames) == 6
+
+
+def test_rgb_only_has_no_extra_keys(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path, modalities=("rgb",))
+    edit_transforms(root, lambda meta: meta.pop("agrinerf"))  # a plain Nerfstudio dataset parses too
+    outputs = _outputs(root)
+    assert outputs.metadata["modalities"] == ("rgb",)
+    assert outputs.metadata["agrinerf"] == {}
+    assert not set(EXTRA_KEYS) & set(outputs.metadata)
+
+
+def test_rgb_thermal_without_masks(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path, modalities=("rgb", "thermal"), masks=False)
+    outputs = _outputs(root)
+    assert outputs.metadata["modalities"] == ("rgb", "thermal")
+    assert "thermal_filenames" in outputs.metadata
+    assert not {"thermal_mask_filenames", "event_filenames", "event_mask_filenames"} & set(outputs.metadata)
+
+
+@pytest.mark.parametrize(
+    ("modalities", "expected"),
+    [
+        (("rgb", "events"), ("rgb", "events")),
+        (("thermal",), ("thermal",)),
+        (("thermal", "events"), ("thermal", "events")),
+    ],
+)
+def test_modalities_config_selects(tmp_path: Path, modalities: tuple, expected: tuple) -> None:
+    root = write_tridata(tmp_path)
+    outputs = _outputs(root, modalities=modalities)
+    assert outputs.metadata["modalities"] == expected
+    assert ("thermal_filenames" in outputs.metadata) == ("thermal" in expected)
+    assert ("event_filenames" in outputs.metadata) == ("events" in expected)
+
+
+def test_json_file_as_data(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path)
+    outputs = _outputs(root / "transforms.json")
+    assert outputs.metadata["thermal_filenames"][0] == root / "thermal" / "frame_00000.png"
+
+
+def test_all_or_none_error_names_key_and_frames(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path)
+    edit_transforms(root, lambda meta: meta["frames"][3].pop("event_file_path"))
+    with pytest.raises(AgriNeRFDataError, match=r"'event_file_path' is given in 7 of 8 frames.*frame_00003"):
+        _outputs(root)
+
+
+def test_mask_without_frames_is_an_error(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path, modalities=("rgb", "thermal"))
+    edit_transforms(root, lambda meta: [f.pop("thermal_file_path") for f in meta["frames"]])
+    with pytest.raises(AgriNeRFDataError, match="'thermal_mask_path' but no 'thermal_file_path'"):
+        _outputs(root)
+
+
+def test_wrong_size_thermal_names_the_file(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path)
+    bad = root / "thermal" / "frame_00002.png"
+    Image.fromarray(np.zeros((24, 32), dtype=np.uint8)).save(bad)
+    with pytest.raises(AgriNeRFDataError, match=r"frame_00002\.png: image is 32x24 but its RGB frame .* is 64x48"):
+        _outputs(root)
+    with pytest.raises(AgriNeRFDataError, match=str(bad)):
+        _outputs(root)
+
+
+def test_missing_file_names_the_file(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path)
+    (root / "event_masks" / "frame_00004.png").unlink()
+    with pytest.raises(AgriNeRFDataError, match=r"event_masks/frame_00004\.png: file named by 'event_mask_path'"):
+        _outputs(root)
+
+
+def test_registered_as_entry_point() -> None:
+    found = [ep for ep in entry_points(group="nerfstudio.dataparser_configs") if ep.name == "agrinerf-data"]
+    assert len(found) == 1
+    spec = found[0].load()
+    assert isinstance(spec, DataParserSpecification)
+    assert isinstance(spec.config, AgriNeRFDataParserConfig)
+    assert spec.config.modalities == ("rgb", "thermal", "events")
