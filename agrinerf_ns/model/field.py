@@ -1,0 +1,263 @@
+"""AgriNeRF field: one density TensoRF shared by an RGB head and a cross-spectral (thermal) head.
+
+Each head is an appearance TensoRF (VM decomposition, Nerfstudio's `TensorVMEncoding`) followed by a small MLP:
+MLP_RGB (view dependent, 3 channels) and MLP_THERMAL (1 channel, view independent unless configured otherwise).
+A head that the scene does not need is not built at all (no volume, no MLP, no parameters).
+"""
+
+from __future__ import annotations
+
+from typing import Dict, Optional, Tuple
+
+import torch
+import torch.nn.functional as F
+from jaxtyping import Bool, Float
+from nerfstudio.cameras.rays import RaySamples
+from nerfstudio.data.scene_box import SceneBox
+from nerfstudio.field_components.encodings import NeRFEncoding, TensorVMEncoding
+from nerfstudio.field_components.field_heads import FieldHeadNames
+from nerfstudio.field_components.mlp import MLP
+from nerfstudio.field_components.spatial_distortions import SceneContraction
+from nerfstudio.fields.base_field import Field
+from torch import Tensor, nn
+
+from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
+
+
+class InPlaceTensorVMEncoding(TensorVMEncoding):
+    """`TensorVMEncoding` whose `upsample_grid` keeps the same `nn.Parameter` objects.
+
+    Nerfstudio's version swaps in new Parameters, so every optimizer that holds the old ones must be rebuilt, and a
+    checkpoint resumed after an upsampling step loads its optimizer state onto the stale, smaller tensors. Resizing
+    `.data` in place keeps the optimizer's references valid; the caller drops the (now mis-shaped) Adam moments.
+    """
+
+    @torch.no_grad()
+    def upsample_grid(self, resolution: int) -> None:
+        """Resample the plane and line factors to `resolution` (bilinear, corners aligned) in place."""
+        self.plane_coef.data = F.interpolate(
+            self.plane_coef.data, size=(resolution, resolution), mode="bilinear", align_corners=True
+        )
+        self.line_coef.data = F.interpolate(
+            self.line_coef.data, size=(resolution, 1), mode="bilinear", align_corners=True
+        )
+        self.plane_coef.grad = None
+        self.line_coef.grad = None
+        self.resolution = resolution
+
+
+class AppearanceHead(nn.Module):
+    """Appearance TensoRF -> linear basis -> MLP -> sigmoid, for one modality.
+
+    Args:
+        resolution: initial grid resolution of the appearance volume.
+        num_components: VM components per plane/line.
+        appearance_dim: size of the feature after the linear basis (TensoRF's `B`).
+        out_dim: output channels (3 for RGB, 1 for thermal).
+        view_dependent: feed the encoded viewing direction to the MLP.
+        mlp_width: hidden width of the MLP (2 hidden layers).
+    """
+
+    def __init__(
+        self,
+        resolution: int,
+        num_components: int,
+        appearance_dim: int,
+        out_dim: int,
+        view_dependent: bool,
+        mlp_width: int = 128,
+    ) -> None:
+        super().__init__()
+        self.encoding = InPlaceTensorVMEncoding(resolution=resolution, num_components=num_components)
+        self.basis = nn.Linear(self.encoding.get_out_dim(), appearance_dim, bias=False)
+        self.feature_encoding = NeRFEncoding(in_dim=appearance_dim, num_frequencies=2, min_freq_exp=0, max_freq_exp=2)
+        self.direction_encoding: Optional[NeRFEncoding] = (
+            NeRFEncoding(in_dim=3, num_frequencies=2, min_freq_exp=0, max_freq_exp=2) if view_dependent else None
+        )
+        in_dim = appearance_dim + self.feature_encoding.get_out_dim()
+        if self.direction_encoding is not None:
+            in_dim += self.direction_encoding.get_out_dim()
+        self.mlp = MLP(
+            in_dim=in_dim,
+            num_layers=2,
+            layer_width=mlp_width,
+            out_dim=out_dim,
+            activation=nn.ReLU(),
+            out_activation=nn.Sigmoid(),
+            implementation="torch",
+        )
+
+    def forward(self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"]) -> Float[Tensor, "n out_dim"]:
+        """Value in [0, 1] at grid coordinates `coords` (in [-1, 1]) seen along unit `directions`."""
+        features = self.basis(self.encoding(coords))
+        parts = [features, self.feature_encoding(features)]
+        if self.direction_encoding is not None:
+            parts.append(self.direction_encoding(directions))
+        return self.mlp(torch.cat(parts, dim=-1))
+
+    def mlp_parameters(self) -> list:
+        """Parameters of the basis and MLP (the "fields" optimizer group)."""
+        return list(self.basis.parameters()) + list(self.mlp.parameters())
+
+
+class AgriNeRFField(Field):
+    """Shared density TensoRF with optional RGB and thermal appearance heads.
+
+    Args:
+        aabb: scene box (2, 3); used when `contraction` is False (bounded scene).
+        contraction: contract the unbounded scene into the grid (Nerfstudio `SceneContraction`, L-inf: a cube) so that
+            sky and far trees of an orchard row land in the outer shell of the volumes.
+        resolution: initial resolution of all volumes.
+        num_density_components: VM components of the density volume.
+        with_rgb / with_thermal: build the RGB / thermal head.
+        num_rgb_components, rgb_appearance_dim: RGB appearance volume and basis size.
+        num_thermal_components, thermal_appearance_dim: thermal appearance volume and basis size.
+        thermal_view_dependent: feed the viewing direction to MLP_THERMAL (default: no, thermal is Lambertian enough).
+        density_shift: added before the softplus (TensoRF's `density_shift`).
+        max_density: densities are clamped to this value so that alpha compositing never sees Inf.
+        occupancy_resolution: cells per axis of the empty-space occupancy grid (0 disables it).
+    """
+
+    occupancy: Bool[Tensor, "r r r"]
+
+    def __init__(
+        self,
+        aabb: Float[Tensor, "2 3"],
+        contraction: bool = True,
+        resolution: int = 128,
+        num_density_components: int = 16,
+        with_rgb: bool = True,
+        with_thermal: bool = True,
+        num_rgb_components: int = 48,
+        rgb_appearance_dim: int = 27,
+        num_thermal_components: int = 16,
+        thermal_appearance_dim: int = 12,
+        thermal_view_dependent: bool = False,
+        mlp_width: int = 128,
+        density_shift: float = -1.0,
+        max_density: float = 1.0e4,
+        occupancy_resolution: int = 64,
+    ) -> None:
+        super().__init__()
+        if not (with_rgb or with_thermal):
+            raise ValueError("AgriNeRFField needs at least one of the RGB and thermal heads")
+        self.register_buffer("aabb", aabb.detach().clone().float())
+        self.spatial_distortion: Optional[SceneContraction] = (
+            SceneContraction(order=float("inf")) if contraction else None
+        )
+        self.density_encoding = InPlaceTensorVMEncoding(resolution=resolution, num_components=num_density_components)
+        self.rgb_head: Optional[AppearanceHead] = (
+            AppearanceHead(resolution, num_rgb_components, rgb_appearance_dim, 3, True, mlp_width) if with_rgb else None
+        )
+        self.thermal_head: Optional[AppearanceHead] = (
+            AppearanceHead(
+                resolution, num_thermal_components, thermal_appearance_dim, 1, thermal_view_dependent, mlp_width
+            )
+            if with_thermal
+            else None
+        )
+        self.density_shift = density_shift
+        self.max_density = max_density
+        occ_res = max(int(occupancy_resolution), 1)
+        self.register_buffer("occupancy", torch.ones((occ_res, occ_res, occ_res), dtype=torch.bool))
+        self.occupancy_enabled = occupancy_resolution > 0
+
+    # ---------------------------------------------------------------- geometry
+    def volumes(self) -> Dict[str, InPlaceTensorVMEncoding]:
+        """Every TensoRF volume of the field, by name (the ones the resolution schedule upsamples)."""
+        vols = {"density": self.density_encoding}
+        if self.rgb_head is not None:
+            vols["rgb"] = self.rgb_head.encoding
+        if self.thermal_head is not None:
+            vols["thermal"] = self.thermal_head.encoding
+        return vols
+
+    def to_grid(self, positions: Float[Tensor, "*bs 3"]) -> Tuple[Float[Tensor, "*bs 3"], Bool[Tensor, "*bs"]]:
+        """World positions -> grid coordinates in [-1, 1] and a mask of positions inside the volume."""
+        positions = torch.nan_to_num(positions.float(), nan=0.0, posinf=1e6, neginf=-1e6)
+        if self.spatial_distortion is not None:
+            coords = self.spatial_distortion(positions) / 2.0
+        else:
+            coords = SceneBox.get_normalized_positions(positions, self.aabb) * 2.0 - 1.0
+        inside = ((coords > -1.0) & (coords < 1.0)).all(dim=-1)
+        return coords.clamp(-1.0, 1.0), inside
+
+    def occupied(self, coords: Float[Tensor, "n 3"]) -> Bool[Tensor, "n"]:
+        """Whether each grid coordinate falls in a cell that the occupancy grid keeps."""
+        if not self.occupancy_enabled:
+            return torch.ones(coords.shape[0], dtype=torch.bool, device=coords.device)
+        res = self.occupancy.shape[0]
+        idx = ((coords + 1.0) * (res / 2.0)).long().clamp(0, res - 1)
+        return self.occupancy[idx[:, 0], idx[:, 1], idx[:, 2]]
+
+    def density_at(self, coords: Float[Tensor, "*bs 3"], valid: Bool[Tensor, "*bs"]) -> Float[Tensor, "*bs 1"]:
+        """Density (softplus of the summed VM features, clamped) at `coords`; zero where `valid` is False.
+
+        Only the valid, occupied points are looked up in the volume, so empty space costs nothing.
+        """
+        flat = coords.reshape(-1, 3)
+        keep = valid.reshape(-1).clone()
+        if keep.any():
+            keep[keep.clone()] = self.occupied(flat[keep])
+        density = flat.new_zeros(flat.shape[0], 1)
+        if keep.any():
+            raw = self.density_encoding(flat[keep]).sum(dim=-1, keepdim=True)
+            density[keep] = F.softplus(raw + self.density_shift).clamp(max=self.max_density)
+        return density.reshape(*coords.shape[:-1], 1)
+
+    def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs 3"]]:
+        """Field contract: (density, embedding); the embedding is the sample's grid coordinate in [-1, 1]."""
+        coords, inside = self.to_grid(ray_samples.frustums.get_positions())
+        return self.density_at(coords, inside), coords
+
+    # -------------------------------------------------------------- appearance
+    def appearance_at(
+        self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"]
+    ) -> Dict[object, Float[Tensor, "n c"]]:
+        """Head outputs at flat grid coordinates (used by the model on the samples that matter only)."""
+        directions = torch.nan_to_num(directions.float())
+        directions = directions / directions.norm(dim=-1, keepdim=True).clamp(min=1e-8)
+        out: Dict[object, Tensor] = {}
+        if self.rgb_head is not None:
+            out[FieldHeadNames.RGB] = self.rgb_head(coords, directions)
+        if self.thermal_head is not None:
+            out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head(coords, directions)
+        return out
+
+    def get_outputs(
+        self, ray_samples: RaySamples, density_embedding: Optional[Tensor] = None
+    ) -> Dict[object, Float[Tensor, "*bs c"]]:
+        """Field contract: head outputs at every sample, keyed by `FieldHeadNames.RGB` / `AgriNeRFFieldHeadNames`."""
+        if density_embedding is None:
+            density_embedding, _ = self.to_grid(ray_samples.frustums.get_positions())
+        shape = density_embedding.shape[:-1]
+        flat = self.appearance_at(density_embedding.reshape(-1, 3), ray_samples.frustums.directions.reshape(-1, 3))
+        return {k: v.reshape(*shape, v.shape[-1]) for k, v in flat.items()}
+
+    # --------------------------------------------------------------- pruning
+    @torch.no_grad()
+    def update_occupancy(self, density_threshold: float, chunk: int = 1 << 16) -> float:
+        """Recompute the occupancy grid from the density volume; returns the fraction of cells kept.
+
+        A cell is kept when the density at its centre or at a jittered point in it exceeds `density_threshold`; the
+        result is dilated by one cell so that surfaces on cell borders are not cut (TensoRF's alpha mask, simplified).
+        """
+        if not self.occupancy_enabled:
+            return 1.0
+        res = self.occupancy.shape[0]
+        device = self.occupancy.device
+        axis = (torch.arange(res, device=device, dtype=torch.float32) + 0.5) / res * 2.0 - 1.0
+        centres = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
+        gen = torch.Generator(device="cpu").manual_seed(res)
+        jitter = (torch.rand(centres.shape, generator=gen) - 0.5).to(device) * (2.0 / res)
+        dens = torch.zeros(centres.shape[0], device=device)
+        for pts in (centres, centres + jitter):
+            for start in range(0, pts.shape[0], chunk):
+                part = pts[start : start + chunk].clamp(-1.0, 1.0)
+                raw = self.density_encoding(part).sum(dim=-1)
+                val = F.softplus(raw + self.density_shift)
+                dens[start : start + chunk] = torch.maximum(dens[start : start + chunk], val)
+        occ = (dens > density_threshold).reshape(1, 1, res, res, res).float()
+        occ = F.max_pool3d(occ, kernel_size=3, stride=1, padding=1)[0, 0] > 0
+        self.occupancy.copy_(occ)
+        return float(occ.float().mean().item())

@@ -1,0 +1,104 @@
+"""AgriNeRF losses as pure functions (paper: ../shared/paper/agrinerf_paper.tex, Method section).
+
+All functions compute in float32 whatever the input precision, ignore non-finite targets through their masks, and
+return a scalar tensor. Weights are applied by the model (`loss_coefficients`), not here.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+LUMA_WEIGHTS = (0.299, 0.587, 0.114)
+"""ITU-R BT.601 luma weights: the RGB -> one channel mapping of L_reg (the same weights as OpenCV's RGB2GRAY, so a
+grey image computed by the processing stage and by the loss agree)."""
+
+
+def luminance(rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 1"]:
+    """Y = 0.299 R + 0.587 G + 0.114 B of gamma-encoded RGB in [0, 1] (BT.601 luma)."""
+    weights = torch.tensor(LUMA_WEIGHTS, dtype=torch.float32, device=rgb.device)
+    return (rgb.float() * weights).sum(dim=-1, keepdim=True)
+
+
+def masked_mse(
+    pred: Float[Tensor, "*bs c"], target: Float[Tensor, "*bs c"], mask: Optional[Float[Tensor, "*bs 1"]] = None
+) -> Float[Tensor, ""]:
+    """Mean of (pred - target)^2 over the pixels where `mask` > 0.5 (all pixels when `mask` is None).
+
+    Returns 0 (with a gradient path) when no pixel is valid, never NaN.
+    """
+    pred = pred.float()
+    target = target.float().to(pred.device)
+    valid = torch.isfinite(target).all(dim=-1, keepdim=True)
+    if mask is not None:
+        valid = valid & (mask.to(pred.device).float() > 0.5)
+    sq = torch.where(valid, (pred - torch.nan_to_num(target)) ** 2, torch.zeros_like(pred))
+    count = valid.float().sum() * pred.shape[-1]
+    return sq.sum() / count.clamp(min=1.0)
+
+
+def rgb_loss(pred_rgb: Float[Tensor, "*bs 3"], gt_rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, ""]:
+    """Paper Eq. 1, L_rgb = 1/|R| sum_r ||C~_rgb(r) - C_rgb(r)||^2 (mean over rays and channels, as Nerfstudio's MSE)."""
+    return masked_mse(pred_rgb, gt_rgb)
+
+
+def thermal_loss(
+    pred_thermal: Float[Tensor, "*bs 1"],
+    gt_thermal: Float[Tensor, "*bs 1"],
+    thermal_mask: Optional[Float[Tensor, "*bs 1"]] = None,
+) -> Float[Tensor, ""]:
+    """Paper Eq. 2, L_th = 1/|R| sum_r ||C~_th(r) - C_th(r)||^2 over rays the thermal camera saw (`thermal_mask`)."""
+    return masked_mse(pred_thermal, gt_thermal, thermal_mask)
+
+
+def cross_spectral_rgb_term(pred_thermal: Float[Tensor, "*bs 1"], gt_rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, ""]:
+    """First term of paper Eq. 3: mean ||C~_th - Y(C_rgb)||^2, with Y the BT.601 luma of the ground-truth RGB."""
+    return masked_mse(pred_thermal, luminance(gt_rgb))
+
+
+def cross_spectral_event_term(
+    pred_thermal: Float[Tensor, "*bs 1"],
+    gt_event: Float[Tensor, "*bs 1"],
+    event_mask: Optional[Float[Tensor, "*bs 1"]] = None,
+) -> Float[Tensor, ""]:
+    """Second term of paper Eq. 3: mean ||C~_th - C_ev||^2 over rays with a valid event frame (`event_mask`)."""
+    return masked_mse(pred_thermal, gt_event, event_mask)
+
+
+def cross_spectral_loss(
+    pred_thermal: Float[Tensor, "*bs 1"],
+    gt_rgb: Optional[Float[Tensor, "*bs 3"]],
+    gt_event: Optional[Float[Tensor, "*bs 1"]],
+    event_mask: Optional[Float[Tensor, "*bs 1"]] = None,
+    rgb_weight: float = 1.0,
+    event_weight: float = 1.0,
+) -> Float[Tensor, ""]:
+    """Paper Eq. 3, L_reg = mean(w_rgb ||C~_th - Y(C_rgb)||^2 + w_ev ||C~_th - C_ev||^2); absent modalities drop out.
+
+    The model keeps the two terms apart (each with its own `loss_coefficients` entry); this is their weighted sum.
+    """
+    total = pred_thermal.float().sum() * 0.0
+    if gt_rgb is not None:
+        total = total + rgb_weight * cross_spectral_rgb_term(pred_thermal, gt_rgb)
+    if gt_event is not None:
+        total = total + event_weight * cross_spectral_event_term(pred_thermal, gt_event, event_mask)
+    return total
+
+
+def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
+    """TensoRF L1 sparsity loss: mean |w| over all given factor tensors (TensoRF `density_L1`,
+    https://github.com/apchenstu/TensoRF/blob/main/models/tensoRF.py, `TensorVMSplit.density_L1`)."""
+    total = sum(t.abs().sum() for t in tensors)
+    count = sum(t.numel() for t in tensors)
+    return total / max(count, 1)
+
+
+def tv_plane_loss(planes: Float[Tensor, "3 c h w"]) -> Float[Tensor, ""]:
+    """Total variation of VM plane factors: mean squared difference of neighbours along both plane axes
+    (TensoRF `TV_loss_density` / `TV_loss_app`, https://github.com/apchenstu/TensoRF/blob/main/models/tensoRF.py)."""
+    dh = (planes[..., 1:, :] - planes[..., :-1, :]).pow(2).mean()
+    dw = (planes[..., :, 1:] - planes[..., :, :-1]).pow(2).mean()
+    return dh + dw

@@ -1,0 +1,449 @@
+"""AgriNeRF model: coarse uniform + fine PDF samples through a shared-density TensoRF with RGB and thermal heads.
+
+Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Losses: L = L_rgb + L_th + L_reg
+(+ TensoRF L1 and TV regularisers), weights in `loss_coefficients`, raw terms in the metrics (as `depth_nerfacto`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Literal, Optional, Tuple, Type
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from nerfstudio.cameras.camera_optimizers import CameraOptimizer, CameraOptimizerConfig
+from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.configs.config_utils import to_immutable_dict
+from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.field_components.field_heads import FieldHeadNames
+from nerfstudio.model_components.ray_samplers import PDFSampler, UniformLinDispPiecewiseSampler, UniformSampler
+from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer
+from nerfstudio.model_components.scene_colliders import AABBBoxCollider, NearFarCollider
+from nerfstudio.models.base_model import Model, ModelConfig
+from nerfstudio.utils import colormaps, misc
+from torch import Tensor
+from torch.nn import Parameter
+
+from agrinerf_ns.model import losses
+from agrinerf_ns.model.field import AgriNeRFField
+from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
+
+Modality = Literal["rgb", "thermal", "events"]
+ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
+
+TABLE_IV_ABLATIONS: Dict[str, Tuple[Modality, ...]] = {
+    "RGB": ("rgb",),
+    "RGB+Events": ("rgb", "events"),
+    "RGB+Thermal": ("rgb", "thermal"),
+    "Thermal": ("thermal",),
+    "Thermal+Events": ("thermal", "events"),
+    "All": ("rgb", "thermal", "events"),
+}
+"""The paper's Table IV rows as `--pipeline.model.modalities` values."""
+
+
+def normalise_modalities(names) -> Tuple[str, ...]:
+    """Canonical modality names ("event" is accepted for "events"), in ALL_MODALITIES order."""
+    canon = {"event" if n == "events" else n for n in names}
+    canon = {"events" if n == "event" else n for n in canon}
+    unknown = canon - set(ALL_MODALITIES)
+    if unknown:
+        raise ValueError(f"Unknown modalities {sorted(unknown)}; expected a subset of {ALL_MODALITIES}")
+    return tuple(m for m in ALL_MODALITIES if m in canon)
+
+
+@dataclass
+class AgriNeRFModelConfig(ModelConfig):
+    """AgriNeRF model config (defaults: the paper's settings)."""
+
+    _target: Type = field(default_factory=lambda: AgriNeRFModel)
+    """target class to instantiate"""
+    modalities: Tuple[Modality, ...] = ALL_MODALITIES
+    """Modalities to model; intersected with the dataset's. "rgb" builds the RGB head and L_rgb; "thermal" builds the
+    thermal head and L_th; "events" adds the event term of L_reg. The thermal (cross-spectral) head is also built for
+    "events" without "thermal" (Table IV "RGB+Events": it is then learnt from L_reg alone). Table IV rows:
+    rgb | rgb events | rgb thermal | thermal | thermal events | rgb thermal events."""
+    init_resolution: int = 128
+    """Initial resolution (per axis) of every TensoRF volume."""
+    final_resolution: int = 300
+    """Resolution after the last upsampling step."""
+    upsampling_iters: Tuple[int, ...] = (2000, 3000, 4000, 5500, 7000)
+    """Steps after which all volumes are upsampled (log-spaced resolutions from init to final, as TensoRF)."""
+    num_coarse_samples: int = 64
+    """Coarse samples per ray (density only, no gradient)."""
+    num_fine_samples: int = 64
+    """Fine samples per ray drawn from the coarse weights (PDF)."""
+    fine_include_coarse: bool = False
+    """Render from coarse + fine samples (NeRF style) instead of the fine samples alone (faster)."""
+    num_density_components: int = 16
+    """VM components of the shared density volume."""
+    num_rgb_components: int = 48
+    """VM components of the RGB appearance volume."""
+    rgb_appearance_dim: int = 27
+    """Feature size fed to MLP_RGB."""
+    num_thermal_components: int = 16
+    """VM components of the thermal appearance volume."""
+    thermal_appearance_dim: int = 12
+    """Feature size fed to MLP_THERMAL."""
+    thermal_view_dependent: bool = False
+    """Feed the viewing direction to MLP_THERMAL."""
+    mlp_width: int = 128
+    """Hidden width of MLP_RGB and MLP_THERMAL."""
+    density_shift: float = -1.0
+    """Added to the summed density features before the softplus."""
+    max_density: float = 1.0e4
+    """Densities are clamped here (no Inf in alpha compositing)."""
+    scene_contraction: bool = True
+    """Contract unbounded space (L-inf SceneContraction) so sky and far trees fit in the volumes; rays then run from
+    near_plane to far_plane. False: bounded scene box (rays clipped to it, like Nerfstudio's tensorf)."""
+    near_plane: float = 0.05
+    """Near plane of every ray."""
+    far_plane: float = 1000.0
+    """Far plane of every ray (scene contraction only)."""
+    background_color: Literal["last_sample", "black", "white"] = "last_sample"
+    """Colour (and thermal value) behind the last sample; "last_sample" uses the last sample's value."""
+    weight_threshold: float = 1.0e-4
+    """Fine samples whose rendering weight is below this skip the appearance heads (TensoRF's app mask)."""
+    occupancy_resolution: int = 64
+    """Cells per axis of the occupancy grid that prunes empty space (0: no pruning)."""
+    occupancy_update_iters: Tuple[int, ...] = (2000, 4000, 6000)
+    """Steps after which the occupancy grid is recomputed from the density volume."""
+    occupancy_density_threshold: float = 1.0e-3
+    """A cell whose density stays below this is empty."""
+    loss_coefficients: Dict[str, float] = to_immutable_dict(
+        {
+            "rgb_loss": 1.0,
+            "thermal_loss": 1.0,
+            "reg_rgb_loss": 1.0,
+            "reg_event_loss": 1.0,
+            "l1_reg": 5.0e-4,
+            "tv_reg_density": 1.0e-3,
+            "tv_reg_appearance": 1.0e-4,
+        }
+    )
+    """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus TensoRF L1/TV; 0 disables a term."""
+    camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
+    """Camera pose refinement (off by default)."""
+
+
+class AgriNeRFModel(Model):
+    """AgriNeRF: shared TensoRF geometry, RGB and cross-spectral thermal heads, built for the scene's modalities.
+
+    Args:
+        config: model config.
+        metadata (kwarg): the train dataset's metadata; its "modalities" (from the dataparser) are intersected with
+            `config.modalities`. Without it the dataset is taken to be RGB only.
+    """
+
+    config: AgriNeRFModelConfig
+
+    def __init__(self, config: AgriNeRFModelConfig, **kwargs) -> None:
+        metadata = kwargs.get("metadata") or {}
+        dataset_modalities = normalise_modalities(metadata.get("modalities", ("rgb",)))
+        wanted = normalise_modalities(config.modalities)
+        self.modalities: Tuple[str, ...] = tuple(m for m in wanted if m in dataset_modalities)
+        self.use_rgb = "rgb" in self.modalities
+        self.use_thermal = "thermal" in self.modalities
+        self.use_events = "events" in self.modalities
+        self.has_thermal_head = self.use_thermal or self.use_events
+        if not (self.use_rgb or self.use_thermal):
+            raise ValueError(
+                f"AgriNeRF needs RGB or thermal supervision: config modalities {wanted}, dataset modalities "
+                f"{dataset_modalities} leave {self.modalities}."
+            )
+        self.upsampling_resolutions: List[int] = (
+            np.round(
+                np.exp(
+                    np.linspace(
+                        np.log(config.init_resolution),
+                        np.log(config.final_resolution),
+                        len(config.upsampling_iters) + 1,
+                    )
+                )
+            )
+            .astype(int)
+            .tolist()[1:]
+        )
+        super().__init__(config=config, **kwargs)
+
+    # ------------------------------------------------------------------ setup
+    def populate_modules(self) -> None:
+        """Fields, samplers, renderers, colliders, metrics."""
+        super().populate_modules()
+        cfg = self.config
+
+        # fields
+        self.field = AgriNeRFField(
+            self.scene_box.aabb,
+            contraction=cfg.scene_contraction,
+            resolution=cfg.init_resolution,
+            num_density_components=cfg.num_density_components,
+            with_rgb=self.use_rgb,
+            with_thermal=self.has_thermal_head,
+            num_rgb_components=cfg.num_rgb_components,
+            rgb_appearance_dim=cfg.rgb_appearance_dim,
+            num_thermal_components=cfg.num_thermal_components,
+            thermal_appearance_dim=cfg.thermal_appearance_dim,
+            thermal_view_dependent=cfg.thermal_view_dependent,
+            mlp_width=cfg.mlp_width,
+            density_shift=cfg.density_shift,
+            max_density=cfg.max_density,
+            occupancy_resolution=cfg.occupancy_resolution,
+        )
+
+        # samplers
+        if cfg.scene_contraction:
+            self.sampler_coarse = UniformLinDispPiecewiseSampler(
+                num_samples=cfg.num_coarse_samples, single_jitter=False
+            )
+        else:
+            self.sampler_coarse = UniformSampler(num_samples=cfg.num_coarse_samples, single_jitter=False)
+        self.sampler_pdf = PDFSampler(
+            num_samples=cfg.num_fine_samples, single_jitter=False, include_original=cfg.fine_include_coarse
+        )
+
+        # renderers
+        self.renderer_accumulation = AccumulationRenderer()
+        self.renderer_depth = DepthRenderer(method="median")
+
+        # colliders
+        if cfg.scene_contraction:
+            self.collider = NearFarCollider(near_plane=cfg.near_plane, far_plane=cfg.far_plane)
+        else:
+            self.collider = AABBBoxCollider(scene_box=self.scene_box, near_plane=cfg.near_plane)
+
+        # metrics
+        from torchmetrics.functional import structural_similarity_index_measure
+        from torchmetrics.image import PeakSignalNoiseRatio
+        from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+        self.psnr = PeakSignalNoiseRatio(data_range=1.0)
+        self.ssim = structural_similarity_index_measure
+        self.lpips = LearnedPerceptualImagePatchSimilarity(normalize=True) if self.use_rgb else None
+
+        self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
+            num_cameras=self.num_train_data, device="cpu"
+        )
+
+    def get_param_groups(self) -> Dict[str, List[Parameter]]:
+        """Groups "fields" (MLPs and bases) and "encodings" (every TensoRF volume), plus camera_opt when enabled."""
+        heads = [h for h in (self.field.rgb_head, self.field.thermal_head) if h is not None]
+        groups: Dict[str, List[Parameter]] = {
+            "fields": [p for h in heads for p in h.mlp_parameters()],
+            "encodings": [p for vol in self.field.volumes().values() for p in vol.parameters()],
+        }
+        self.camera_optimizer.get_param_groups(param_groups=groups)
+        return groups
+
+    # --------------------------------------------------- resolution schedule
+    def resolution_at_step(self, step: int) -> int:
+        """Grid resolution after training step `step` has run (upsampling happens after its iteration)."""
+        done = sum(1 for it in self.config.upsampling_iters if it <= step)
+        return self.config.init_resolution if done == 0 else self.upsampling_resolutions[done - 1]
+
+    def upsample_volumes(self, resolution: int) -> List[Parameter]:
+        """Resize every volume to `resolution` in place; returns the resized Parameters."""
+        resized: List[Parameter] = []
+        for volume in self.field.volumes().values():
+            if volume.resolution != resolution:
+                volume.upsample_grid(resolution)
+                resized.extend(volume.parameters())
+        return resized
+
+    def update_to_step(self, step: int) -> None:
+        """Replays the schedule before a checkpoint of step `step` loads (its volumes have that step's size)."""
+        self.upsample_volumes(self.resolution_at_step(step))
+
+    def get_training_callbacks(
+        self, training_callback_attributes: TrainingCallbackAttributes
+    ) -> List[TrainingCallback]:
+        """Upsampling (all volumes, then Adam moments of the resized tensors reset) and occupancy updates."""
+        optimizers = training_callback_attributes.optimizers
+
+        def upsample(step: int) -> None:
+            resized = self.upsample_volumes(self.resolution_at_step(step))
+            if optimizers is None:
+                return
+            ids = {id(p) for p in resized}
+            for optimizer in optimizers.optimizers.values():
+                for group in optimizer.param_groups:
+                    for param in group["params"]:
+                        if id(param) in ids:
+                            optimizer.state.pop(param, None)
+
+        def update_occupancy(step: int) -> None:
+            del step
+            self.field.update_occupancy(self.config.occupancy_density_threshold)
+
+        callbacks = [
+            TrainingCallback(
+                where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
+                iters=tuple(self.config.upsampling_iters),
+                func=upsample,
+            )
+        ]
+        if self.config.occupancy_resolution > 0 and self.config.occupancy_update_iters:
+            callbacks.append(
+                TrainingCallback(
+                    where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
+                    iters=tuple(self.config.occupancy_update_iters),
+                    func=update_occupancy,
+                )
+            )
+        return callbacks
+
+    # -------------------------------------------------------------- forward
+    def _background(self, values: Float[Tensor, "rays samples c"]) -> Float[Tensor, "rays c"]:
+        if self.config.background_color == "last_sample":
+            return values[:, -1, :]
+        fill = 1.0 if self.config.background_color == "white" else 0.0
+        return torch.full_like(values[:, -1, :], fill)
+
+    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, Tensor]:
+        """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold."""
+        if self.training:
+            self.camera_optimizer.apply_to_raybundle(ray_bundle)
+        with torch.no_grad():
+            samples_coarse = self.sampler_coarse(ray_bundle)
+            density_coarse, _ = self.field.get_density(samples_coarse)
+            weights_coarse = torch.nan_to_num(samples_coarse.get_weights(density_coarse))
+        samples = self.sampler_pdf(ray_bundle, samples_coarse, weights_coarse)
+        density, coords = self.field.get_density(samples)
+        weights = torch.nan_to_num(samples.get_weights(density))  # [rays, samples, 1]
+        num_rays, num_samples = weights.shape[:2]
+
+        selected = weights[..., 0] > self.config.weight_threshold
+        if self.config.background_color == "last_sample":
+            selected[:, -1] = True
+        directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
+        head_values = self.field.appearance_at(coords[selected], directions[selected])
+
+        accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
+        outputs: Dict[str, Tensor] = {
+            "accumulation": accumulation,
+            "depth": self.renderer_depth(weights, samples),
+        }
+        names = {FieldHeadNames.RGB: "rgb", AgriNeRFFieldHeadNames.THERMAL: "thermal"}
+        for head, values in head_values.items():
+            dense = weights.new_zeros(num_rays, num_samples, values.shape[-1])
+            dense[selected] = values.to(dense.dtype)
+            composite = (weights * dense).sum(dim=-2) + self._background(dense) * (1.0 - accumulation)
+            if not self.training:
+                composite = composite.clamp(0.0, 1.0)
+            outputs[names[head]] = composite
+        return outputs
+
+    # --------------------------------------------------------------- losses
+    def _data_terms(self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """Raw (unweighted) data loss terms for the modalities this model uses and the batch carries."""
+        coef = self.config.loss_coefficients
+        terms: Dict[str, Tensor] = {}
+        image = batch["image"][..., :3].to(self.device) if "image" in batch else None
+        if self.use_rgb and image is not None:
+            terms["rgb_loss"] = losses.rgb_loss(outputs["rgb"], image)
+        if not self.has_thermal_head:
+            return terms
+        pred_th = outputs["thermal"]
+        if self.use_thermal and "thermal" in batch:
+            mask = batch.get("thermal_mask")
+            terms["thermal_loss"] = losses.thermal_loss(
+                pred_th, batch["thermal"].to(self.device), None if mask is None else mask.to(self.device)
+            )
+        if self.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
+            terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred_th, image)
+        if self.use_events and "event" in batch and coef.get("reg_event_loss", 0.0) > 0:
+            mask = batch.get("event_mask")
+            terms["reg_event_loss"] = losses.cross_spectral_event_term(
+                pred_th, batch["event"].to(self.device), None if mask is None else mask.to(self.device)
+            )
+        return terms
+
+    def _regularisers(self) -> Dict[str, Tensor]:
+        """TensoRF L1 (density volume) and TV (density / appearance planes) for the terms with a weight."""
+        coef = self.config.loss_coefficients
+        terms: Dict[str, Tensor] = {}
+        volumes = self.field.volumes()
+        if coef.get("l1_reg", 0.0) > 0:
+            density = volumes["density"]
+            terms["l1_reg"] = losses.l1_volume_loss(density.plane_coef, density.line_coef)
+        if coef.get("tv_reg_density", 0.0) > 0:
+            terms["tv_reg_density"] = losses.tv_plane_loss(volumes["density"].plane_coef)
+        if coef.get("tv_reg_appearance", 0.0) > 0:
+            appearance = [v.plane_coef for name, v in volumes.items() if name != "density"]
+            terms["tv_reg_appearance"] = sum(losses.tv_plane_loss(p) for p in appearance)
+        return terms
+
+    def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
+        """PSNR of RGB (and thermal) plus the raw loss terms (weighted only in `get_loss_dict`)."""
+        metrics: Dict[str, Tensor] = {}
+        if self.use_rgb and "image" in batch:
+            metrics["psnr"] = self.psnr(outputs["rgb"].detach(), batch["image"][..., :3].to(self.device).float())
+        metrics.update(self._data_terms(outputs, batch))
+        if "thermal_loss" in metrics:
+            metrics["thermal_psnr"] = -10.0 * torch.log10(metrics["thermal_loss"].detach().clamp(min=1e-10))
+        if self.training:
+            metrics.update(self._regularisers())
+        self.camera_optimizer.get_metrics_dict(metrics)
+        return metrics
+
+    def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
+        """Weighted loss terms: loss_coefficients x raw terms (from `metrics_dict` when given)."""
+        raw = dict(metrics_dict) if metrics_dict is not None else {}
+        if not any(k in raw for k in ("rgb_loss", "thermal_loss")):
+            raw.update(self._data_terms(outputs, batch))
+            if self.training:
+                raw.update(self._regularisers())
+        coef = self.config.loss_coefficients
+        loss_dict = {k: v for k, v in raw.items() if coef.get(k, 0.0) > 0}
+        self.camera_optimizer.get_loss_dict(loss_dict)
+        return misc.scale_dict(loss_dict, coef)
+
+    # ----------------------------------------------------------- evaluation
+    def get_image_metrics_and_images(
+        self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]
+    ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
+        """RGB: psnr, ssim, lpips; thermal: thermal_psnr, thermal_ssim (over the thermal mask). Images side by side."""
+        metrics: Dict[str, float] = {}
+        images: Dict[str, Tensor] = {
+            "accumulation": colormaps.apply_colormap(outputs["accumulation"]),
+            "depth": colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"]),
+        }
+        if self.use_rgb:
+            gt = batch["image"][..., :3].to(self.device).float()
+            pred = outputs["rgb"]
+            images["img"] = torch.cat([gt, pred], dim=1)
+            gt_c, pred_c = gt.permute(2, 0, 1)[None], pred.permute(2, 0, 1)[None]
+            metrics["psnr"] = float(self.psnr(pred_c, gt_c).item())
+            metrics["ssim"] = float(self.ssim(pred_c, gt_c).item())  # type: ignore[union-attr]
+            assert self.lpips is not None
+            metrics["lpips"] = float(self.lpips(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
+        if self.has_thermal_head:
+            pred_th = outputs["thermal"]
+            images["thermal"] = pred_th.expand(*pred_th.shape[:-1], 3)
+            if self.use_thermal and "thermal" in batch:
+                gt_th = batch["thermal"].to(self.device).float()
+                mask = batch.get("thermal_mask")
+                mask = torch.ones_like(gt_th) if mask is None else (mask.to(self.device).float() > 0.5).float()
+                mse = losses.thermal_loss(pred_th, gt_th, mask)
+                metrics["thermal_psnr"] = float((-10.0 * torch.log10(mse.clamp(min=1e-10))).item())
+                # outside the thermal camera's view the prediction is replaced by the truth before SSIM
+                filled = pred_th * mask + gt_th * (1.0 - mask)
+                metrics["thermal_ssim"] = float(
+                    self.ssim(filled.permute(2, 0, 1)[None], gt_th.permute(2, 0, 1)[None]).item()  # type: ignore
+                )
+                images["thermal"] = torch.cat([gt_th, pred_th], dim=1).expand(-1, -1, 3)
+        self.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
+        return metrics, images
+
+    def optimizer_groups_hold_current_parameters(self, optimizers: Optional[object]) -> bool:
+        """True when every optimizer references this model's current parameters (sanity check after upsampling)."""
+        if optimizers is None:
+            return True
+        current = {id(p) for p in self.parameters()}
+        return all(
+            id(p) in current
+            for opt in optimizers.optimizers.values()  # type: ignore[attr-defined]
+            for g in opt.param_groups
+            for p in g["params"]
+        )

@@ -1,0 +1,106 @@
+"""`MethodSpecification`s of the AgriNeRF presets, all built by one function (`agrinerf_trainer_config`).
+
+Every `ns-*` command imports this module (entry points `agrinerf`, `agrinerf-lite`), so it stays cheap and never
+raises; it must not import `nerfstudio.configs.method_configs` (that module loads the entry points: circular import).
+
+Presets:
+- `agrinerf`: the paper (1024 rays, 64 coarse + 64 fine samples, 30k steps, lr decayed x0.1 every 10k steps).
+- `agrinerf-lite`: fast on a CPU (smaller grids and MLPs, 32 + 32 samples, 2k steps).
+
+Table IV ablations of the paper are `--pipeline.model.modalities` values of either preset
+(see `agrinerf_ns.model.model.TABLE_IV_ABLATIONS`): RGB `rgb`; RGB+Events `rgb events`; RGB+Thermal `rgb thermal`;
+Thermal `thermal`; Thermal+Events `thermal events`; All `rgb thermal events` (the default).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Dict
+
+from nerfstudio.configs.base_config import ViewerConfig
+from nerfstudio.engine.optimizers import AdamOptimizerConfig
+from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
+from nerfstudio.plugins.types import MethodSpecification
+
+from agrinerf_ns.model.dataset import agrinerf_datamanager_config
+from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+
+def _optimizers(lr_fields: float, lr_encodings: float, max_steps: int) -> Dict[str, Dict[str, Any]]:
+    """Adam for the MLPs ("fields") and TensoRF volumes ("encodings"), x0.1 at 1/3 and 2/3 of training."""
+    milestones = (max_steps // 3, 2 * max_steps // 3)
+
+    def group(lr: float) -> Dict[str, Any]:
+        return {
+            "optimizer": AdamOptimizerConfig(lr=lr, eps=1e-15),
+            "scheduler": MultiStepSchedulerConfig(max_steps=max_steps, gamma=0.1, milestones=milestones),
+        }
+
+    return {
+        "fields": group(lr_fields),
+        "encodings": group(lr_encodings),
+        "camera_opt": {
+            "optimizer": AdamOptimizerConfig(lr=1e-4, eps=1e-15),
+            "scheduler": MultiStepSchedulerConfig(max_steps=max_steps, gamma=0.1, milestones=milestones),
+        },
+    }
+
+
+def agrinerf_trainer_config(
+    method_name: str,
+    max_num_iterations: int,
+    num_rays_per_batch: int = 1024,
+    lr_fields: float = 5e-3,
+    lr_encodings: float = 2e-2,
+    steps_per_eval_batch: int = 500,
+    steps_per_save: int = 2000,
+    **model_overrides: Any,
+) -> TrainerConfig:
+    """The one base of every preset: a `TrainerConfig` whose presets differ only in the arguments given here."""
+    return TrainerConfig(
+        method_name=method_name,
+        steps_per_eval_batch=steps_per_eval_batch,
+        steps_per_eval_image=steps_per_save,
+        steps_per_save=steps_per_save,
+        max_num_iterations=max_num_iterations,
+        mixed_precision=False,
+        pipeline=VanillaPipelineConfig(
+            datamanager=agrinerf_datamanager_config(
+                train_num_rays_per_batch=num_rays_per_batch, eval_num_rays_per_batch=num_rays_per_batch
+            ),
+            model=AgriNeRFModelConfig(eval_num_rays_per_chunk=1 << 13, **model_overrides),
+        ),
+        optimizers=_optimizers(lr_fields, lr_encodings, max_num_iterations),
+        viewer=ViewerConfig(num_rays_per_chunk=1 << 13, quit_on_train_completion=True),
+        vis="viewer",
+    )
+
+
+agrinerf = MethodSpecification(
+    config=agrinerf_trainer_config("agrinerf", max_num_iterations=30000),
+    description="AgriNeRF (paper settings): RGB + thermal + event TensoRF NeRF, 64+64 samples, 30k steps.",
+)
+
+agrinerf_lite = MethodSpecification(
+    config=agrinerf_trainer_config(
+        "agrinerf-lite",
+        max_num_iterations=2000,
+        steps_per_eval_batch=200,
+        steps_per_save=500,
+        init_resolution=32,
+        final_resolution=96,
+        upsampling_iters=(300, 600, 900),
+        num_coarse_samples=32,
+        num_fine_samples=32,
+        num_density_components=8,
+        num_rgb_components=16,
+        rgb_appearance_dim=16,
+        num_thermal_components=8,
+        thermal_appearance_dim=8,
+        mlp_width=64,
+        occupancy_resolution=32,
+        occupancy_update_iters=(500, 1000, 1500),
+    ),
+    description="AgriNeRF, fast CPU preset: small grids and MLPs, 32+32 samples, 2k steps.",
+)

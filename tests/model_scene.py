@@ -1,0 +1,108 @@
+"""A tiny, multi-view-consistent tri-modal scene for the model tests: a textured sphere under a sky.
+
+RGB: a checker-textured sphere; thermal: a warm sphere (warmer at the top) in a cold sky; event frames: the
+sphere's silhouette edges (0.5 = no change, as a signed polarity frame), masks valid except a left strip of the
+thermal frame (what the thermal camera did not see). Written as docs/formats.md describes the dataset folder.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Dict, Optional, Sequence
+
+import numpy as np
+from PIL import Image
+
+
+def _look_at(position: np.ndarray) -> np.ndarray:
+    """Camera-to-world (OpenGL: x right, y up, looking down -z) looking at the origin."""
+    forward = -position / np.linalg.norm(position)
+    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, position
+    return c2w
+
+
+def _save(path: Path, values: np.ndarray) -> None:
+    Image.fromarray((np.clip(values, 0.0, 1.0) * 255).round().astype(np.uint8)).save(path)
+
+
+def write_model_scene(
+    root: Path,
+    views: int = 10,
+    width: int = 64,
+    height: int = 48,
+    modalities: Sequence[str] = ("rgb", "thermal", "events"),
+    constant: Optional[Dict[str, float]] = None,
+) -> Path:
+    """Write the scene under `root` (images/, thermal/, events/, masks, transforms.json); returns `root`.
+
+    `constant` replaces a stream by a constant value in [0, 1] (keys "rgb", "thermal", "event") for extreme tests.
+    """
+    constant = constant or {}
+    folders = ["images"]
+    if "thermal" in modalities:
+        folders += ["thermal", "thermal_masks"]
+    if "events" in modalities:
+        folders += ["events", "event_masks"]
+    for folder in folders:
+        (root / folder).mkdir(parents=True, exist_ok=True)
+    focal = 0.9 * width
+    frames = []
+    for i in range(views):
+        angle = 2 * np.pi * i / views
+        c2w = _look_at(np.array([3.0 * np.cos(angle), 3.0 * np.sin(angle), 0.8]))
+        u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+        dirs = np.stack([(u - width / 2) / focal, -(v - height / 2) / focal, -np.ones_like(u)], -1) @ c2w[:3, :3].T
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+        origin = c2w[:3, 3]
+        b = dirs @ origin
+        disc = b**2 - (origin @ origin - 1.0)
+        hit = disc > 0
+        points = origin + (-b - np.sqrt(np.clip(disc, 0, None)))[..., None] * dirs
+        checker = (np.floor(points[..., 0] * 4) + np.floor(points[..., 1] * 4) + np.floor(points[..., 2] * 4)) % 2
+        sphere = np.stack([0.2 + 0.7 * checker, 0.3 + 0.2 * (1 - checker), 0.2 + 0.1 * points[..., 2]], -1)
+        sky = np.stack([0.5 + 0.3 * dirs[..., 2], 0.6 + 0.2 * dirs[..., 2], np.full_like(u, 0.9)], -1)
+        rgb = np.where(hit[..., None], sphere, sky)
+        name = f"frame_{i:05d}.png"
+        _save(root / "images" / name, np.full_like(rgb, constant["rgb"]) if "rgb" in constant else rgb)
+        frame = {"file_path": f"images/{name}", "transform_matrix": c2w.tolist()}
+        if "thermal" in modalities:
+            thermal = np.where(hit, 0.6 + 0.3 * points[..., 2], 0.1)
+            thermal = np.full_like(thermal, constant["thermal"]) if "thermal" in constant else thermal
+            mask = np.ones_like(thermal)
+            mask[:, : width // 8] = 0.0
+            _save(root / "thermal" / name, thermal)
+            _save(root / "thermal_masks" / name, mask)
+            frame.update(thermal_file_path=f"thermal/{name}", thermal_mask_path=f"thermal_masks/{name}")
+        if "events" in modalities:
+            edge = np.zeros_like(u, dtype=bool)
+            edge[:, 1:] |= hit[:, 1:] != hit[:, :-1]
+            edge[1:, :] |= hit[1:, :] != hit[:-1, :]
+            event = np.where(edge, 1.0, 0.5)
+            event = np.full_like(event, constant["event"]) if "event" in constant else event
+            _save(root / "events" / name, event)
+            _save(root / "event_masks" / name, np.ones_like(event))
+            frame.update(event_file_path=f"events/{name}", event_mask_path=f"event_masks/{name}")
+        frames.append(frame)
+    transforms = {
+        "camera_model": "OPENCV",
+        "fl_x": focal,
+        "fl_y": focal,
+        "cx": width / 2,
+        "cy": height / 2,
+        "w": width,
+        "h": height,
+        "frames": frames,
+        "agrinerf": {
+            "modalities": ["rgb"] + [m for m in ("thermal", "events") if m in modalities],
+            "events": {"window": 0.05, "representation": "signed polarity sum, 0.5 = no change"},
+            "thermal_rescale": {"method": "model test scene"},
+            "poses": {"source": "model test scene", "dropped_frames": []},
+        },
+    }
+    (root / "transforms.json").write_text(json.dumps(transforms, indent=2))
+    return root
