@@ -1,0 +1,153 @@
+"""Writing the dataset folder: atomic output directory, image files, transforms.json and transforms_thermal.json.
+
+Layout (docs/formats.md, "Dataset folder"):
+```
+OUT/transforms.json            RGB (file_path images/NNNNNN.png) + per-frame thermal/event keys + agrinerf block
+OUT/transforms_thermal.json    same frames and poses, file_path thermal/NNNNNN.png, mask_path thermal_masks/...
+OUT/images/  OUT/thermal/  OUT/thermal_masks/  OUT/events/ (PNG + NPZ)  OUT/event_masks/
+```
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Dict, Iterator, List, Optional
+
+import cv2
+import numpy as np
+from jaxtyping import Float
+
+
+class OutputExistsError(FileExistsError):
+    """The output folder exists and is not empty, and overwrite was not asked for."""
+
+
+def check_output(raw: Path, out: Path, overwrite: bool) -> None:
+    """Refuse to write into (or over) the raw folder, or over a non-empty folder without ``overwrite``."""
+    raw_r, out_r = raw.resolve(), out.resolve()
+    if out_r == raw_r or raw_r in out_r.parents or out_r in raw_r.parents:
+        raise ValueError(f"{out}: output must not be inside the raw folder {raw} (or contain it)")
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not overwrite:
+        raise OutputExistsError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
+
+
+@contextmanager
+def atomic_output_dir(out: Path, overwrite: bool) -> Iterator[Path]:
+    """Yield a temporary sibling of ``out``; on success rename it to ``out`` (replacing it when ``overwrite``),
+    on any error delete it, leaving ``out`` as it was."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if out.exists():
+        if any(out.iterdir()) and not overwrite:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise OutputExistsError(f"{out}: folder appeared while processing (pass --overwrite to replace it)")
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        out.rename(old)
+    tmp.rename(out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def write_png(path: Path, image: np.ndarray, rgb: bool = False) -> None:
+    """Write an 8-bit PNG (``rgb``: 3-channel input in RGB order)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if rgb else image
+    if not cv2.imwrite(str(path), img):
+        raise OSError(f"{path}: could not write image")
+
+
+def intrinsics_block(K: Float[np.ndarray, "3 3"], width: int, height: int) -> Dict:
+    """Nerfstudio camera keys for an undistorted pinhole camera.
+
+    Nerfstudio (like COLMAP) puts the centre of the top-left pixel at (0.5, 0.5); the calibration (OpenCV/Kalibr)
+    at (0, 0), so cx, cy get + 0.5.
+    """
+    return {
+        "camera_model": "OPENCV",
+        "fl_x": float(K[0, 0]),
+        "fl_y": float(K[1, 1]),
+        "cx": float(K[0, 2]) + 0.5,
+        "cy": float(K[1, 2]) + 0.5,
+        "w": int(width),
+        "h": int(height),
+        "k1": 0.0,
+        "k2": 0.0,
+        "p1": 0.0,
+        "p2": 0.0,
+    }
+
+
+def split_names(names: List[str], eval_every: int) -> Dict[str, List[str]]:
+    """Every ``eval_every``-th frame (starting with the 4th of each block, so both splits span the path) is held
+    out; val and test are the same list."""
+    if eval_every <= 1 or len(names) < 2:
+        return {"train_filenames": list(names), "val_filenames": list(names), "test_filenames": list(names)}
+    offset = min(eval_every // 2, len(names) - 1)
+    val = [n for i, n in enumerate(names) if i % eval_every == offset % eval_every]
+    if not val:
+        val = [names[-1]]
+    train = [n for n in names if n not in set(val)]
+    return {"train_filenames": train, "val_filenames": val, "test_filenames": list(val)}
+
+
+def write_transforms(
+    out: Path,
+    intrinsics: Dict,
+    frames: List[Dict],
+    agrinerf: Dict,
+    eval_every: int,
+) -> None:
+    """Write transforms.json (RGB) and, when frames carry thermal files, transforms_thermal.json."""
+    rgb_names = [f["file_path"] for f in frames]
+    meta = {**intrinsics, **split_names(rgb_names, eval_every), "frames": frames, "agrinerf": agrinerf}
+    _write_json(out / "transforms.json", meta)
+    if frames and all("thermal_file_path" in f for f in frames):
+        th_frames = []
+        for f in frames:
+            tf = {"file_path": f["thermal_file_path"], "transform_matrix": f["transform_matrix"]}
+            if "thermal_mask_path" in f:
+                tf["mask_path"] = f["thermal_mask_path"]
+            for key in ("timestamp", "rgb_file_path"):
+                if key in f:
+                    tf[key] = f[key]
+            tf["rgb_file_path"] = f["file_path"]
+            th_frames.append(tf)
+        th_names = [f["file_path"] for f in th_frames]
+        th_meta = {
+            **intrinsics,
+            **split_names(th_names, eval_every),
+            "frames": th_frames,
+            "agrinerf": {**agrinerf, "image_modality": "thermal"},
+        }
+        _write_json(out / "transforms_thermal.json", th_meta)
+
+
+def _write_json(path: Path, obj: Dict) -> None:
+    tmp = path.with_suffix(path.suffix + ".part")
+    tmp.write_text(json.dumps(obj, indent=2))
+    tmp.rename(path)
+
+
+def remove_files(out: Path, rel_paths: List[Optional[str]]) -> None:
+    """Delete dataset files (of frames that were dropped)."""
+    for rel in rel_paths:
+        if rel:
+            p = out / rel
+            if p.exists():
+                p.unlink()

@@ -1,0 +1,237 @@
+"""Camera poses: from the capture's odometry (``given``) or pycolmap SfM, in Nerfstudio's convention.
+
+Conventions: raw poses (odometry.txt, truth/poses.txt) are camera-to-world with OpenCV camera axes (x right, y down,
+z forward). Nerfstudio's ``transforms.json`` wants camera-to-world with OpenGL camera axes (x right, y up, z back):
+:func:`opencv_to_opengl` flips the camera's y and z columns. World axes are kept as they are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+from jaxtyping import Float
+
+from agrinerf_ns.process.readers import RawInputError, read_tum
+
+
+def opencv_to_opengl(c2w: Float[np.ndarray, "*b 4 4"]) -> Float[np.ndarray, "*b 4 4"]:
+    """Camera-to-world, OpenCV camera axes -> OpenGL camera axes (the conversion is its own inverse)."""
+    out = np.array(c2w, dtype=np.float64, copy=True)
+    out[..., :3, 1:3] *= -1
+    return out
+
+
+def match_times(
+    query: Float[np.ndarray, "n"], ref: Float[np.ndarray, "m"], tol: float
+) -> np.ndarray:
+    """Index into ``ref`` of the nearest time to each query time, or -1 when farther than ``tol``."""
+    idx = np.clip(np.searchsorted(ref, query), 1, max(1, len(ref) - 1))
+    if len(ref) == 1:
+        idx = np.zeros_like(idx)
+        best = idx
+    else:
+        left, right = idx - 1, idx
+        best = np.where(np.abs(ref[left] - query) <= np.abs(ref[right] - query), left, right)
+    out = np.where(np.abs(ref[best] - query) <= tol, best, -1)
+    return out.astype(np.int64)
+
+
+def poses_from_odometry(
+    odometry: Path, rgb_times: Float[np.ndarray, "n"], tol: float
+) -> Tuple[Float[np.ndarray, "n 4 4"], np.ndarray]:
+    """RGB camera-to-world (OpenCV axes) per RGB frame from a TUM file; second value: bool, frame has a pose."""
+    t, c2w = read_tum(odometry)
+    if np.any(np.diff(t) < 0):
+        raise RawInputError(f"{odometry}: times must not decrease")
+    idx = match_times(rgb_times, t, tol)
+    if np.all(idx < 0):
+        raise RawInputError(
+            f"{odometry}: no pose within {tol:.4f} s of any RGB frame (odometry {t[0]:.3f}..{t[-1]:.3f} s, "
+            f"RGB {rgb_times[0]:.3f}..{rgb_times[-1]:.3f} s): timestamps do not overlap"
+        )
+    poses = np.tile(np.eye(4), (len(rgb_times), 1, 1))
+    ok = idx >= 0
+    poses[ok] = c2w[idx[ok]]
+    return poses, ok
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# similarity alignment and pose errors
+
+
+def umeyama(src: Float[np.ndarray, "n 3"], dst: Float[np.ndarray, "n 3"]) -> Tuple[float, np.ndarray, np.ndarray]:
+    """Similarity (s, R, t) minimising sum ||dst - (s R src + t)||^2 (Umeyama 1991)."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / src.shape[0]
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    var_s = (xs**2).sum() / src.shape[0]
+    s = float(np.trace(np.diag(D) @ S) / max(var_s, 1e-12))
+    t = mu_d - s * R @ mu_s
+    return s, R, t
+
+
+def pose_errors(est_c2w: Float[np.ndarray, "n 4 4"], true_c2w: Float[np.ndarray, "n 4 4"]) -> Dict[str, float]:
+    """Align estimated camera centres to truth by a similarity, then rotation (deg) and translation errors
+    (truth units). Both sets in the same camera-axis convention."""
+    s, R, t = umeyama(est_c2w[:, :3, 3], true_c2w[:, :3, 3])
+    centres = (s * (R @ est_c2w[:, :3, 3].T)).T + t
+    trans_err = np.linalg.norm(centres - true_c2w[:, :3, 3], axis=1)
+    rot_est = R[None] @ est_c2w[:, :3, :3]
+    rel = np.einsum("nji,njk->nik", rot_est, true_c2w[:, :3, :3])
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    rot_err = np.degrees(np.arccos(cos))
+    return {
+        "rotation_deg_mean": float(rot_err.mean()),
+        "rotation_deg_max": float(rot_err.max()),
+        "translation_mean": float(trans_err.mean()),
+        "translation_max": float(trans_err.max()),
+        "scale": s,
+    }
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# SfM with pycolmap
+
+
+@dataclass
+class SfmConfig:
+    """pycolmap SfM settings tuned for small frames."""
+
+    max_num_features: int = 8192
+    """SIFT features per image."""
+    peak_threshold: float = 0.002
+    """SIFT peak threshold (COLMAP default 0.0067; lower finds more features on small, low-contrast frames)."""
+    upscale: int = 2
+    """Upsample images by this factor before SfM (intrinsics scaled to match, poses unaffected)."""
+    matcher: str = "exhaustive"
+    """exhaustive or sequential matching."""
+    sequential_overlap: int = 10
+    """Neighbours matched per image in sequential mode."""
+    min_num_matches: int = 15
+    """Minimum verified matches for an image pair."""
+    seed: int = 0
+    """Random seed for the mapper."""
+
+
+@dataclass
+class SfmResult:
+    """Per frame camera-to-world (OpenCV axes; identity where unregistered) and which frames registered."""
+
+    c2w: Float[np.ndarray, "n 4 4"]
+    registered: np.ndarray
+    source: str
+
+    @property
+    def num_registered(self) -> int:
+        return int(self.registered.sum())
+
+
+def run_sfm(
+    images: List[Float[np.ndarray, "h w c"]],
+    K: Float[np.ndarray, "3 3"],
+    work_dir: Path,
+    config: SfmConfig,
+    source: str,
+    masks: Optional[List[np.ndarray]] = None,
+) -> SfmResult:
+    """Feature extraction, matching and incremental mapping with pycolmap on ``images`` (uint8, one shared
+    pinhole camera with known, fixed intrinsics K). The largest reconstruction is kept."""
+    import cv2
+    import pycolmap
+
+    work_dir.mkdir(parents=True, exist_ok=True)
+    img_dir = work_dir / "images"
+    img_dir.mkdir(exist_ok=True)
+    mask_dir = work_dir / "masks"
+    names = []
+    for i, img in enumerate(images):
+        name = f"{i:06d}.png"
+        big = img
+        if config.upscale > 1:
+            big = cv2.resize(img, None, fx=config.upscale, fy=config.upscale, interpolation=cv2.INTER_CUBIC)
+        if big.ndim == 3:
+            big = cv2.cvtColor(big, cv2.COLOR_RGB2BGR)
+        cv2.imwrite(str(img_dir / name), big)
+        if masks is not None:
+            mask_dir.mkdir(exist_ok=True)
+            m = cv2.resize(masks[i], None, fx=config.upscale, fy=config.upscale, interpolation=cv2.INTER_NEAREST)
+            cv2.imwrite(str(mask_dir / f"{name}.png"), m)
+        names.append(name)
+    h, w = images[0].shape[:2]
+    s = config.upscale
+    # COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV and Kalibr at (0, 0)
+    fx, fy, cx, cy = K[0, 0] * s, K[1, 1] * s, (K[0, 2] + 0.5) * s, (K[1, 2] + 0.5) * s
+
+    db_path = work_dir / "database.db"
+    if db_path.exists():
+        db_path.unlink()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    reader.camera_params = f"{fx},{fy},{cx},{cy}"
+    if masks is not None:
+        reader.mask_path = str(mask_dir)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = config.max_num_features
+    extraction.sift.peak_threshold = config.peak_threshold
+    extraction.use_gpu = False
+    extraction.num_threads = 2
+    pycolmap.extract_features(
+        db_path, img_dir, camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader, extraction_options=extraction
+    )
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu = False
+    matching.num_threads = 2
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.min_num_inliers = config.min_num_matches
+    if config.matcher == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = config.sequential_overlap
+        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                                  verification_options=verification)
+    else:
+        pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
+
+    pipeline = pycolmap.IncrementalPipelineOptions()
+    pipeline.min_num_matches = config.min_num_matches
+    pipeline.ba_refine_focal_length = False
+    pipeline.ba_refine_principal_point = False
+    pipeline.ba_refine_extra_params = False
+    pipeline.num_threads = 2
+    pipeline.random_seed = config.seed
+    recs = pycolmap.incremental_mapping(db_path, img_dir, work_dir / "sparse", options=pipeline)
+    n = len(images)
+    c2w = np.tile(np.eye(4), (n, 1, 1))
+    registered = np.zeros(n, dtype=bool)
+    if not recs:
+        return SfmResult(c2w, registered, source)
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    for image in rec.images.values():
+        if not _is_registered(image):
+            continue
+        i = names.index(image.name)
+        w2c = np.eye(4)
+        w2c[:3, :4] = _cam_from_world_matrix(image)
+        c2w[i] = np.linalg.inv(w2c)
+        registered[i] = True
+    return SfmResult(c2w, registered, source)
+
+
+def _is_registered(image) -> bool:
+    val = getattr(image, "has_pose", None)
+    if val is None:
+        val = getattr(image, "registered", True)
+    return bool(val() if callable(val) else val)
+
+
+def _cam_from_world_matrix(image) -> np.ndarray:
+    cfw = image.cam_from_world
+    cfw = cfw() if callable(cfw) else cfw
+    return np.asarray(cfw.matrix())
