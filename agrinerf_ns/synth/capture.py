@@ -1,0 +1,215 @@
+"""Generate a raw tri-modal capture folder (docs/formats.md) with its truth from a :class:`SynthConfig`."""
+
+from __future__ import annotations
+
+import dataclasses
+from contextlib import nullcontext
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import numpy as np
+from jaxtyping import Float, Int
+
+from agrinerf_ns.synth import writer as W
+from agrinerf_ns.synth.config import SynthConfig, check_output_dir
+from agrinerf_ns.synth.raycast import Hits, PinholeRadtan, cast
+from agrinerf_ns.synth.rig import T0, THERMAL_DELAY, Rig, build_rig, frame_times, heldout_poses, odometry
+from agrinerf_ns.synth.scene import (
+    LIGHTING_PRESETS,
+    Lighting,
+    Scene,
+    build_scene,
+    fruit_ids,
+    luminance,
+    radiance,
+    temperature,
+)
+from agrinerf_ns.synth.sensors import EventSimulator, ThermalSensor, clean_rgb, exposure_gains, noisy_rgb
+
+THERMAL_SUPERSAMPLE = 2
+EVENT_EPS = 1e-6
+"""Offset of the event camera's log intensity, in the radiance units of the bright preset (mean ~0.1-0.3)."""
+BOX = Tuple[int, int, int, int, int, int]
+
+
+def make_scene(config: SynthConfig) -> Tuple[Scene, Rig]:
+    """The scene and rig of ``config`` (the scene covers the whole path with margin)."""
+    rig = build_rig(config)
+    length = config.speed * (config.views - 1) / config.fps
+    return build_scene(config.scene, config.seed, rig.start_x - 9.0, rig.start_x + length + 9.0), rig
+
+
+def render_radiance(
+    scene: Scene, cam: PinholeRadtan, T_wc: np.ndarray, light: Lighting, supersample: int = 1
+) -> Tuple[Float[np.ndarray, "h w 3"], Hits]:
+    """Linear radiance image (box-filtered from ``supersample``^2 rays per pixel) and the hits of the dense render."""
+    c = cam.scaled(supersample) if supersample > 1 else cam
+    hits = cast(scene.prims, c, T_wc)
+    rad = radiance(scene, hits, light).reshape(c.height, c.width, 3)
+    if supersample > 1:
+        s = supersample
+        rad = rad.reshape(cam.height, s, cam.width, s, 3).mean(axis=(1, 3))
+    return rad, hits
+
+
+def fruit_boxes(ids: Int[np.ndarray, "h w"], min_pixels: int) -> List[BOX]:
+    """(fruit, x0, y0, x1, y1, visible pixels) of every fruit with at least ``min_pixels`` visible pixels."""
+    h, w = ids.shape
+    flat = ids.ravel()
+    sel = np.nonzero(flat >= 0)[0]
+    if sel.size == 0:
+        return []
+    uniq, inv, counts = np.unique(flat[sel], return_inverse=True, return_counts=True)
+    xs, ys = sel % w, sel // w
+    x0 = np.full(uniq.size, w)
+    y0 = np.full(uniq.size, h)
+    x1 = np.full(uniq.size, -1)
+    y1 = np.full(uniq.size, -1)
+    np.minimum.at(x0, inv, xs)
+    np.minimum.at(y0, inv, ys)
+    np.maximum.at(x1, inv, xs)
+    np.maximum.at(y1, inv, ys)
+    return [(int(f), int(a), int(b), int(c), int(d), int(n))
+            for f, a, b, c, d, n in zip(uniq, x0, y0, x1, y1, counts, strict=True) if n >= min_pixels]
+
+
+def event_times(config: SynthConfig) -> Float[np.ndarray, " n"]:
+    """Sample times of the event camera: the path from half a frame before the first frame to half after the last."""
+    n = config.views * config.event_substeps
+    return T0 - 0.5 / config.fps + np.arange(n + 1) / (config.fps * config.event_substeps)
+
+
+def simulate_events(
+    config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, progress: Optional[object] = None
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Events (x, y, t_us, p) of the event camera along the continuous path."""
+    cam = rig.cams["event"]
+    rng = np.random.default_rng([config.seed, 47])
+    sim = EventSimulator(cam.width, cam.height, config.event_threshold, config.event_threshold_sigma,
+                         config.event_refractory_us, EVENT_EPS, rng)
+    times = event_times(config)
+    for k, t in enumerate(times):
+        hits = cast(scene.prims, cam, rig.pose(float(t), "event"))
+        lum = luminance(radiance(scene, hits, light))
+        if k == 0:
+            sim.reset(lum, float(t))
+        else:
+            sim.step(lum, float(t))
+        if progress is not None:
+            progress.advance(progress.task_ids[-1])  # type: ignore[attr-defined]
+    noise_hz = config.event_noise_hz * light.event_noise_scale
+    return sim.finish(float(times[0]), float(times[-1]), noise_hz, rng)
+
+
+def generate_capture(config: SynthConfig, out: Path, progress: bool = False) -> Path:
+    """Write the raw capture of ``config`` to ``out`` (absent or empty) atomically; returns ``out``.
+
+    Raises :class:`~agrinerf_ns.synth.config.SynthConfigError` for invalid arguments, before writing anything.
+    """
+    config.validate()
+    out = Path(out)
+    check_output_dir(out)
+    scene, rig = make_scene(config)
+    light = LIGHTING_PRESETS[config.lighting]
+    times = frame_times(config)
+    cam_rgb, cam_th = rig.cams["rgb"], rig.cams["thermal"]
+    H, Wd = cam_rgb.height, cam_rgb.width
+    s = config.rgb_supersample
+
+    # exposure from the first frame: the truth is auto-exposed, the camera is capped (dark stays dark)
+    rad0, _ = render_radiance(scene, cam_rgb, rig.pose(float(times[0])), light, s)
+    rad0_bright, _ = render_radiance(scene, cam_rgb, rig.pose(float(times[0])), LIGHTING_PRESETS["bright"], s)
+    gain, truth_gain = exposure_gains(float(luminance(rad0.reshape(-1, 3)).mean()),
+                                      float(luminance(rad0_bright.reshape(-1, 3)).mean()))
+
+    rng_rgb = np.random.default_rng([config.seed, 41])
+    rng_th = np.random.default_rng([config.seed, 43])
+    thermal = ThermalSensor.create(cam_th.width, cam_th.height, np.random.default_rng([config.seed, 44]))
+    n_steps = 2 * config.views + config.num_heldout + len(event_times(config))
+
+    if progress:
+        from rich.progress import Progress
+        ctx = Progress(transient=True)
+    else:
+        ctx = nullcontext()
+    with ctx as prog, W.atomic_folder(out) as tmp:
+        if prog is not None:
+            prog.add_task(f"synth {config.scene}/{config.lighting}", total=n_steps)
+        dirs = {d: tmp / d for d in ("rgb", "thermal", "events", "truth/rgb_clean", "truth/depth",
+                                     "truth/boxes_yolo", "truth/fruit_ids", "truth/heldout/boxes_yolo")}
+        for d in dirs.values():
+            d.mkdir(parents=True, exist_ok=True)
+        names = [W.frame_name(i) for i in range(config.views)]
+        poses, boxes_all = [], []
+        for i, t in enumerate(times):
+            T = rig.pose(float(t))
+            poses.append(T)
+            rad, hits = render_radiance(scene, cam_rgb, T, light, s)
+            if s > 1:
+                hits = cast(scene.prims, cam_rgb, T)
+            if config.motion_blur:
+                offs = np.linspace(-0.5, 0.5, 5) * light.exposure_s
+                rad_cam = np.mean([render_radiance(scene, cam_rgb, rig.pose(float(t + o)), light, s)[0]
+                                   for o in offs], axis=0)
+            else:
+                rad_cam = rad
+            W.write_png(dirs["rgb"] / names[i], noisy_rgb(rad_cam, gain, rng_rgb))
+            W.write_png(dirs["truth/rgb_clean"] / names[i], clean_rgb(rad, truth_gain))
+            np.save(dirs["truth/depth"] / names[i].replace(".png", ".npy"),
+                    hits.zdepth.reshape(H, Wd).astype(np.float32))
+            ids = fruit_ids(scene, hits).reshape(H, Wd)
+            W.write_png(dirs["truth/fruit_ids"] / names[i], (ids + 1).astype(np.uint16))
+            boxes = fruit_boxes(ids, config.min_box_pixels)
+            boxes_all.append(boxes)
+            (dirs["truth/boxes_yolo"] / names[i].replace(".png", ".txt")).write_text(W.yolo_lines(boxes, Wd, H))
+            if prog is not None:
+                prog.advance(prog.task_ids[-1])
+
+            # thermal: same trigger, own pose, supersampled temperatures -> counts
+            T_th = rig.pose(float(t) + THERMAL_DELAY, "thermal")
+            hth = cast(scene.prims, cam_th.scaled(THERMAL_SUPERSAMPLE), T_th)
+            temp = temperature(scene, hth).reshape(cam_th.height * THERMAL_SUPERSAMPLE, -1)
+            W.write_png(dirs["thermal"] / names[i], thermal.counts(temp, THERMAL_SUPERSAMPLE, rng_th))
+            if prog is not None:
+                prog.advance(prog.task_ids[-1])
+
+        W.write_timestamps(dirs["rgb"] / "timestamps.txt", names, times)
+        W.write_timestamps(dirs["thermal"] / "timestamps.txt", names, times + THERMAL_DELAY)
+        W.write_tum(tmp / "truth" / "poses.txt", times, poses)
+        W.write_tum(tmp / "odometry.txt", times, odometry(poses, config.seed))
+        W.write_json(tmp / "truth" / "boxes_coco.json", W.coco(boxes_all, names, Wd, H))
+
+        # held-out truth views off the path
+        ho_times, ho_poses, ho_boxes = [], [], []
+        ho_names = [W.frame_name(k) for k in range(config.num_heldout)]
+        for k, (t, T) in enumerate(heldout_poses(rig, config)):
+            rad, hits = render_radiance(scene, cam_rgb, T, light, s)
+            if s > 1:
+                hits = cast(scene.prims, cam_rgb, T)
+            W.write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, truth_gain))
+            boxes = fruit_boxes(fruit_ids(scene, hits).reshape(H, Wd), config.min_box_pixels)
+            ho_boxes.append(boxes)
+            (dirs["truth/heldout/boxes_yolo"] / ho_names[k].replace(".png", ".txt")).write_text(
+                W.yolo_lines(boxes, Wd, H))
+            ho_times.append(t)
+            ho_poses.append(T)
+            if prog is not None:
+                prog.advance(prog.task_ids[-1])
+        W.write_tum(tmp / "truth" / "heldout" / "poses.txt", ho_times, ho_poses)
+        W.write_json(tmp / "truth" / "heldout" / "boxes_coco.json", W.coco(ho_boxes, ho_names, Wd, H))
+
+        ex, ey, et, ep = simulate_events(config, scene, rig, light, prog)
+        ecam = rig.cams["event"]
+        W.write_events(dirs["events"] / "events.h5", ex, ey, et, ep, ecam.width, ecam.height)
+
+        W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0))
+        W.write_json(tmp / "truth" / "fruits.json", scene.fruits)
+        W.write_json(tmp / "truth" / "scene.json", {
+            "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
+            "temperatures_c": {k: round(v, 4) for k, v in scene.temps.items()},
+            "thermal_counts": {"offset_at_0c": 3500.0, "per_kelvin": 100.0},
+            "rgb_gain": gain, "truth_gain": truth_gain, "num_events": int(et.size),
+            "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
+            "world": "x along the row, y across it away from the rig, z up; metres",
+        })
+    return out

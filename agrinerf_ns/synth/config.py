@@ -1,0 +1,131 @@
+"""Configuration of a synthetic tri-modal capture: scene, lighting, rig and sensor sizes."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Optional, Tuple
+
+SCENES = ("orchard", "garden")
+LIGHTINGS = ("bright", "shadowed", "dusk", "dark")
+
+
+class SynthConfigError(ValueError):
+    """An invalid synthetic-capture argument (nothing has been written when this is raised)."""
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """A synthetic capture. The defaults are the documented default scene (40 frames, RGB 160x120)."""
+
+    scene: Literal["orchard", "garden"] = "orchard"
+    """Procedural scene: a row of fruit trees (orchard) or of staked fruiting plants (garden)."""
+    lighting: Literal["bright", "shadowed", "dusk", "dark"] = "bright"
+    """Visible lighting preset. Thermal is independent of it; events see the linear radiance (high dynamic range)."""
+    seed: int = 0
+    """Seed of everything random: scene layout, temperatures, path wobble, sensor noise."""
+    views: int = 40
+    """Number of RGB (and thermal) frames along the path."""
+    width: int = 160
+    """RGB image width in pixels."""
+    height: int = 120
+    """RGB image height in pixels."""
+    thermal_size: Optional[Tuple[int, int]] = None
+    """Thermal (width, height); None derives 320x256-like from the RGB size (half the RGB width)."""
+    event_size: Optional[Tuple[int, int]] = None
+    """Event camera (width, height); None derives a 16:9 sensor of 0.8x the RGB width."""
+    fps: float = 10.0
+    """Frame rate of the RGB and thermal cameras."""
+    speed: float = 0.75
+    """Rig speed along the row in m/s."""
+    heldout: Optional[int] = None
+    """Number of held-out truth views off the path; None gives max(2, views // 5)."""
+    event_substeps: int = 6
+    """Event-camera renders per frame interval (the continuous path is sampled this densely)."""
+    event_threshold: float = 0.2
+    """Mean log-intensity contrast threshold of the event pixels."""
+    event_threshold_sigma: float = 0.03
+    """Pixel-to-pixel standard deviation of the contrast threshold."""
+    event_refractory_us: int = 1000
+    """Refractory period of an event pixel in microseconds."""
+    event_noise_hz: float = 0.1
+    """Background-activity noise rate per pixel in Hz (scaled up in dim lighting)."""
+    motion_blur: bool = False
+    """Average several renders over the RGB exposure time (longer in dim lighting)."""
+    rgb_supersample: int = 1
+    """Supersampling factor per axis of the RGB renders (anti-aliasing)."""
+    min_box_pixels: int = 3
+    """A fruit gets a truth box in a view when at least this many of its pixels are visible."""
+
+    @staticmethod
+    def tiny(**overrides: object) -> "SynthConfig":
+        """The tiny test scene: 8 frames, RGB 64x48, thermal 32x26, events 52x30."""
+        base = dict(views=8, width=64, height=48, heldout=2, event_substeps=4)
+        base.update(overrides)
+        return SynthConfig(**base)  # type: ignore[arg-type]
+
+    def replace(self, **changes: object) -> "SynthConfig":
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
+
+    @property
+    def thermal_wh(self) -> Tuple[int, int]:
+        """Thermal resolution (width, height)."""
+        if self.thermal_size is not None:
+            return int(self.thermal_size[0]), int(self.thermal_size[1])
+        w = max(8, self.width // 2)
+        return w, max(8, round(w * 256 / 320))
+
+    @property
+    def event_wh(self) -> Tuple[int, int]:
+        """Event camera resolution (width, height)."""
+        if self.event_size is not None:
+            return int(self.event_size[0]), int(self.event_size[1])
+        w = max(8, round(self.width * 0.8))
+        return w, max(8, round(w * 9 / 16))
+
+    @property
+    def num_heldout(self) -> int:
+        """Number of held-out views."""
+        return max(2, self.views // 5) if self.heldout is None else self.heldout
+
+    def validate(self) -> None:
+        """Raise SynthConfigError naming the first invalid field."""
+        if self.scene not in SCENES:
+            raise SynthConfigError(f"unknown scene {self.scene!r}: choose one of {', '.join(SCENES)}")
+        if self.lighting not in LIGHTINGS:
+            raise SynthConfigError(f"unknown lighting {self.lighting!r}: choose one of {', '.join(LIGHTINGS)}")
+        if not isinstance(self.views, int) or self.views < 2:
+            raise SynthConfigError(f"views must be an integer >= 2, got {self.views!r}")
+        for name, (w, h) in (("RGB", (self.width, self.height)), ("thermal", self.thermal_wh), ("event", self.event_wh)):
+            if not (isinstance(w, int) and isinstance(h, int)) or w < 8 or h < 8:
+                raise SynthConfigError(f"{name} resolution must be at least 8x8 pixels, got {w}x{h}")
+            if w * h > 4096 * 4096:
+                raise SynthConfigError(f"{name} resolution {w}x{h} is too large for this renderer")
+        if not self.fps > 0:
+            raise SynthConfigError(f"fps must be positive, got {self.fps}")
+        if not self.speed > 0:
+            raise SynthConfigError(f"speed must be positive, got {self.speed}")
+        if self.num_heldout < 0:
+            raise SynthConfigError(f"heldout must be >= 0, got {self.heldout}")
+        if self.event_substeps < 1:
+            raise SynthConfigError(f"event_substeps must be >= 1, got {self.event_substeps}")
+        if not self.event_threshold > 0.01:
+            raise SynthConfigError(f"event_threshold must be > 0.01, got {self.event_threshold}")
+        if self.event_threshold_sigma < 0 or self.event_noise_hz < 0 or self.event_refractory_us < 0:
+            raise SynthConfigError("event_threshold_sigma, event_noise_hz and event_refractory_us must be >= 0")
+        if self.rgb_supersample < 1 or self.rgb_supersample > 4:
+            raise SynthConfigError(f"rgb_supersample must be in 1..4, got {self.rgb_supersample}")
+        if self.min_box_pixels < 1:
+            raise SynthConfigError(f"min_box_pixels must be >= 1, got {self.min_box_pixels}")
+
+
+def check_output_dir(out: Path) -> None:
+    """Raise SynthConfigError when ``out`` cannot receive a new capture (a file, or a non-empty folder)."""
+    out = Path(out)
+    if out.exists():
+        if not out.is_dir():
+            raise SynthConfigError(f"output {out} exists and is not a folder")
+        if any(out.iterdir()):
+            raise SynthConfigError(f"output folder {out} exists and is not empty")
