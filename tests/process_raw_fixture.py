@@ -22,8 +22,8 @@ DATA = Path(__file__).parent / "data" / "fieldscale-thermal"
 RGB_K = np.array([[80.0, 0, 31.5], [0, 80.0, 23.5], [0, 0, 1]])
 TH_K = np.array([[50.0, 0, 19.5], [0, 50.0, 15.5], [0, 0, 1]])
 EV_K = np.array([[70.0, 0, 27.5], [0, 70.0, 20.5], [0, 0, 1]])
-TH_DIST = np.array([-0.05, 0.01, 0.001, -0.001])
-FRUIT_UV = np.array([[20.0, 15.0], [44.0, 30.0], [32.0, 24.0]])  # RGB pixels of fruit centres (undistorted)
+TH_DIST = np.array([-0.15, 0.03, 0.002, -0.002])
+FRUIT_UV = np.array([[14.0, 11.0], [50.0, 36.0], [32.0, 24.0]])  # RGB pixels of fruit centres (undistorted)
 
 
 def _rot(ax: float, ay: float) -> np.ndarray:
@@ -35,7 +35,7 @@ def _rot(ax: float, ay: float) -> np.ndarray:
 def rig() -> Dict[str, np.ndarray]:
     """T_thermal_rgb and T_event_rgb (4x4)."""
     T_th = np.eye(4)
-    T_th[:3, :3] = _rot(0.01, -0.02)
+    T_th[:3, :3] = _rot(0.03, -0.05)
     T_th[:3, 3] = [-0.05, 0.01, 0.0]
     T_ev = np.eye(4)
     T_ev[:3, :3] = _rot(-0.01, 0.015)
@@ -114,14 +114,14 @@ def make_raw_capture(
         lines = []
         for i in range(n):
             val = texture_value(Pt[..., 0], Pt[..., 1], shifts[i])
-            counts = 2000 + 2000 * val
+            counts = 2000 + 600 * val
             # the real frame adds realistic structure/noise (sampled at the same plane points)
             rx = np.clip(((Pt[..., 0] + 1.5) * 200).astype(int), 0, real.shape[1] - 1)
             ry = np.clip(((Pt[..., 1] + 1.2) * 200).astype(int), 0, real.shape[0] - 1)
             counts += 0.1 * (real[ry, rx] - real.mean())
             for fx, fy in fruit_xy:
                 r2 = (Pt[..., 0] - fx) ** 2 + (Pt[..., 1] - fy) ** 2
-                counts += 3000 * np.exp(-r2 / (2 * 0.06**2))
+                counts += 3000 * np.exp(-r2 / (2 * 0.08**2))
             cv2.imwrite(str(root / "thermal" / f"{i:06d}.png"), np.clip(counts, 0, 65535).astype(np.uint16))
             lines.append(f"{i:06d}.png {times[i] + thermal_offset_s:.6f}")
         (root / "thermal" / "timestamps.txt").write_text("\n".join(lines) + "\n")

@@ -22,7 +22,7 @@ kept only as the flickering reference the tests compare against.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Dict, List, Literal, Optional, Sequence, Tuple
+from typing import Dict, Iterable, List, Literal, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -74,7 +74,7 @@ class ThermalRescaler:
         self.global_hi = 1.0
         self.min_range = 1.0
 
-    def fit(self, frames: Sequence[UInt16[np.ndarray, "h w"]] | List) -> "ThermalRescaler":
+    def fit(self, frames: Iterable[np.ndarray]) -> "ThermalRescaler":
         """``frames``: a sequence (or any re-iterable) of raw frames in time order."""
         cfg = self.config
         los, his, g_lo, g_hi = [], [], [], []
