@@ -1,0 +1,140 @@
+"""YOLOv8 fruit detector (Ultralytics, AGPL-3.0, optional extra), trained from scratch and run offline.
+
+The model is built from ``yolov8n.yaml`` (no pretrained weights, nothing downloaded). :func:`configure_offline` sets
+the environment and Ultralytics settings so that no network call, hub sync or experiment logger (Comet, W&B, MLflow,
+ClearML, DVC, Ray Tune, TensorBoard) runs. Ultralytics is imported only inside these functions.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Sequence, Tuple
+
+import numpy as np
+from jaxtyping import Float
+
+from agrinerf_ns.detect.boxes import list_images
+
+INSTALL_HINT = (
+    "Ultralytics is not installed. It is an optional extra (AGPL-3.0): run scripts/install_detect.sh "
+    "(keeps opencv-contrib-python-headless as the cv2 provider) or pip install 'agrinerf-ns[detect]'."
+)
+_OFFLINE_ENV = {
+    "YOLO_OFFLINE": "1",  # ultralytics.utils.is_online() -> False: no downloads, no hub, no update checks
+    "YOLO_VERBOSE": "False",
+    "COMET_MODE": "disabled",
+    "WANDB_MODE": "disabled",
+    "WANDB_DISABLED": "true",
+    "MLFLOW_TRACKING_URI": "",
+    "CLEARML_OFFLINE_MODE": "1",
+}
+_INTEGRATIONS = ("sync", "hub", "comet", "wandb", "mlflow", "clearml", "dvc", "raytune", "tensorboard", "neptune")
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Training settings of the YOLOv8 detector (the paper trains 250 epochs; CPU budgets use far fewer)."""
+
+    model: str = "yolov8n.yaml"
+    """Ultralytics model YAML (architecture only: built from scratch)."""
+    epochs: int = 50
+    imgsz: int = 128
+    """Training and inference image size (pixels, multiple of 32)."""
+    batch: int = 16
+    seed: int = 0
+    device: str = "cpu"
+    patience: int = 0
+    """Early-stopping patience in epochs (0: off)."""
+
+
+def configure_offline(config_dir: Path | None = None) -> None:
+    """Make Ultralytics run offline with every logger off. Call before training or prediction.
+
+    ``config_dir`` (``YOLO_CONFIG_DIR``) takes effect only if Ultralytics has not been imported yet; by default the
+    user's Ultralytics settings file is used and its integration switches are turned off.
+    """
+    for key, value in _OFFLINE_ENV.items():
+        os.environ.setdefault(key, value)
+    if config_dir is not None:
+        Path(config_dir).mkdir(parents=True, exist_ok=True)
+        os.environ.setdefault("YOLO_CONFIG_DIR", str(config_dir))
+    try:
+        from ultralytics import settings
+    except ImportError as err:
+        raise ImportError(INSTALL_HINT) from err
+    off = {key: False for key in _INTEGRATIONS if key in settings}
+    if any(settings.get(key) for key in off):
+        settings.update(off)
+
+
+def train_detector(data_yaml: Path, out_dir: Path, config: DetectorConfig = DetectorConfig()) -> Path:
+    """Train YOLOv8 from scratch on a YOLO dataset (``data.yaml``); returns the trained weights file."""
+    configure_offline()
+    from ultralytics import YOLO
+
+    out_dir = Path(out_dir).resolve()
+    model = YOLO(config.model)
+    model.train(
+        data=str(Path(data_yaml).resolve()),
+        epochs=config.epochs,
+        imgsz=config.imgsz,
+        batch=config.batch,
+        seed=config.seed,
+        deterministic=True,
+        device=config.device,
+        workers=0,
+        pretrained=False,
+        amp=False,
+        plots=False,
+        patience=config.patience if config.patience > 0 else config.epochs + 1,
+        project=str(out_dir.parent),
+        name=out_dir.name,
+        exist_ok=True,
+        verbose=False,
+    )
+    for name in ("best.pt", "last.pt"):
+        weights = out_dir / "weights" / name
+        if weights.is_file():
+            return weights
+    raise RuntimeError(f"{out_dir}: Ultralytics training finished without writing weights/best.pt or last.pt")
+
+
+def predict_folder(
+    weights: Path, image_dir: Path, imgsz: int = 128, conf: float = 0.001, device: str = "cpu", max_det: int = 100
+) -> Dict[str, Tuple[Float[np.ndarray, "n 4"], Float[np.ndarray, " n"], Tuple[int, int]]]:
+    """Run the detector on every image in ``image_dir``: stem -> (pixel xyxy boxes, scores, (width, height)).
+
+    ``conf`` is the lowest score kept (low, as for mAP); precision/recall thresholds are applied when scoring.
+    """
+    images = list_images(image_dir)
+    if not images:
+        raise FileNotFoundError(f"{image_dir}: empty render folder (no .png/.jpg images to detect on)")
+    if not Path(weights).is_file():
+        raise FileNotFoundError(f"{weights}: detector weights not found")
+    configure_offline()
+    from ultralytics import YOLO
+
+    model = YOLO(str(weights))
+    detections = {}
+    for chunk in _chunks(images, 16):
+        for path, result in zip(
+            chunk,
+            model.predict(
+                [str(p) for p in chunk], imgsz=imgsz, conf=conf, device=device, max_det=max_det, verbose=False
+            ),
+            strict=True,
+        ):
+            boxes = result.boxes
+            height, width = result.orig_shape
+            detections[path.stem] = (
+                boxes.xyxy.cpu().numpy().astype(np.float64).reshape(-1, 4),
+                boxes.conf.cpu().numpy().astype(np.float64).reshape(-1),
+                (int(width), int(height)),
+            )
+    return detections
+
+
+def _chunks(items: Sequence[Path], size: int) -> List[Sequence[Path]]:
+    return [items[i : i + size] for i in range(0, len(items), size)]
