@@ -1,0 +1,153 @@
+"""``agrinerf-detect``: downstream fruit detection on rendered views (paper Tables III and IV).
+
+Subcommands: ``evaluate`` (the whole benchmark from a plan file), ``render`` (held-out views of one run), ``train``
+(a detector on a scene's truth) and ``score`` (a folder of renders against the true boxes). Needs the optional
+``[detect]`` extra (Ultralytics, AGPL-3.0) for everything but ``render``.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import List, Literal, Optional
+
+import tyro
+from typing_extensions import Annotated
+
+from agrinerf_ns.detect.detector import DetectorConfig
+
+
+@dataclass
+class EvaluateCommand:
+    """Render, train detectors, detect and score every method of every scene in a plan; write the tables + picture.
+
+    Plan (JSON): {"scenes": [{"name": "orchard", "lighting": "dark", "raw": RAW, "dataset": DATASET,
+    "methods": [{"label": "Nerfacto (RGB)", "config": ".../config.yml", "output": "rgb"},
+    {"label": "Nerfacto (Thermal)", "config": ..., "output": "rgb", "detector": "thermal"},
+    {"label": "Ours (Cross-Spectral)", "config": ..., "output": "thermal"}]}]}. A method may give "renders" (a folder of
+    <frame>.png held-out views) instead of "config".
+    """
+
+    plan: Path
+    out: Path
+    """Output folder: table_<iii|iv>.md/.csv, metrics.json, detections.png, work/ (renders, YOLO sets, detectors)."""
+    table: Literal["III", "IV"] = "III"
+    """Table III (methods x lighting) or IV (modality ablations of one scene)."""
+    detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
+    conf_threshold: float = 0.25
+    """Score threshold for precision, recall, F1 and the picture."""
+    cross_spectral_fraction: float = 0.25
+    """Cross-spectral renders of training views added to the thermal detector's set (fraction of its size)."""
+    max_render_views: Optional[int] = None
+    reuse: bool = True
+    """Reuse renders and detector weights already in OUT/work."""
+
+    def main(self) -> None:
+        from rich.console import Console
+
+        from agrinerf_ns.detect.evaluate import EvalSettings, evaluate_plan, load_plan
+
+        settings = EvalSettings(
+            self.detector, self.conf_threshold, self.cross_spectral_fraction, self.max_render_views, self.reuse
+        )
+        command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+        written = evaluate_plan(load_plan(self.plan), self.out, settings, self.table, command)
+        console = Console()
+        console.print(written["markdown"].read_text())
+        for kind, path in written.items():
+            console.print(f"[green]wrote[/green] {kind}: {path}")
+
+
+@dataclass
+class RenderCommand:
+    """Render the held-out (eval split) views of a trained Nerfstudio run to OUT/<frame>.png."""
+
+    config: Path
+    """outputs/<experiment>/<method>/<timestamp>/config.yml"""
+    out: Path
+    output: Literal["rgb", "thermal"] = "rgb"
+    """"thermal" is AgriNeRF's cross-spectral rendering."""
+    split: Literal["eval", "train"] = "eval"
+    max_views: Optional[int] = None
+
+    def main(self) -> None:
+        from agrinerf_ns.detect.render import render_views
+
+        written = render_views(self.config, self.output, self.out, self.split, self.max_views)
+        print(f"wrote {len(written)} views to {self.out}")
+
+
+@dataclass
+class TrainCommand:
+    """Train a YOLOv8 detector from scratch on a scene's truth (RGB: truth/rgb_clean; thermal: dataset thermal)."""
+
+    raw: Path
+    """Raw capture with truth/boxes_yolo (agrinerf-synth output)."""
+    out: Path
+    modality: Literal["rgb", "thermal"] = "rgb"
+    dataset: Optional[Path] = None
+    """Processed dataset (needed for thermal)."""
+    exclude_renders: List[Path] = field(default_factory=list)
+    """Folders of held-out renders whose frames are left out of training."""
+    cross_spectral: List[Path] = field(default_factory=list)
+    """Folders of cross-spectral renders of training views to add to the thermal set."""
+    cross_spectral_fraction: float = 0.25
+    detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
+
+    def main(self) -> None:
+        from agrinerf_ns.detect.boxes import list_images
+        from agrinerf_ns.detect.evaluate import EvalSettings, MethodSpec, SceneSpec, train_scene_detector
+
+        if self.modality == "thermal" and self.dataset is None:
+            raise ValueError("--modality thermal needs --dataset (the processed dataset with thermal frames)")
+        exclude = sorted({p.stem for folder in self.exclude_renders for p in list_images(folder)})
+        scene = SceneSpec("scene", "", self.raw, self.dataset, [MethodSpec("detector", detector=self.modality)])
+        settings = EvalSettings(self.detector, cross_spectral_fraction=self.cross_spectral_fraction, reuse=False)
+        weights = train_scene_detector(scene, self.modality, exclude, self.cross_spectral, self.out, settings)
+        print(f"weights: {weights}")
+
+
+@dataclass
+class ScoreCommand:
+    """Detect on a folder of rendered views and score against the scene's true boxes (prints JSON)."""
+
+    raw: Path
+    renders: Path
+    weights: Path
+    imgsz: int = 128
+    conf_threshold: float = 0.25
+    out: Optional[Path] = None
+    """Also write the metrics JSON here."""
+
+    def main(self) -> None:
+        from agrinerf_ns.detect.evaluate import EvalSettings, score_render_folder
+
+        settings = EvalSettings(DetectorConfig(imgsz=self.imgsz), conf_threshold=self.conf_threshold)
+        metrics, _ = score_render_folder(self.raw, self.renders, self.weights, settings)
+        text = json.dumps(metrics.as_dict(), indent=2)
+        print(text)
+        if self.out is not None:
+            self.out.write_text(text)
+
+
+COMMANDS = {"evaluate": EvaluateCommand, "render": RenderCommand, "train": TrainCommand, "score": ScoreCommand}
+
+
+def entrypoint(args: Optional[List[str]] = None) -> None:
+    """Console script entry point: errors in the input are reported in one line, exit status 2."""
+    from agrinerf_ns.detect.boxes import MissingTruthError
+    from agrinerf_ns.detect.render import MissingOutputError
+
+    command = tyro.extras.subcommand_cli_from_dict(COMMANDS, args=args, description=__doc__)
+    try:
+        command.main()
+    except (MissingTruthError, MissingOutputError, FileNotFoundError, ValueError, ImportError) as err:
+        print(f"agrinerf-detect: error: {err}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,276 @@
+"""The detection benchmark: render held-out views, train detectors on truth, detect, score, write the tables.
+
+Per scene: every method's held-out (eval split) views are rendered (or taken from a folder); an RGB detector is trained
+on the clean RGB truth views and a thermal detector on the dataset's thermal frames plus some cross-spectral renders
+of training views (as the paper does), both without the held-out frames; each method's renders go through the
+detector of its modality and are scored against the true boxes.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Dict, List, Literal, Optional, Tuple
+
+from agrinerf_ns.detect.boxes import list_images, truth_label_files, truth_labels_for, yolo_to_xyxy
+from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector
+from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
+from agrinerf_ns.detect.render import MissingOutputError, Output, render_views
+from agrinerf_ns.detect.scoring import DetectionMetrics, ImageBoxes, score_detections
+from agrinerf_ns.detect.tables import ResultRow, write_tables
+from agrinerf_ns.detect.yolo_data import (
+    LabelledImage,
+    rendered_images,
+    rgb_truth_images,
+    subsample,
+    thermal_dataset_images,
+    write_yolo_dataset,
+)
+
+Modality = Literal["rgb", "thermal"]
+
+
+@dataclass
+class MethodSpec:
+    """One reconstruction to evaluate."""
+
+    label: str
+    """Row label, e.g. "Nerfacto (RGB)", "Ours (Cross-Spectral)"."""
+    output: Output = "rgb"
+    """Rendered output: "rgb", or "thermal" for the cross-spectral rendering."""
+    config: Optional[Path] = None
+    """Nerfstudio run config (outputs/.../config.yml) to render from."""
+    renders: Optional[Path] = None
+    """Or: a folder of already rendered held-out views named <frame>.png."""
+    detector: Optional[Modality] = None
+    """Detector to use; default "thermal" for output "thermal", else "rgb" (Nerfacto (Thermal): output rgb, detector
+    thermal)."""
+
+    def detector_modality(self) -> Modality:
+        return self.detector or ("thermal" if self.output == "thermal" else "rgb")
+
+
+@dataclass
+class SceneSpec:
+    """One scene: its raw capture (with truth/), its processed dataset, and the methods trained on it."""
+
+    name: str
+    lighting: str
+    raw: Path
+    dataset: Optional[Path] = None
+    """Processed dataset; needed for the thermal detector (its thermal frames are aligned to the RGB camera)."""
+    methods: List[MethodSpec] = field(default_factory=list)
+
+
+@dataclass
+class EvalSettings:
+    """Benchmark settings shared by all scenes."""
+
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    conf_threshold: float = 0.25
+    """Score threshold for precision, recall and F1 (mAPs use every detection down to 0.001)."""
+    cross_spectral_fraction: float = 0.25
+    """Cross-spectral training-view renders added to the thermal detector's set, as a fraction of its thermal frames."""
+    max_render_views: Optional[int] = None
+    """Render at most this many held-out views per method (None: all)."""
+    reuse: bool = True
+    """Reuse renders and detector weights already in the work folder."""
+
+
+@dataclass
+class SceneResult:
+    rows: List[ResultRow]
+    panels: Dict[str, Dict[str, PanelBoxes]]
+
+
+def load_plan(path: Path) -> List[SceneSpec]:
+    """Read a plan JSON: {"scenes": [{"name", "lighting", "raw", "dataset", "methods": [{"label", "output", "config" |
+    "renders", "detector"}]}]}. Relative paths are relative to the plan file."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise ValueError(f"{path}: cannot read the plan: {err}") from err
+    base = path.parent
+
+    def p(value: Optional[str]) -> Optional[Path]:
+        return None if value is None else (base / value if not Path(value).is_absolute() else Path(value))
+
+    scenes = []
+    for i, s in enumerate(data.get("scenes", [])):
+        try:
+            methods = [
+                MethodSpec(
+                    m["label"], m.get("output", "rgb"), p(m.get("config")), p(m.get("renders")), m.get("detector")
+                )
+                for m in s["methods"]
+            ]
+            scenes.append(SceneSpec(s["name"], s["lighting"], p(s["raw"]), p(s.get("dataset")), methods))
+        except KeyError as err:
+            raise ValueError(f"{path}: scene {i} lacks the key {err}") from err
+    if not scenes:
+        raise ValueError(f"{path}: the plan lists no scenes")
+    return scenes
+
+
+def check_scene(scene: SceneSpec) -> None:
+    """Fail early, naming the problem, before anything is trained or rendered."""
+    truth_label_files(scene.raw)  # raises MissingTruthError for a scene without truth boxes
+    if not scene.methods:
+        raise ValueError(f"scene {scene.name}: no methods to evaluate")
+    for m in scene.methods:
+        if m.output not in ("rgb", "thermal"):
+            raise ValueError(f"scene {scene.name}, {m.label}: output must be 'rgb' or 'thermal', got {m.output!r}")
+        if (m.config is None) == (m.renders is None):
+            raise ValueError(f"scene {scene.name}, {m.label}: give exactly one of config (a run) or renders (a folder)")
+        if m.renders is not None:
+            _check_render_folder(m.renders, m)
+        if m.detector_modality() == "thermal" and scene.dataset is None:
+            raise ValueError(
+                f"scene {scene.name}, {m.label}: the thermal detector is trained on the dataset's thermal frames; "
+                "give the scene's processed dataset (with thermal_file_path frames)"
+            )
+
+
+def _check_render_folder(folder: Path, method: MethodSpec) -> None:
+    if not Path(folder).is_dir() or not list_images(folder):
+        raise FileNotFoundError(f"{folder}: empty render folder (no .png/.jpg views) for {method.label}")
+    manifest = Path(folder) / "renders.json"
+    if manifest.is_file():
+        rendered = json.loads(manifest.read_text()).get("output")
+        if rendered != method.output:
+            raise MissingOutputError(
+                f"{folder}: holds '{rendered}' renders ({manifest}) but {method.label} asks for '{method.output}'"
+            )
+
+
+def _slug(text: str) -> str:
+    return "".join(ch if ch.isalnum() else "_" for ch in text).strip("_").lower()
+
+
+def _render(method: MethodSpec, out: Path, split: str, settings: EvalSettings) -> Path:
+    if settings.reuse and (out / "renders.json").is_file() and list_images(out):
+        return out
+    assert method.config is not None
+    max_views = settings.max_render_views if split == "eval" else None
+    render_views(method.config, method.output, out, split=split, max_views=max_views)  # type: ignore[arg-type]
+    return out
+
+
+def train_scene_detector(
+    scene: SceneSpec,
+    modality: Modality,
+    exclude: List[str],
+    cross_spectral: List[Path],
+    work: Path,
+    settings: EvalSettings,
+) -> Path:
+    """Train (or reuse) the scene's RGB or thermal detector without the held-out frames; returns its weights."""
+    run_dir = work / f"detector_{modality}"
+    for name in ("best.pt", "last.pt"):
+        if settings.reuse and (run_dir / "weights" / name).is_file():
+            return run_dir / "weights" / name
+    if modality == "rgb":
+        items: List[LabelledImage] = rgb_truth_images(scene.raw, exclude)
+    else:
+        assert scene.dataset is not None
+        items = thermal_dataset_images(scene.raw, scene.dataset, exclude)
+        extra: List[LabelledImage] = []
+        for folder in cross_spectral:
+            extra += [i for i in rendered_images(scene.raw, folder, "xspec") if i.image.stem not in set(exclude)]
+        count = settings.cross_spectral_fraction * len(items) / max(1, len(extra))
+        items += subsample(extra, min(1.0, count), settings.detector.seed)
+    data_yaml = write_yolo_dataset(work / f"yolo_{modality}", items)
+    return train_detector(data_yaml, run_dir, settings.detector)
+
+
+def score_render_folder(
+    raw: Path, renders: Path, weights: Path, settings: EvalSettings
+) -> Tuple[DetectionMetrics, Dict[str, PanelBoxes]]:
+    """Detect on every rendered view and score against the scene's true boxes."""
+    labels = truth_label_files(raw)
+    detections = predict_folder(weights, renders, imgsz=settings.detector.imgsz, device=settings.detector.device)
+    images, panels = [], {}
+    for path in list_images(renders):
+        boxes, scores, (width, height) = detections[path.stem]
+        true = yolo_to_xyxy(truth_labels_for(raw, path.stem, labels, path), width, height)
+        images.append(ImageBoxes(boxes, scores, true))
+        panels[path.stem] = PanelBoxes(path, true, boxes, scores)
+    return score_detections(images, conf_threshold=settings.conf_threshold), panels
+
+
+def evaluate_scene(scene: SceneSpec, work: Path, settings: EvalSettings) -> SceneResult:
+    """Render, train detectors, detect and score every method of one scene."""
+    check_scene(scene)
+    work = Path(work) / _slug(scene.name)
+    renders: Dict[str, Path] = {}
+    for m in scene.methods:
+        renders[m.label] = m.renders or _render(m, work / "renders" / _slug(m.label), "eval", settings)
+    held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
+    cross_spectral = [
+        _render(m, work / "train_renders" / _slug(m.label), "train", settings)
+        for m in scene.methods
+        if m.output == "thermal" and m.config is not None
+    ]
+    weights = {
+        modality: train_scene_detector(scene, modality, held_out, cross_spectral, work, settings)
+        for modality in sorted({m.detector_modality() for m in scene.methods})
+    }
+    rows, panels = [], {}
+    for m in scene.methods:
+        metrics, method_panels = score_render_folder(
+            scene.raw, renders[m.label], weights[m.detector_modality()], settings
+        )
+        rows.append(ResultRow(scene.name, scene.lighting, m.label, metrics))
+        panels[m.label] = method_panels
+    return SceneResult(rows, panels)
+
+
+def machine_note(command: str) -> str:
+    """Footer for the tables: the command and the machine."""
+    import torch
+
+    try:
+        import ultralytics
+
+        yolo = ultralytics.__version__
+    except ImportError:  # pragma: no cover - the detector needs it anyway
+        yolo = "absent"
+    device = "CUDA " + torch.cuda.get_device_name(0) if torch.cuda.is_available() else "CPU"
+    return (
+        f"Command: `{command}`  \nMachine: {platform.machine()}, {platform.processor() or 'cpu'}, {device}; "
+        f"Python {platform.python_version()}, torch {torch.__version__}, ultralytics {yolo}. "
+        "mAPs x100, COCO 101-point interpolation; precision/recall/F1 at IoU 0.5."
+    )
+
+
+def evaluate_plan(
+    scenes: List[SceneSpec], out: Path, settings: EvalSettings, table: str, command: str, figure_views: int = 3
+) -> Dict[str, Path]:
+    """Evaluate every scene, then write ``out/table_<kind>.md|csv``, ``out/metrics.json`` and ``out/detections.png``."""
+    for scene in scenes:
+        check_scene(scene)
+    out = Path(out)
+    results = [evaluate_scene(scene, out / "work", settings) for scene in scenes]
+    rows = [row for r in results for row in r.rows]
+    md, csv_path = write_tables(rows, out, table, f"table_{table.lower()}", footer=machine_note(command))
+    figure = detection_figure(
+        results[0].panels, out / "detections.png", settings.conf_threshold, max_views=figure_views
+    )
+    metrics_json = out / "metrics.json"
+    metrics_json.write_text(
+        json.dumps(
+            {
+                "command": command,
+                "settings": asdict(settings),
+                "results": [
+                    {"scene": r.scene, "lighting": r.lighting, "method": r.method, **r.metrics.as_dict()} for r in rows
+                ],
+            },
+            indent=2,
+            default=str,
+        )
+    )
+    return {"markdown": md, "csv": csv_path, "figure": figure, "metrics": metrics_json}
