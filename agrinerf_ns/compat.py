@@ -1,0 +1,186 @@
+"""Compatibility shims that let Nerfstudio 1.1.5 run offline and on current PyTorch.
+
+Nerfstudio imports every installed plugin's entry points in every ``ns-*`` command, so the plugin activates these
+shims for all methods (``nerfacto`` and ``tensorf`` included). Each shim is narrow, checks whether it is needed, and
+lives here alone: when Nerfstudio ships a fix, delete the shim and its line in :func:`activate`.
+
+Shims:
+
+- :func:`patch_lpips_offline`: torchmetrics' LPIPS downloads AlexNet weights when a model is constructed. Where the
+  weights are not in the torch hub cache and cannot be fetched, LPIPS becomes *unavailable* (it returns NaN) with one
+  warning that says how to provide the weights, instead of crashing model construction. With the weights present
+  nothing changes.
+- :func:`allow_checkpoint_globals`: since torch 2.6 ``torch.load`` defaults to ``weights_only=True``; Nerfstudio's
+  checkpoints hold numpy scalars. Exactly those numpy globals are allow-listed (no blanket ``weights_only=False``).
+"""
+
+from __future__ import annotations
+
+import os
+import urllib.error
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, List, Optional, Tuple
+
+import torch
+
+ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
+"""File name torchvision gives the AlexNet weights that LPIPS(net_type='alex') loads."""
+
+LPIPS_UNAVAILABLE_MESSAGE = (
+    "LPIPS is unavailable: the AlexNet weights it needs are not in the torch hub cache ({path}) and could not be "
+    "downloaded. LPIPS metrics will be reported as NaN. To enable LPIPS offline, copy '{name}' into "
+    '$TORCH_HOME/hub/checkpoints on this machine (on a machine with internet, run once: python -c "import torchvision; '
+    "torchvision.models.alexnet(weights='DEFAULT')\" and copy ~/.cache/torch/hub/checkpoints/{name})."
+)
+
+
+@dataclass
+class _ShimState:
+    """What the shims changed, so that they can be undone (tests) and warn only once."""
+
+    lpips_originals: Optional[Tuple[Callable[..., Any], Callable[..., Any], Callable[..., Any]]] = None
+    lpips_warned: bool = False
+
+
+_STATE = _ShimState()
+
+
+def alexnet_weights_path() -> Path:
+    """Where torchvision looks for the AlexNet weights (honours ``TORCH_HOME``)."""
+    return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_WEIGHTS
+
+
+def lpips_shim_needed() -> bool:
+    """True when LPIPS construction would have to download its backbone weights."""
+    return not alexnet_weights_path().is_file()
+
+
+def _is_download_failure(err: BaseException) -> bool:
+    """Whether an exception (or one in its chain) is a failed fetch of remote weights."""
+    seen = set()
+    current: Optional[BaseException] = err
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        if isinstance(current, (urllib.error.URLError, ConnectionError, TimeoutError)):
+            return True
+        current = current.__cause__ or current.__context__
+    return False
+
+
+def _unavailable_value() -> torch.Tensor:
+    return torch.tensor(float("nan"))
+
+
+def patch_lpips_offline() -> bool:
+    """Make LPIPS construction survive missing, unfetchable weights. Returns True if the patch is installed.
+
+    The real construction is always tried first, so a machine with a network or a filled cache gets the real metric.
+    """
+    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity as LPIPS
+
+    if _STATE.lpips_originals is not None:
+        return True
+    _STATE.lpips_originals = (LPIPS.__init__, LPIPS.forward, LPIPS.compute)
+    original_init, original_forward, original_compute = _STATE.lpips_originals
+
+    def init(self: Any, *args: Any, **kwargs: Any) -> None:
+        try:
+            original_init(self, *args, **kwargs)
+            self._lpips_unavailable = False
+        except Exception as err:  # only a failed download is absorbed; every other error propagates
+            if not _is_download_failure(err):
+                raise
+            _warn_lpips_unavailable()
+            self._lpips_unavailable = True
+
+    def forward(self: Any, *args: Any, **kwargs: Any) -> Any:
+        if getattr(self, "_lpips_unavailable", False):
+            return _unavailable_value()
+        return original_forward(self, *args, **kwargs)
+
+    def compute(self: Any) -> Any:
+        if getattr(self, "_lpips_unavailable", False):
+            return _unavailable_value()
+        return original_compute(self)
+
+    LPIPS.__init__ = init
+    LPIPS.forward = forward
+    LPIPS.compute = compute
+    return True
+
+
+def unpatch_lpips() -> None:
+    """Restore torchmetrics' LPIPS as it was (used by tests)."""
+    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity as LPIPS
+
+    if _STATE.lpips_originals is None:
+        return
+    LPIPS.__init__, LPIPS.forward, LPIPS.compute = _STATE.lpips_originals
+    _STATE.lpips_originals = None
+
+
+def lpips_patched() -> bool:
+    """Whether the LPIPS shim is installed."""
+    return _STATE.lpips_originals is not None
+
+
+def _warn_lpips_unavailable() -> None:
+    if _STATE.lpips_warned:
+        return
+    _STATE.lpips_warned = True
+    warnings.warn(
+        LPIPS_UNAVAILABLE_MESSAGE.format(path=alexnet_weights_path(), name=ALEXNET_WEIGHTS),
+        RuntimeWarning,
+        stacklevel=3,
+    )
+
+
+def checkpoint_shim_needed(torch_version: Optional[str] = None) -> bool:
+    """True on torch >= 2.6, where ``torch.load`` defaults to ``weights_only=True``."""
+    version = torch_version if torch_version is not None else torch.__version__
+    major, minor = (int(part) for part in version.split("+")[0].split(".")[:2])
+    return (major, minor) >= (2, 6)
+
+
+def checkpoint_globals() -> List[Any]:
+    """The numpy globals a Nerfstudio checkpoint pickles: float64 numpy scalars in the schedulers' state.
+
+    Found by reading the pickle of ``nerfacto``, ``tensorf`` and ``agrinerf`` checkpoints (numpy scalar, its dtype and
+    the dtype's class). Nothing else is allowed: a checkpoint holding, say, a numpy array still fails to load.
+    """
+    import numpy as np
+
+    try:
+        from numpy.core.multiarray import scalar
+    except ImportError:  # numpy >= 2 keeps it under numpy._core
+        from numpy._core.multiarray import scalar  # type: ignore[no-redef]
+    return [scalar, np.dtype, type(np.dtype("float64"))]
+
+
+def allow_checkpoint_globals() -> bool:
+    """Allow-list the numpy globals in Nerfstudio checkpoints for ``weights_only`` loading. Returns True if applied."""
+    if not checkpoint_shim_needed():
+        return False
+    torch.serialization.add_safe_globals(checkpoint_globals())
+    return True
+
+
+def activate() -> None:
+    """Apply every shim that this environment needs. Safe to call more than once; never raises."""
+    if os.environ.get("AGRINERF_NO_COMPAT") == "1":
+        return
+    for shim in (_activate_lpips, allow_checkpoint_globals):
+        try:
+            shim()
+        except Exception as err:  # a plugin must never break `ns-*` commands
+            warnings.warn(
+                f"agrinerf-ns compatibility shim {shim.__name__} failed: {err!r}", RuntimeWarning, stacklevel=2
+            )
+
+
+def _activate_lpips() -> bool:
+    if not lpips_shim_needed():
+        return False
+    return patch_lpips_offline()

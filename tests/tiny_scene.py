@@ -1,0 +1,62 @@
+"""A tiny Nerfstudio dataset for tests of the Nerfstudio commands: a checker-textured sphere seen from a ring of views.
+
+Rendered by analytic ray casting so that the views are multi-view consistent (a NeRF can fit them).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+
+def _look_at(position: np.ndarray) -> np.ndarray:
+    """Camera-to-world (OpenGL axes: x right, y up, looking down -z) looking at the origin."""
+    forward = -position / np.linalg.norm(position)
+    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, position
+    return c2w
+
+
+def write_tiny_scene(root: Path, views: int = 8, width: int = 64, height: int = 48) -> Path:
+    """Write images/ and transforms.json under ``root``; returns ``root``."""
+    (root / "images").mkdir(parents=True, exist_ok=True)
+    focal = 0.9 * width
+    frames = []
+    for i in range(views):
+        angle = 2 * np.pi * i / views
+        c2w = _look_at(np.array([3.0 * np.cos(angle), 3.0 * np.sin(angle), 0.8]))
+        u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+        dirs_cam = np.stack([(u - width / 2) / focal, -(v - height / 2) / focal, -np.ones_like(u)], -1)
+        dirs = dirs_cam @ c2w[:3, :3].T
+        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
+        origin = c2w[:3, 3]
+        b = dirs @ origin
+        disc = b**2 - (origin @ origin - 1.0)
+        hit = disc > 0
+        t = -b - np.sqrt(np.clip(disc, 0, None))
+        points = origin + t[..., None] * dirs
+        checker = (np.floor(points[..., 0] * 4) + np.floor(points[..., 1] * 4) + np.floor(points[..., 2] * 4)) % 2
+        sphere = np.stack([0.2 + 0.7 * checker, 0.3 + 0.2 * (1 - checker), 0.2 + 0.1 * points[..., 2]], -1)
+        sky = np.stack([0.5 + 0.3 * dirs[..., 2], 0.6 + 0.2 * dirs[..., 2], np.full_like(u, 0.9)], -1)
+        image = np.where(hit[..., None], sphere, sky)
+        name = f"images/frame_{i:05d}.png"
+        Image.fromarray((np.clip(image, 0, 1) * 255).astype(np.uint8)).save(root / name)
+        frames.append({"file_path": name, "transform_matrix": c2w.tolist()})
+    meta = {
+        "camera_model": "OPENCV",
+        "fl_x": focal,
+        "fl_y": focal,
+        "cx": width / 2,
+        "cy": height / 2,
+        "w": width,
+        "h": height,
+        "frames": frames,
+    }
+    (root / "transforms.json").write_text(json.dumps(meta, indent=2))
+    return root
