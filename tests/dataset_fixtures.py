@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional, Sequence
+from typing import Any, Callable, Dict, Iterable, Optional, Sequence
 
 import numpy as np
+import torch
 from PIL import Image
 
 WIDTH, HEIGHT = 64, 48
@@ -117,3 +118,15 @@ def edit_transforms(root: Path, edit: Callable[[Dict[str, Any]], None]) -> None:
     meta = json.loads(path.read_text())
     edit(meta)
     path.write_text(json.dumps(meta, indent=2))
+
+
+def assert_batch_matches_dataset(batch: Dict[str, torch.Tensor], dataset: Any, keys: Iterable[str]) -> None:
+    """Every sampled value equals the dataset's full-image value at the pixel named by ``batch["indices"]``."""
+    c, y, x = batch["indices"].T
+    full = {i: dataset[i] for i in torch.unique(c).tolist()}
+    for key in keys:
+        assert batch[key].dtype == torch.float32, key
+        expected = torch.stack(
+            [full[ci][key][yi, xi] for ci, yi, xi in zip(c.tolist(), y.tolist(), x.tolist(), strict=True)]
+        )
+        assert torch.equal(batch[key], expected), key

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from dataset_fixtures import HEIGHT, WIDTH, write_tridata
+from dataset_fixtures import HEIGHT, WIDTH, assert_batch_matches_dataset, write_tridata
 from nerfstudio.data.datamanagers.base_datamanager import VanillaDataManager
 from nerfstudio.data.datamanagers.parallel_datamanager import ParallelDataManager
 from PIL import Image
@@ -31,18 +31,6 @@ def _datamanager(root: Path, rays: int = 512, parallel: bool = False, **datapars
         eval_num_rays_per_batch=rays,
     )
     return config.setup(device="cpu")
-
-
-def _assert_batch_matches_dataset(batch: dict, dataset: AgriNeRFDataset, keys) -> None:
-    """Every sampled value equals the dataset's full-image value at the pixel named by batch["indices"]."""
-    c, y, x = batch["indices"].T
-    full = {i: dataset[i] for i in torch.unique(c).tolist()}
-    for key in keys:
-        assert batch[key].dtype == torch.float32
-        expected = torch.stack(
-            [full[ci][key][yi, xi] for ci, yi, xi in zip(c.tolist(), y.tolist(), x.tolist(), strict=True)]
-        )
-        assert torch.equal(batch[key], expected), key
 
 
 def test_metadata_values_from_files(tmp_path: Path) -> None:
@@ -80,10 +68,10 @@ def test_sampled_batch_matches_images(tmp_path: Path) -> None:
         assert ray_bundle.shape == (512,)
         for key in EXTRA:
             assert batch[key].shape == (512, 1)
-        _assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *EXTRA))
+        assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *EXTRA))
     # eval: ray batches and full images carry the same keys
     _, eval_batch = datamanager.next_eval(0)
-    _assert_batch_matches_dataset(eval_batch, datamanager.eval_dataset, ("image", *EXTRA))
+    assert_batch_matches_dataset(eval_batch, datamanager.eval_dataset, ("image", *EXTRA))
     camera, image_batch = datamanager.next_eval_image(0)
     assert camera.shape == (1,)
     for key in EXTRA:
@@ -101,7 +89,7 @@ def test_absent_modalities_absent_from_batches(tmp_path: Path, modalities: tuple
     assert set(batch) == {"image", "indices", *present}
     _, image_batch = datamanager.next_eval_image(0)
     assert set(image_batch) == {"image", "image_idx", *present}
-    _assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *present))
+    assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *present))
 
 
 def test_config_modalities_drop_loaded_keys(tmp_path: Path) -> None:
@@ -135,7 +123,7 @@ def test_camera_res_scale_factor_resizes_like_the_image(tmp_path: Path) -> None:
         # resized exactly like the image: equal to the resized red channel up to the image's 8-bit rounding
         assert (data["thermal"][..., 0] - data["image"][..., 0]).abs().max() <= 1.0 / 255 + 1e-6
     _, batch = datamanager.next_train(0)
-    _assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *EXTRA))
+    assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *EXTRA))
 
 
 def test_dataparser_downscale_folder(tmp_path: Path) -> None:
@@ -205,7 +193,7 @@ def test_parallel_datamanager(tmp_path: Path) -> None:
         assert type(datamanager.train_dataset) is AgriNeRFDataset
         _, batch = datamanager.next_train(0)
         assert set(batch) == {"image", "indices", *EXTRA}
-        _assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *EXTRA))
+        assert_batch_matches_dataset(batch, datamanager.train_dataset, ("image", *EXTRA))
     finally:
         for process in datamanager.data_procs:
             process.terminate()
