@@ -106,3 +106,52 @@ def write_model_scene(
     }
     (root / "transforms.json").write_text(json.dumps(transforms, indent=2))
     return root
+
+
+def tiny_trainer_config(data: Path, output_dir: Path, max_num_iterations: int = 20, rays: int = 256, **model_overrides):
+    """A deep copy of the registered `agrinerf-lite` TrainerConfig shrunk for CPU tests (device cpu, few rays).
+
+    `model_overrides` set fields of the AgriNeRF model config (for example `modalities=("rgb",)`).
+    """
+    import copy
+
+    from agrinerf_ns.method_configs.agrinerf_methods import agrinerf_lite
+
+    config = copy.deepcopy(agrinerf_lite.config)
+    config.machine.device_type = "cpu"
+    config.machine.seed = 42
+    config.vis = "tensorboard"
+    config.output_dir = output_dir
+    config.data = data
+    config.pipeline.datamanager.data = data
+    config.max_num_iterations = max_num_iterations
+    config.steps_per_save = 10_000
+    config.steps_per_eval_batch = 10_000
+    config.steps_per_eval_image = 10_000
+    config.steps_per_eval_all_images = 10_000
+    config.save_only_latest_checkpoint = False
+    config.pipeline.datamanager.train_num_rays_per_batch = rays
+    config.pipeline.datamanager.eval_num_rays_per_batch = rays
+    model = config.pipeline.model
+    small = dict(
+        init_resolution=16,
+        final_resolution=24,
+        upsampling_iters=(),
+        num_coarse_samples=16,
+        num_fine_samples=16,
+        num_density_components=4,
+        num_rgb_components=8,
+        rgb_appearance_dim=8,
+        num_thermal_components=4,
+        thermal_appearance_dim=4,
+        mlp_width=32,
+        occupancy_resolution=16,
+        occupancy_update_iters=(),
+        eval_num_rays_per_chunk=4096,
+    )
+    small.update(model_overrides)
+    for key, value in small.items():
+        setattr(model, key, value)
+    for group in config.optimizers.values():
+        group["scheduler"].max_steps = max_num_iterations
+    return config

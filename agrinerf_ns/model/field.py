@@ -24,28 +24,6 @@ from torch import Tensor, nn
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 
 
-class InPlaceTensorVMEncoding(TensorVMEncoding):
-    """`TensorVMEncoding` whose `upsample_grid` keeps the same `nn.Parameter` objects.
-
-    Nerfstudio's version swaps in new Parameters, so every optimizer that holds the old ones must be rebuilt, and a
-    checkpoint resumed after an upsampling step loads its optimizer state onto the stale, smaller tensors. Resizing
-    `.data` in place keeps the optimizer's references valid; the caller drops the (now mis-shaped) Adam moments.
-    """
-
-    @torch.no_grad()
-    def upsample_grid(self, resolution: int) -> None:
-        """Resample the plane and line factors to `resolution` (bilinear, corners aligned) in place."""
-        self.plane_coef.data = F.interpolate(
-            self.plane_coef.data, size=(resolution, resolution), mode="bilinear", align_corners=True
-        )
-        self.line_coef.data = F.interpolate(
-            self.line_coef.data, size=(resolution, 1), mode="bilinear", align_corners=True
-        )
-        self.plane_coef.grad = None
-        self.line_coef.grad = None
-        self.resolution = resolution
-
-
 class AppearanceHead(nn.Module):
     """Appearance TensoRF -> linear basis -> MLP -> sigmoid, for one modality.
 
@@ -55,7 +33,7 @@ class AppearanceHead(nn.Module):
         appearance_dim: size of the feature after the linear basis (TensoRF's `B`).
         out_dim: output channels (3 for RGB, 1 for thermal).
         view_dependent: feed the encoded viewing direction to the MLP.
-        mlp_width: hidden width of the MLP (2 hidden layers).
+        mlp_width: hidden width of the MLP (Nerfstudio `MLP` with num_layers=2: one hidden layer, as tensorf's head).
     """
 
     def __init__(
@@ -68,7 +46,7 @@ class AppearanceHead(nn.Module):
         mlp_width: int = 128,
     ) -> None:
         super().__init__()
-        self.encoding = InPlaceTensorVMEncoding(resolution=resolution, num_components=num_components)
+        self.encoding = TensorVMEncoding(resolution=resolution, num_components=num_components)
         self.basis = nn.Linear(self.encoding.get_out_dim(), appearance_dim, bias=False)
         self.feature_encoding = NeRFEncoding(in_dim=appearance_dim, num_frequencies=2, min_freq_exp=0, max_freq_exp=2)
         self.direction_encoding: Optional[NeRFEncoding] = (
@@ -145,7 +123,7 @@ class AgriNeRFField(Field):
         self.spatial_distortion: Optional[SceneContraction] = (
             SceneContraction(order=float("inf")) if contraction else None
         )
-        self.density_encoding = InPlaceTensorVMEncoding(resolution=resolution, num_components=num_density_components)
+        self.density_encoding = TensorVMEncoding(resolution=resolution, num_components=num_density_components)
         self.rgb_head: Optional[AppearanceHead] = (
             AppearanceHead(resolution, num_rgb_components, rgb_appearance_dim, 3, True, mlp_width) if with_rgb else None
         )
@@ -163,7 +141,7 @@ class AgriNeRFField(Field):
         self.occupancy_enabled = occupancy_resolution > 0
 
     # ---------------------------------------------------------------- geometry
-    def volumes(self) -> Dict[str, InPlaceTensorVMEncoding]:
+    def volumes(self) -> Dict[str, TensorVMEncoding]:
         """Every TensoRF volume of the field, by name (the ones the resolution schedule upsamples)."""
         vols = {"density": self.density_encoding}
         if self.rgb_head is not None:

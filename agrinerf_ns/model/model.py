@@ -7,7 +7,7 @@ Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Loss
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Optional, Tuple, Type
+from typing import Dict, List, Literal, Tuple, Type
 
 import numpy as np
 import torch
@@ -16,12 +16,13 @@ from nerfstudio.cameras.camera_optimizers import CameraOptimizer, CameraOptimize
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.configs.config_utils import to_immutable_dict
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.engine.optimizers import Optimizers
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.model_components.ray_samplers import PDFSampler, UniformLinDispPiecewiseSampler, UniformSampler
 from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer
 from nerfstudio.model_components.scene_colliders import AABBBoxCollider, NearFarCollider
 from nerfstudio.models.base_model import Model, ModelConfig
-from nerfstudio.utils import colormaps, misc
+from nerfstudio.utils import colormaps
 from torch import Tensor
 from torch.nn import Parameter
 
@@ -216,11 +217,10 @@ class AgriNeRFModel(Model):
         # metrics
         from torchmetrics.functional import structural_similarity_index_measure
         from torchmetrics.image import PeakSignalNoiseRatio
-        from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
 
         self.psnr = PeakSignalNoiseRatio(data_range=1.0)
         self.ssim = structural_similarity_index_measure
-        self.lpips = LearnedPerceptualImagePatchSimilarity(normalize=True) if self.use_rgb else None
+        self._lazy_metrics: Dict[str, torch.nn.Module] = {}  # a plain dict: not a submodule, not in checkpoints
 
         self.camera_optimizer: CameraOptimizer = cfg.camera_optimizer.setup(
             num_cameras=self.num_train_data, device="cpu"
@@ -242,35 +242,57 @@ class AgriNeRFModel(Model):
         done = sum(1 for it in self.config.upsampling_iters if it <= step)
         return self.config.init_resolution if done == 0 else self.upsampling_resolutions[done - 1]
 
-    def upsample_volumes(self, resolution: int) -> List[Parameter]:
-        """Resize every volume to `resolution` in place; returns the resized Parameters."""
-        resized: List[Parameter] = []
+    def upsample_volumes(self, resolution: int) -> None:
+        """Resample every volume to `resolution` (Nerfstudio's `upsample_grid`: new Parameters)."""
         for volume in self.field.volumes().values():
             if volume.resolution != resolution:
                 volume.upsample_grid(resolution)
-                resized.extend(volume.parameters())
-        return resized
 
     def update_to_step(self, step: int) -> None:
         """Replays the schedule before a checkpoint of step `step` loads (its volumes have that step's size)."""
         self.upsample_volumes(self.resolution_at_step(step))
 
+    def sync_optimizers(self, optimizers: Optimizers) -> int:
+        """Point every optimizer at this model's current Parameters (upsampling replaces them); returns how many
+        were replaced. Adam moments move with a Parameter when their shape still fits (a checkpoint loaded after
+        `update_to_step`), and are dropped otherwise (right after an upsampling step: Adam re-initialises them).
+        """
+        current = self.get_param_groups()
+        replaced = 0
+        for name, optimizer in optimizers.optimizers.items():
+            if name not in current:
+                continue
+            params = optimizer.param_groups[0]["params"]
+            if len(optimizer.param_groups) != 1 or len(params) != len(current[name]):
+                raise RuntimeError(f"Optimizer '{name}' does not match the model's '{name}' parameter group")
+            for i, (old, new) in enumerate(zip(params, current[name], strict=True)):
+                if old is new:
+                    continue
+                state = optimizer.state.pop(old, None)
+                moments = [v for v in (state or {}).values() if isinstance(v, Tensor) and v.dim() > 0]
+                if state is not None and all(v.shape == new.shape for v in moments):
+                    optimizer.state[new] = state
+                params[i] = new
+                replaced += 1
+            optimizers.parameters[name] = current[name]
+        return replaced
+
     def get_training_callbacks(
         self, training_callback_attributes: TrainingCallbackAttributes
     ) -> List[TrainingCallback]:
-        """Upsampling (all volumes, then Adam moments of the resized tensors reset) and occupancy updates."""
+        """Upsampling of all volumes (optimizers re-pointed) and occupancy updates.
+
+        Called after a checkpoint has loaded: the optimizers, built before `update_to_step` replaced the volumes'
+        Parameters, are re-pointed here first (their loaded moments already have the new size).
+        """
         optimizers = training_callback_attributes.optimizers
+        if optimizers is not None:
+            self.sync_optimizers(optimizers)
 
         def upsample(step: int) -> None:
-            resized = self.upsample_volumes(self.resolution_at_step(step))
-            if optimizers is None:
-                return
-            ids = {id(p) for p in resized}
-            for optimizer in optimizers.optimizers.values():
-                for group in optimizer.param_groups:
-                    for param in group["params"]:
-                        if id(param) in ids:
-                            optimizer.state.pop(param, None)
+            self.upsample_volumes(self.resolution_at_step(step))
+            if optimizers is not None:
+                self.sync_optimizers(optimizers)
 
         def update_occupancy(step: int) -> None:
             del step
@@ -395,11 +417,22 @@ class AgriNeRFModel(Model):
             if self.training:
                 raw.update(self._regularisers())
         coef = self.config.loss_coefficients
-        loss_dict = {k: v for k, v in raw.items() if coef.get(k, 0.0) > 0}
+        # out of place (misc.scale_dict multiplies in place, which would also scale the raw terms in the metrics)
+        loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
         self.camera_optimizer.get_loss_dict(loss_dict)
-        return misc.scale_dict(loss_dict, coef)
+        return loss_dict
 
     # ----------------------------------------------------------- evaluation
+    @property
+    def lpips(self) -> torch.nn.Module:
+        """LPIPS (torchmetrics), built on first use: construction loads (or tries to fetch) AlexNet weights, which
+        training never needs. Kept out of the module tree, so checkpoints do not carry its weights."""
+        if "lpips" not in self._lazy_metrics:
+            from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+            self._lazy_metrics["lpips"] = LearnedPerceptualImagePatchSimilarity(normalize=True).to(self.device)
+        return self._lazy_metrics["lpips"]
+
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]
     ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
@@ -416,7 +449,6 @@ class AgriNeRFModel(Model):
             gt_c, pred_c = gt.permute(2, 0, 1)[None], pred.permute(2, 0, 1)[None]
             metrics["psnr"] = float(self.psnr(pred_c, gt_c).item())
             metrics["ssim"] = float(self.ssim(pred_c, gt_c).item())  # type: ignore[union-attr]
-            assert self.lpips is not None
             metrics["lpips"] = float(self.lpips(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
         if self.has_thermal_head:
             pred_th = outputs["thermal"]
@@ -435,15 +467,3 @@ class AgriNeRFModel(Model):
                 images["thermal"] = torch.cat([gt_th, pred_th], dim=1).expand(-1, -1, 3)
         self.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
         return metrics, images
-
-    def optimizer_groups_hold_current_parameters(self, optimizers: Optional[object]) -> bool:
-        """True when every optimizer references this model's current parameters (sanity check after upsampling)."""
-        if optimizers is None:
-            return True
-        current = {id(p) for p in self.parameters()}
-        return all(
-            id(p) in current
-            for opt in optimizers.optimizers.values()  # type: ignore[attr-defined]
-            for g in opt.param_groups
-            for p in g["params"]
-        )
