@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from contextlib import nullcontext
 from pathlib import Path
-from typing import List, Optional, Tuple
+from typing import List, Optional, Tuple, Union
 
 import numpy as np
 from jaxtyping import Float, Int
@@ -101,7 +101,7 @@ def simulate_events(
     return sim.finish(float(times[0]), float(times[-1]), noise_hz, rng)
 
 
-def generate_capture(config: SynthConfig, out: Path, progress: bool = False) -> Path:
+def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool = False) -> Path:
     """Write the raw capture of ``config`` to ``out`` (absent or empty) atomically; returns ``out``.
 
     Raises :class:`~agrinerf_ns.synth.config.SynthConfigError` for invalid arguments, before writing anything.

@@ -51,9 +51,8 @@ def run(cmd: SynthCommand) -> Path:
 
 def entrypoint() -> None:
     """Console script entry point."""
-    cmd = tyro.cli(SynthCommand)
     try:
-        run(cmd)
+        run(tyro.cli(SynthCommand))
     except SynthConfigError as err:
         print(f"agrinerf-synth: error: {err}", file=sys.stderr)
         sys.exit(2)

@@ -5,7 +5,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Optional, Tuple
+from typing import Optional, Tuple
+
+import tyro
+from typing_extensions import Annotated
 
 SCENES = ("orchard", "garden")
 LIGHTINGS = ("bright", "shadowed", "dusk", "dark")
@@ -19,10 +22,11 @@ class SynthConfigError(ValueError):
 class SynthConfig:
     """A synthetic capture. The defaults are the documented default scene (40 frames, RGB 160x120)."""
 
-    scene: Literal["orchard", "garden"] = "orchard"
+    scene: Annotated[str, tyro.conf.arg(metavar="{orchard,garden}")] = "orchard"
     """Procedural scene: a row of fruit trees (orchard) or of staked fruiting plants (garden)."""
-    lighting: Literal["bright", "shadowed", "dusk", "dark"] = "bright"
-    """Visible lighting preset. Thermal is independent of it; events see the linear radiance (high dynamic range)."""
+    lighting: Annotated[str, tyro.conf.arg(metavar="{bright,shadowed,dusk,dark}")] = "bright"
+    """Visible lighting: bright, shadowed, dusk or dark. Thermal is independent of it; events see the linear
+    radiance (high dynamic range)."""
     seed: int = 0
     """Seed of everything random: scene layout, temperatures, path wobble, sensor noise."""
     views: int = 40
@@ -57,6 +61,9 @@ class SynthConfig:
     """Supersampling factor per axis of the RGB renders (anti-aliasing)."""
     min_box_pixels: int = 3
     """A fruit gets a truth box in a view when at least this many of its pixels are visible."""
+
+    def __post_init__(self) -> None:
+        self.validate()
 
     @staticmethod
     def tiny(**overrides: object) -> "SynthConfig":

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List
+from typing import List, Union
 
 import h5py
 import numpy as np
 from PIL import Image, ImageDraw
+
+from agrinerf_ns.synth.sensors import event_frame
 
 
 def _read_times(path: Path) -> List[float]:
@@ -20,7 +22,7 @@ def _tile(img: np.ndarray, height: int) -> Image.Image:
     return im.resize((w, height), Image.NEAREST)
 
 
-def contact_sheet(raw: Path, out_png: Path, rows: int = 4, tile_height: int = 120) -> Path:
+def contact_sheet(raw: Union[str, Path], out_png: Union[str, Path], rows: int = 4, tile_height: int = 120) -> Path:
     """Write a PNG contact sheet of ``rows`` frames of the raw capture at ``raw``; returns ``out_png``."""
     raw = Path(raw)
     names = sorted(p.name for p in (raw / "rgb").glob("*.png"))
@@ -44,10 +46,10 @@ def contact_sheet(raw: Path, out_png: Path, rows: int = 4, tile_height: int = 12
         th_rgb = (np.stack([th**0.8, th**2.0, 0.4 * (1 - th) * th + th**6], -1) * 255).astype(np.uint8)
         t_us = times[i] * 1e6
         m = (et >= t_us - 0.5 * dt * 1e6) & (et < t_us + 0.5 * dt * 1e6)
+        net = event_frame(ex[m], ey[m], ep[m], ew, eh)
         ev = np.full((eh, ew, 3), 255, np.uint8)
-        on, off = m & (ep > 0), m & (ep == 0)
-        ev[ey[off], ex[off]] = (40, 80, 230)
-        ev[ey[on], ex[on]] = (220, 40, 40)
+        ev[net < 0] = (40, 80, 230)
+        ev[net > 0] = (220, 40, 40)
         tiles = [_tile(a, tile_height) for a in (rgb, clean, th_rgb, ev)]
         widths = [t.width for t in tiles]
         row = Image.new("RGB", (sum(t.width for t in tiles) + 4 * (len(tiles) - 1), tile_height), (0, 0, 0))
@@ -61,7 +63,7 @@ def contact_sheet(raw: Path, out_png: Path, rows: int = 4, tile_height: int = 12
     sheet = Image.new("RGB", (width, header + len(sheet_rows) * (tile_height + 4)), (0, 0, 0))
     draw = ImageDraw.Draw(sheet)
     x = 0
-    for label, tile in zip(("RGB", "RGB truth", "thermal", "events (red ON, blue OFF)"), widths, strict=True):
+    for label, tile in zip(("RGB", "RGB truth", "thermal", "events (net: red ON, blue OFF)"), widths, strict=True):
         draw.text((x + 2, 2), label, fill=(255, 255, 255))
         x += tile + 4
     for r, row in enumerate(sheet_rows):

@@ -132,7 +132,7 @@ def build_rig(config: SynthConfig) -> Rig:
     o1, o2 = np.array([0.07, 0.012, -0.005]), np.array([-0.065, -0.02, 0.004])
     T_c_c0 = {"rgb": np.eye(4), "thermal": make_T(R1, -R1 @ o1), "event": make_T(R2, -R2 @ o2)}
     if config.scene == "orchard":
-        distance, height, pitch = 3.0, 1.45, np.radians(2.0)
+        distance, height, pitch = 2.8, 1.45, np.radians(3.0)
     else:
         distance, height, pitch = 1.55, 0.95, np.radians(-12.0)
     wobble = np.stack([rng.uniform(0, 2 * np.pi, 5), rng.uniform(0.5, 1.0, 5)], -1)

@@ -44,17 +44,17 @@ def _dir(elev_deg: float, azim_deg: float) -> tuple:
 
 LIGHTING_PRESETS: Dict[str, Lighting] = {
     # sun high behind the rig: the camera sees the lit side of the row
-    "bright": Lighting("bright", _dir(55, -110), (2.6, 2.5, 2.3), (0.30, 0.48, 0.95), (0.85, 0.92, 1.05),
+    "bright": Lighting("bright", _dir(55.0, -110.0), (2.6, 2.5, 2.3), (0.30, 0.48, 0.95), (0.85, 0.92, 1.05),
                        (0.40, 0.48, 0.62), 2.0, 1.0, 0.002),
     # lower sun behind the row: the camera sees the shaded side, with sunlit patches through the gaps
-    "shadowed": Lighting("shadowed", _dir(28, 75), (2.8, 2.6, 2.3), (0.25, 0.40, 0.85), (0.75, 0.82, 0.95),
+    "shadowed": Lighting("shadowed", _dir(28.0, 75.0), (2.8, 2.6, 2.3), (0.25, 0.40, 0.85), (0.75, 0.82, 0.95),
                          (0.16, 0.19, 0.26), 3.0, 1.0, 0.004),
     # sun on the horizon, warm and dim
-    "dusk": Lighting("dusk", _dir(5, -150), (0.30, 0.15, 0.06), (0.035, 0.04, 0.08), (0.20, 0.11, 0.06),
+    "dusk": Lighting("dusk", _dir(5.0, -150.0), (0.30, 0.15, 0.06), (0.035, 0.04, 0.08), (0.20, 0.11, 0.06),
                      (0.030, 0.026, 0.035), 2.5, 2.0, 0.015),
     # night: faint sky light only
-    "dark": Lighting("dark", _dir(-20, 0), (0.0, 0.0, 0.0), (0.0006, 0.0008, 0.0015), (0.0010, 0.0011, 0.0015),
-                     (0.0005, 0.0006, 0.0008), 2.5, 5.0, 0.030),
+    "dark": Lighting("dark", _dir(-20.0, 0.0), (0.0, 0.0, 0.0), (0.0012, 0.0016, 0.003), (0.002, 0.0022, 0.003),
+                     (0.001, 0.0012, 0.0016), 2.5, 5.0, 0.030),
 }
 
 
@@ -90,7 +90,7 @@ def _plant(
     if kind == "orchard":
         h_env = rng.uniform(1.65, 2.0)
         env_r = np.array([rng.uniform(0.75, 0.95), rng.uniform(0.5, 0.65), rng.uniform(0.85, 1.1)])
-        n_clusters, cl_r, n_fruit, fruit_r = rng.integers(55, 70), (0.13, 0.25), rng.integers(16, 28), (0.038, 0.05)
+        n_clusters, cl_r, n_fruit, fruit_r = rng.integers(60, 75), (0.12, 0.23), rng.integers(22, 34), (0.042, 0.055)
         trunk_r = rng.uniform(0.055, 0.085)
         lean = rng.normal(0, 0.05, 2)
         top = np.array([x + lean[0], y + lean[1], h_env + 0.2])
@@ -121,7 +121,7 @@ def _plant(
         d = rng.normal(size=3)
         d[2] = -abs(d[2]) * 0.6 if rng.random() < 0.7 else d[2]  # more fruit in the lower canopy
         d /= np.linalg.norm(d)
-        c = center + d * env_r * rng.uniform(0.8, 1.02)
+        c = center + d * env_r * rng.uniform(0.85, 1.05)
         rr = rng.uniform(*fruit_r)
         r = np.array([rr, rr, rr * rng.uniform(0.85, 0.95)])
         col = np.clip(fruit_color * rng.uniform(0.8, 1.15, 3), 0, 1)
@@ -137,7 +137,7 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
         [np.array([0.62, 0.07, 0.05]), np.array([0.80, 0.33, 0.04]), np.array([0.55, 0.55, 0.08])]
         if kind == "orchard" else [np.array([0.72, 0.06, 0.04]), np.array([0.85, 0.45, 0.03])]
     )
-    fruit_color = varieties[int(rng.integers(len(varieties)))]
+    fruit_color = varieties[int(rng.choice(len(varieties), p=[0.5, 0.3, 0.2] if kind == "orchard" else [0.7, 0.3]))]
     air = float(rng.uniform(12.0, 24.0))
     leaf = air - float(rng.uniform(0.5, 2.0))
     delta = float(rng.uniform(2.0, 5.0)) * (1.0 if rng.random() < 0.5 else -1.0)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from typing import Tuple
 
 import numpy as np
-from jaxtyping import Float, Int, UInt8, UInt16
+from jaxtyping import Float, Int64, UInt8, UInt16
 from scipy.ndimage import gaussian_filter
 
 FULL_WELL_E = 8000.0
@@ -146,7 +146,7 @@ class EventSimulator:
 
     def finish(
         self, t_start: float, t_end: float, noise_hz: float, rng: np.random.Generator
-    ) -> Tuple[Int[np.ndarray, " m"], Int[np.ndarray, " m"], Int[np.ndarray, " m"], Int[np.ndarray, " m"]]:
+    ) -> Tuple[UInt16[np.ndarray, " m"], UInt16[np.ndarray, " m"], Int64[np.ndarray, " m"], UInt8[np.ndarray, " m"]]:
         """All events as (x uint16, y uint16, t int64 microseconds, p uint8), sorted by time."""
         if self._chunks:
             pix = np.concatenate([c[0] for c in self._chunks])

@@ -7,7 +7,7 @@ import os
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, Iterator, List, Sequence, Tuple
+from typing import Dict, Iterator, List, Sequence, Tuple, Union
 
 import h5py
 import numpy as np
@@ -32,7 +32,7 @@ def write_png(path: Path, img: np.ndarray) -> None:
         raise TypeError(f"cannot write {img.dtype} image to {path}")
 
 
-def write_timestamps(path: Path, names: Sequence[str], times: Sequence[float]) -> None:
+def write_timestamps(path: Path, names: Sequence[str], times: Union[np.ndarray, Sequence[float]]) -> None:
     path.write_text("".join(f"{n} {t:.6f}\n" for n, t in zip(names, times, strict=True)))
 
 
@@ -42,7 +42,7 @@ def tum_line(t: float, T: np.ndarray) -> str:
     return f"{t:.6f} {x:.6f} {y:.6f} {z:.6f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n"
 
 
-def write_tum(path: Path, times: Sequence[float], poses: Sequence[np.ndarray], header: str = "") -> None:
+def write_tum(path: Path, times: Union[np.ndarray, Sequence[float]], poses: Sequence[np.ndarray], header: str = "") -> None:
     path.write_text(header + "".join(tum_line(t, T) for t, T in zip(times, poses, strict=True)))
 
 
