@@ -87,6 +87,13 @@ class AgriNeRFDataParser(Nerfstudio):
                 _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
             metadata[metadata_key] = paths
 
+        sizes = {_frame_size(frame, meta) for frame in kept}
+        if len(sizes) > 1 and any(key in metadata for _, _, key, _ in FRAME_KEYS):
+            raise AgriNeRFDataError(
+                f"{transforms_path}: frames have different sizes {sorted(sizes)[:3]}; thermal and event frames need "
+                "one RGB resolution (Nerfstudio's variable-resolution batches cannot carry extra per-pixel keys)."
+            )
+
         modalities = tuple(
             m
             for m in ALL_MODALITIES

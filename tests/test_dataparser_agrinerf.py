@@ -144,6 +144,26 @@ def test_wrong_size_thermal_names_the_file(tmp_path: Path) -> None:
         _outputs(root)
 
 
+def test_variable_resolution_with_thermal_is_an_error(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path, modalities=("rgb", "thermal"))
+
+    def per_frame_sizes(meta: dict) -> None:
+        for frame in meta["frames"]:
+            frame["w"], frame["h"] = meta["w"], meta["h"]
+        meta["frames"][1]["w"] = 32
+        del meta["w"], meta["h"]
+
+    edit_transforms(root, per_frame_sizes)
+    narrow = np.zeros((48, 32), dtype=np.uint8)
+    for folder in ("thermal", "thermal_masks"):
+        Image.fromarray(narrow).save(root / folder / "frame_00001.png")
+    Image.fromarray(np.zeros((48, 32, 3), dtype=np.uint8)).save(root / "images" / "frame_00001.png")
+    with pytest.raises(AgriNeRFDataError, match="frames have different sizes"):
+        _outputs(root, eval_mode="all", modalities=("rgb", "thermal"))
+    # RGB alone keeps Nerfstudio's variable-resolution support
+    assert _outputs(root, eval_mode="all", modalities=("rgb",)).metadata["modalities"] == ("rgb",)
+
+
 def test_missing_file_names_the_file(tmp_path: Path) -> None:
     root = write_tridata(tmp_path)
     (root / "event_masks" / "frame_00004.png").unlink()
