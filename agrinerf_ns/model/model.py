@@ -357,7 +357,7 @@ class AgriNeRFModel(Model):
         return outputs
 
     # --------------------------------------------------------------- losses
-    def _data_terms(self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]) -> Dict[str, Tensor]:
+    def _data_terms(self, outputs: Dict[str, Tensor], batch: Dict[str, Any]) -> Dict[str, Tensor]:
         """Raw (unweighted) data loss terms for the modalities this model uses and the batch carries."""
         coef = self.config.loss_coefficients
         terms: Dict[str, Tensor] = {}
@@ -434,7 +434,7 @@ class AgriNeRFModel(Model):
         return self._lazy_metrics["lpips"]
 
     def get_image_metrics_and_images(
-        self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]
+        self, outputs: Dict[str, Tensor], batch: Dict[str, Any]
     ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         """RGB: psnr, ssim, lpips; thermal: thermal_psnr, thermal_ssim (over the thermal mask). Images side by side."""
         metrics: Dict[str, float] = {}
