@@ -198,3 +198,4 @@ def test_parallel_datamanager(tmp_path: Path) -> None:
         for process in datamanager.data_procs:
             process.terminate()
             process.join(timeout=10)
+        datamanager.data_procs = []  # already stopped: nothing left for ParallelDataManager.__del__ at exit
