@@ -168,6 +168,7 @@ def _pairs(
     bhi[some_behind] = big
     blo[all_behind] = big
     bhi[all_behind] = -big
+    _tighten_ellipsoids(prims, R_cw, origin, blo, bhi)
     x0, x1, y0, y1 = cam.pixel_boxes(blo, bhi)
     w = np.clip(x1 - x0, 0, None)
     h = np.clip(y1 - y0, 0, None)
@@ -182,6 +183,31 @@ def _pairs(
     wr = np.repeat(w, n)
     pix = (np.repeat(y0, n) + local // wr) * cam.width + np.repeat(x0, n) + local % wr
     return pix, prim
+
+
+def _tighten_ellipsoids(
+    prims: Primitives, R_cw: np.ndarray, origin: np.ndarray, blo: np.ndarray, bhi: np.ndarray
+) -> None:
+    """Shrink the bounds of ellipsoids wholly in front of the camera to their exact silhouette extents (in place).
+
+    A plane through the camera centre with normal n = (1, 0, -a) touches the ellipsoid (centre c, shape
+    Q = R diag(r^2) R^T in the camera frame) when (n . c)^2 = n^T Q n; its two roots a are the extreme x / z.
+    """
+    ne = prims.num_ellipsoids
+    c = (prims.ell_center - origin) @ R_cw.T
+    Q = np.einsum("ij,ej,kj->eik", R_cw, prims.ell_radii**2, R_cw)
+    ok = c[:, 2] - np.sqrt(Q[:, 2, 2]) > NEAR
+    if not ok.any():
+        return
+    A = c[:, 2] ** 2 - Q[:, 2, 2]
+    A = np.where(ok, A, 1.0)
+    for axis in (0, 1):
+        B = c[:, axis] * c[:, 2] - Q[:, axis, 2]
+        C = c[:, axis] ** 2 - Q[:, axis, axis]
+        sq = np.sqrt(np.clip(B * B - A * C, 0.0, None))
+        lo, hi = (B - sq) / A, (B + sq) / A
+        blo[:ne, axis] = np.where(ok, np.maximum(blo[:ne, axis], lo - 1e-9), blo[:ne, axis])
+        bhi[:ne, axis] = np.where(ok, np.minimum(bhi[:ne, axis], hi + 1e-9), bhi[:ne, axis])
 
 
 def cast(prims: Primitives, cam: PinholeRadtan, T_wc: Float[np.ndarray, "4 4"]) -> Hits:

@@ -232,16 +232,32 @@ def albedo(scene: Scene, hits: Hits, mat: np.ndarray) -> Float[np.ndarray, "n 3"
 
 
 def _canopy_transmittance(scene: Scene, p: np.ndarray, s: np.ndarray, density: float) -> np.ndarray:
-    """Sunlight reaching ``p`` through the canopy envelopes (soft shadows): exp(-density x chord length)."""
+    """Sunlight reaching ``p`` through the canopy envelopes (soft shadows): exp(-density x chord length).
+
+    Points are indexed by their coordinates across the sun direction, so each envelope is tested only against the
+    points whose sun ray passes within its bounding sphere.
+    """
     trans = np.ones(p.shape[0])
     if p.shape[0] == 0:
         return trans
-    # only envelopes near the points in x matter
-    xs = p[:, 0]
-    reach = 3.0 + 4.0 * np.hypot(s[0], s[1]) / max(s[2], 0.2)
-    near = (scene.env_center[:, 0] > xs.min() - reach) & (scene.env_center[:, 0] < xs.max() + reach)
-    for c, r in zip(scene.env_center[near], scene.env_radii[near] * 1.1, strict=True):
-        o = (p - c) / r
+    u = np.cross(s, [0.0, 0.0, 1.0])
+    u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-6 else np.array([1.0, 0.0, 0.0])
+    v = np.cross(s, u)
+    qu, qv = p @ u, p @ v
+    order = np.argsort(qu, kind="stable")
+    qu_sorted = qu[order]
+    log_t = np.zeros(p.shape[0])
+    for c, r in zip(scene.env_center, scene.env_radii * 1.1, strict=True):
+        big = r.max()
+        cu = c @ u
+        lo, hi = np.searchsorted(qu_sorted, [cu - big, cu + big])
+        if hi <= lo:
+            continue
+        idx = order[lo:hi]
+        idx = idx[np.abs(qv[idx] - c @ v) < big]
+        if idx.size == 0:
+            continue
+        o = (p[idx] - c) / r
         d = s / r
         a = d @ d
         b = o @ d
@@ -251,9 +267,8 @@ def _canopy_transmittance(scene: Scene, p: np.ndarray, s: np.ndarray, density: f
         sq = np.sqrt(np.where(ok, disc, 0.0))
         t0 = np.clip((-b - sq) / a, 0.0, None)
         t1 = np.clip((-b + sq) / a, 0.0, None)
-        chord = np.where(ok, t1 - t0, 0.0)
-        trans *= np.exp(-density * chord)
-    return trans
+        log_t[idx] -= density * np.where(ok, t1 - t0, 0.0)
+    return trans * np.exp(log_t)
 
 
 def _sky(light: Lighting, d: np.ndarray) -> np.ndarray:
