@@ -14,7 +14,7 @@ from agrinerf_ns.bench.ns_commands import ns_eval, ns_render_dataset, ns_train
 @pytest.mark.slow
 def test_nerfacto_train_render_eval_offline(tmp_path: Path) -> None:
     data = write_tiny_scene(tmp_path / "scene", views=10, width=64, height=48)
-    config = ns_train(
+    run = ns_train(
         "nerfacto",
         data,
         tmp_path / "outputs",
@@ -23,8 +23,9 @@ def test_nerfacto_train_render_eval_offline(tmp_path: Path) -> None:
         rays_per_batch=256,
         extra_args=["--pipeline.model.eval-num-rays-per-chunk", "4096"],
     )
-    checkpoints = list((config.parent / "nerfstudio_models").glob("step-*.ckpt"))
-    assert checkpoints, "ns-train wrote a checkpoint"
+    config = run.config
+    assert [step for step, _ in run.checkpoints()] == [5], "one checkpoint, at the last step"
+    assert run.peak_rss_mb > 100 and run.wall_s > 0 and run.s_per_step > 0
 
     renders = ns_render_dataset(config, tmp_path / "renders", outputs=["rgb"], split="test")
     assert list(renders.rglob("*.jpg")) or list(renders.rglob("*.png")), "ns-render wrote images"

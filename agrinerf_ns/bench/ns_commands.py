@@ -6,11 +6,17 @@ The benchmark, the demo and the tests drive Nerfstudio exactly as a user does, s
 from __future__ import annotations
 
 import json
+import os
+import re
+import resource
 import shutil
 import subprocess
 import sys
+import tempfile
+import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 
 class NerfstudioCommandError(RuntimeError):
@@ -28,55 +34,111 @@ def _ns_executable(name: str) -> str:
     return found
 
 
-def run_ns(name: str, args: Sequence[str], log_path: Optional[Path] = None, timeout: Optional[float] = None) -> str:
-    """Run ``ns-<name> args...``; return its combined output, raise :class:`NerfstudioCommandError` on failure."""
+@dataclass
+class CommandResult:
+    """What one ``ns-*`` run printed and cost: wall seconds and the peak resident memory of its process tree."""
+
+    output: str
+    wall_s: float
+    peak_rss_mb: float
+
+
+def run_ns(
+    name: str, args: Sequence[str], log_path: Optional[Path] = None, timeout: Optional[float] = None
+) -> CommandResult:
+    """Run ``ns-<name> args...``; raise :class:`NerfstudioCommandError` on failure.
+
+    Output goes to ``log_path`` (a temporary file if None). Peak memory is the child's ``ru_maxrss`` from ``wait4``:
+    the largest resident set of the command and of the worker processes it waited for.
+    """
     command = [_ns_executable(f"ns-{name}"), *map(str, args)]
-    proc = subprocess.run(
-        command, check=False, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
-    )
-    output = proc.stdout + proc.stderr
-    if log_path is not None:
-        log_path.parent.mkdir(parents=True, exist_ok=True)
-        log_path.write_text(" ".join(command) + "\n" + output)
-    if proc.returncode != 0:
-        raise NerfstudioCommandError(f"{' '.join(command)} exited {proc.returncode}:\n{output[-4000:]}")
-    return output
+    with tempfile.TemporaryDirectory() as tmp:
+        log = log_path if log_path is not None else Path(tmp) / "ns.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        start = time.perf_counter()
+        with open(log, "w") as handle:
+            handle.write(" ".join(command) + "\n")
+            handle.flush()
+            proc = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            status, usage = _wait(proc, timeout)
+        wall = time.perf_counter() - start
+        output = log.read_text(errors="replace")
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        raise NerfstudioCommandError(f"{' '.join(command)} exited {code}:\n{output[-4000:]}")
+    return CommandResult(output=output, wall_s=wall, peak_rss_mb=usage.ru_maxrss / 1024.0)
 
 
-def cpu_train_args(max_steps: int, rays_per_batch: int, output_dir: Path, experiment: str) -> List[str]:
-    """Common ``ns-train`` options for a headless run: device, steps, batch, where to write, no viewer."""
+def _wait(proc: subprocess.Popen, timeout: Optional[float]) -> Tuple[int, resource.struct_rusage]:
+    """Wait for ``proc`` with ``wait4`` (to get its own resource usage); kill it past ``timeout`` seconds."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while True:
+        pid, status, usage = os.wait4(proc.pid, os.WNOHANG if deadline is not None else 0)
+        if pid == proc.pid:
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            return status, usage
+        if deadline is not None and time.monotonic() > deadline:
+            proc.kill()
+            _, status, usage = os.wait4(proc.pid, 0)
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            raise NerfstudioCommandError(f"{proc.args} timed out after {timeout} s")
+        time.sleep(0.2)
+
+
+def cpu_train_args(
+    max_steps: int, rays_per_batch: int, output_dir: Path, experiment: str, steps_per_save: Optional[int] = None
+) -> List[str]:
+    """Common ``ns-train`` options for a headless run: device, steps, batch, where to write, no viewer, no
+    evaluation during training (it would be timed as training), a checkpoint every ``steps_per_save`` steps (all kept)."""
+    save_every = steps_per_save or max_steps
+    no_eval = str(10 * max(max_steps, 1))
     return [
-        "--machine.device-type",
-        "cpu" if not _cuda_available() else "cuda",
-        "--max-num-iterations",
-        str(max_steps),
-        "--steps-per-save",
-        str(max_steps),
-        "--steps-per-eval-batch",
-        str(max(max_steps, 1)),
-        "--steps-per-eval-image",
-        str(max(max_steps, 1)),
-        "--steps-per-eval-all-images",
-        str(10 * max(max_steps, 1)),
-        "--pipeline.datamanager.train-num-rays-per-batch",
-        str(rays_per_batch),
-        "--output-dir",
-        str(output_dir),
-        "--experiment-name",
-        experiment,
-        "--timestamp",
-        "run",
-        "--vis",
-        "tensorboard",
-        "--viewer.quit-on-train-completion",
-        "True",
-    ]
+        "--machine.device-type", "cuda" if _cuda_available() else "cpu",
+        "--max-num-iterations", str(max_steps),
+        "--steps-per-save", str(save_every),
+        "--save-only-latest-checkpoint", "False",
+        "--steps-per-eval-batch", no_eval,
+        "--steps-per-eval-image", no_eval,
+        "--steps-per-eval-all-images", no_eval,
+        "--pipeline.datamanager.train-num-rays-per-batch", str(rays_per_batch),
+        "--output-dir", str(output_dir),
+        "--experiment-name", experiment,
+        "--timestamp", "run",
+        "--vis", "tensorboard",
+        "--viewer.quit-on-train-completion", "True",
+    ]  # fmt: skip
 
 
 def _cuda_available() -> bool:
     import torch
 
     return torch.cuda.is_available()
+
+
+@dataclass
+class TrainRun:
+    """A finished ``ns-train`` run."""
+
+    config: Path
+    """The run's ``config.yml`` (for ``ns-eval``, ``ns-render``, ``eval_setup``)."""
+    wall_s: float
+    """Seconds from launching ``ns-train`` to its exit."""
+    peak_rss_mb: float
+    """Peak resident memory of the training process (MiB)."""
+    started_at: float
+    """``time.time()`` when ``ns-train`` was launched (checkpoint mtimes minus this give time-to-checkpoint)."""
+    s_per_step: float
+    """Mean seconds per training iteration, from Nerfstudio's own profiler (NaN if it printed none)."""
+
+    def checkpoints(self) -> List[Tuple[int, Path]]:
+        """(step, path) of every checkpoint, by step."""
+        found = [(int(p.stem.split("-")[1]), p) for p in (self.config.parent / "nerfstudio_models").glob("step-*.ckpt")]
+        return sorted(found)
+
+
+def _mean_iteration_seconds(output: str) -> float:
+    match = re.search(r"Trainer\.train_iteration:\s*([0-9.eE+-]+)", output)
+    return float(match.group(1)) if match else float("nan")
 
 
 def ns_train(
@@ -88,9 +150,10 @@ def ns_train(
     rays_per_batch: int = 1024,
     extra_args: Sequence[str] = (),
     dataparser_args: Sequence[str] = (),
+    steps_per_save: Optional[int] = None,
     timeout: Optional[float] = None,
-) -> Path:
-    """Train ``method`` on ``data`` with ``ns-train``; return the run's ``config.yml``.
+) -> TrainRun:
+    """Train ``method`` on ``data`` with ``ns-train``.
 
     ``extra_args`` go before the dataparser subcommand, ``dataparser_args`` after it (e.g. ``["nerfstudio-data"]``).
     """
@@ -98,15 +161,16 @@ def ns_train(
         method,
         "--data",
         str(data),
-        *cpu_train_args(max_steps, rays_per_batch, output_dir, experiment),
+        *cpu_train_args(max_steps, rays_per_batch, output_dir, experiment, steps_per_save),
         *extra_args,
         *dataparser_args,
     ]
-    run_ns("train", args, log_path=output_dir / experiment / f"{method}.train.log", timeout=timeout)
+    started_at = time.time()
+    result = run_ns("train", args, log_path=output_dir / experiment / f"{method}.train.log", timeout=timeout)
     config = output_dir / experiment / method / "run" / "config.yml"
     if not config.exists():
         raise NerfstudioCommandError(f"ns-train finished but wrote no {config}")
-    return config
+    return TrainRun(config, result.wall_s, result.peak_rss_mb, started_at, _mean_iteration_seconds(result.output))
 
 
 def ns_eval(config: Path, output_json: Path, timeout: Optional[float] = None) -> Dict[str, float]:

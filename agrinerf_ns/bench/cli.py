@@ -1,0 +1,194 @@
+"""``agrinerf-bench``: train each method on the same scenes and machine, evaluate, and write the trade-off.
+
+Every method is trained with ``ns-train`` (the real trainer) once per scene, saving checkpoints along the way; each
+checkpoint is one point of a quality-against-wall-time curve. Results are appended to ``results.csv`` after every
+run (resumable: finished runs are skipped), then ``results.md`` (table + summary) and ``tradeoff.png`` are written.
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import tyro
+from rich.console import Console
+from rich.progress import Progress
+
+from agrinerf_ns.bench import results
+from agrinerf_ns.bench.methods import METHODS, BenchMethod
+from agrinerf_ns.bench.ns_commands import ns_train
+from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
+
+CONSOLE = Console()
+
+
+@dataclass
+class BenchConfig:
+    """Speed/accuracy benchmark of AgriNeRF against Nerfacto (RGB), Nerfacto (Thermal) and TensoRF."""
+
+    out: Path = Path("outputs/bench")
+    """Folder for scenes, runs, results.csv, results.md and tradeoff.png."""
+    profile: str = "quick"
+    """quick (CPU, < 30 min), full (GPU, paper settings: 30k steps) or tiny (tests)."""
+    methods: Tuple[str, ...] = tuple(METHODS)
+    """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf)."""
+    scenes: Optional[Tuple[str, ...]] = None
+    """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
+    seed: int = 0
+    """Seed of the synthetic scenes."""
+    target_psnr: Optional[float] = None
+    """PSNR whose time-to-reach is reported; None: the lowest final PSNR among the RGB methods (all reach it)."""
+    results_csv: Optional[Path] = None
+    """Where results are appended; None: OUT/results.csv."""
+
+
+def device_name() -> str:
+    """The accelerator, or the CPU model and core count."""
+    import os
+
+    import torch
+
+    if torch.cuda.is_available():
+        return torch.cuda.get_device_name(0)
+    model = platform.processor() or "CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model} ({os.cpu_count()} cores, CPU)"
+
+
+def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tuple[Path, Path]:
+    """Synthesise and process one scene (cached under ``root``); returns (raw capture, dataset)."""
+    from agrinerf_ns.process import ProcessConfig, process_capture
+    from agrinerf_ns.synth import SynthConfig, generate_capture
+
+    scene, _, lighting = name.partition("-")
+    raw, data = root / name / "raw", root / name / "data"
+    if not (raw / "calib.yaml").exists():
+        if raw.exists():
+            shutil.rmtree(raw)
+        config = SynthConfig(scene=scene, lighting=lighting, seed=seed, views=profile.views, width=profile.width,
+                             height=profile.height)  # fmt: skip
+        generate_capture(config, raw)
+    if not (data / "transforms.json").exists():
+        # Poses from the capture's odometry: the benchmark compares reconstructions, not SfM.
+        process_capture(raw, data, ProcessConfig(poses="given", overwrite=True, show_progress=False))
+    return raw, data
+
+
+def run_method(
+    scene: str,
+    method_key: str,
+    method: BenchMethod,
+    raw: Path,
+    data: Path,
+    profile: BenchProfile,
+    runs: Path,
+    device: str,
+) -> List[Dict[str, object]]:
+    """Train one method on one scene and evaluate its checkpoints; returns the result rows."""
+    from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
+
+    steps = profile.steps[method_key]
+    save_every = max(1, steps // profile.evaluations)
+    run = ns_train(method.ns_method, data / method.data_file, runs / scene, method_key, max_steps=steps,
+                   rays_per_batch=profile.rays_per_batch, extra_args=profile.extra_args.get(method_key, ()),
+                   dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
+    truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
+    rows = []
+    for step, checkpoint in run.checkpoints():
+        metrics = evaluate_checkpoint(run.config, step, method, truth)
+        rows.append({
+            "scene": scene, "method": method_key, "label": method.label, "step": step + 1,
+            "wall_s": checkpoint.stat().st_mtime - run.started_at, "s_per_step": run.s_per_step,
+            "peak_rss_mb": run.peak_rss_mb, "device": device, **metrics,
+        })  # fmt: skip
+    return rows
+
+
+def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
+    """Equal-time differences against Nerfacto (RGB) and time to a stated PSNR, per scene."""
+    key = results.quality_key(rows)
+    lines = [
+        f"Quality figure: `{key}` ({'vs clean truth, exposure-aligned' if key == 'psnr_clean' else 'vs held-out frames'})."
+    ]
+    for scene in sorted({r["scene"] for r in rows}):
+        scene_rows = [r for r in rows if r["scene"] == scene]
+        methods = sorted({r["method"] for r in scene_rows if METHODS[r["method"]].supervision == "rgb"})
+        if not methods:
+            continue
+        finals = {m: max(results.as_float(r, "wall_s") for r in scene_rows if r["method"] == m) for m in methods}
+        t_eq = min(finals.values())
+        at_eq = {m: results.psnr_at_time(scene_rows, m, scene, t_eq, key) for m in methods}
+        lines.append(f"\n**{scene}**, equal wall time {t_eq:.0f} s (the shortest run): "
+                     + ", ".join(f"{METHODS[m].label} {at_eq[m]:.2f} dB" for m in methods))  # fmt: skip
+        if "nerfacto" in at_eq:
+            for m in methods:
+                if m.startswith("agrinerf") and math.isfinite(at_eq[m]) and math.isfinite(at_eq["nerfacto"]):
+                    lines.append(f"- {METHODS[m].label} minus Nerfacto (RGB) at {t_eq:.0f} s: "
+                                 f"{at_eq[m] - at_eq['nerfacto']:+.2f} dB")  # fmt: skip
+        final_quality = {m: max(results.as_float(r, key) for r in scene_rows if r["method"] == m) for m in methods}
+        target = target_psnr if target_psnr is not None else min(final_quality.values())
+        lines.append(
+            f"- time to reach {target:.2f} dB: "
+            + ", ".join(
+                f"{METHODS[m].label} {results.time_to_quality(scene_rows, m, scene, target, key):.0f} s"
+                for m in methods
+            )
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[float], command: str) -> None:
+    """results.md (command, machine, summary, table) and tradeoff.png."""
+    devices = sorted({r["device"] for r in rows})
+    text = (f"# agrinerf-bench results\n\nCommand: `{command}`\n\nMachine: {', '.join(devices)}\n\n"
+            f"![quality against wall time](tradeoff.png)\n\n## Summary\n{summary(rows, target_psnr)}\n"
+            f"## All checkpoints\n{results.markdown_table(rows)}")  # fmt: skip
+    (out / "results.md").write_text(text)
+    results.plot(rows, out / "tradeoff.png")
+
+
+def main(config: BenchConfig) -> List[results.Row]:
+    if config.profile not in PROFILES:
+        raise ValueError(f"unknown profile {config.profile!r}: choose one of {', '.join(PROFILES)}")
+    unknown = [m for m in config.methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown methods {unknown}: choose from {', '.join(METHODS)}")
+    profile = PROFILES[config.profile]
+    scenes = config.scenes or profile.scenes
+    csv_path = config.results_csv or config.out / "results.csv"
+    device = device_name()
+    done = results.done_runs(results.read_rows(csv_path))
+    todo = [(s, m) for s in scenes for m in config.methods if (s, m) not in done]
+    with Progress(console=CONSOLE) as progress:
+        task = progress.add_task("benchmark runs", total=len(todo))
+        for scene, method_key in todo:
+            progress.update(task, description=f"{scene}: {method_key}")
+            raw, data = prepare_scene(scene, profile, config.seed, config.out / "scenes")
+            rows = run_method(scene, method_key, METHODS[method_key], raw, data, profile, config.out / "runs", device)
+            results.append_rows(csv_path, rows)
+            progress.advance(task)
+    rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in config.methods]
+    import sys
+
+    write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
+    CONSOLE.print(f"results: {csv_path}, {config.out / 'results.md'}, {config.out / 'tradeoff.png'}")
+    return rows
+
+
+def entrypoint() -> None:
+    """Console script ``agrinerf-bench``."""
+    main(tyro.cli(BenchConfig))
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,100 @@
+"""Evaluate saved checkpoints of an ``ns-train`` run on its held-out views, in this process.
+
+Loads each checkpoint with Nerfstudio's own ``eval_setup`` (as ``ns-eval`` does) and renders every eval camera once,
+scoring it with the model's own metrics (against the captured held-out frames, as the paper does) and, for synthetic
+scenes, against the clean truth after exposure alignment (see :func:`agrinerf_ns.bench.image_metrics.exposure_align`).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Callable, Dict, List, Optional
+
+import numpy as np
+import torch
+from PIL import Image
+
+from agrinerf_ns.bench import image_metrics
+from agrinerf_ns.bench.methods import BenchMethod
+
+
+class TruthImages:
+    """Clean truth RGB of a synthetic capture, undistorted exactly as ``agrinerf-process`` undistorts the frames."""
+
+    def __init__(self, raw: Path) -> None:
+        from agrinerf_ns.process import align, readers
+
+        self.folder = raw / "truth" / "rgb_clean"
+        if not self.folder.is_dir():
+            raise FileNotFoundError(f"{self.folder}: no clean truth (only synthetic captures have it)")
+        self._maps = align.undistort_maps(readers.read_calibration(raw / "calib.yaml").rgb)
+
+    def get(self, name: str) -> torch.Tensor:
+        """The truth for dataset image ``name`` as float (H, W, 3) in [0, 1]."""
+        import cv2
+
+        path = self.folder / name
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no truth image for the dataset frame {name}")
+        image = np.asarray(Image.open(path).convert("RGB"))
+        if self._maps is not None:
+            image = cv2.remap(image, self._maps[0], self._maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        return torch.from_numpy(image.astype(np.float32) / 255.0)
+
+
+def _load_at_step(step: int) -> Callable:
+    def update(config):
+        from nerfstudio.data.datamanagers.base_datamanager import VanillaDataManager
+        from nerfstudio.data.datamanagers.parallel_datamanager import ParallelDataManagerConfig
+
+        config.load_step = step
+        if isinstance(config.pipeline.datamanager, ParallelDataManagerConfig):
+            # same datasets and eval cameras, without spawning training worker processes for an evaluation
+            config.pipeline.datamanager._target = VanillaDataManager
+        return config
+
+    return update
+
+
+def evaluate_checkpoint(
+    config_path: Path, step: int, method: BenchMethod, truth: Optional[TruthImages], rays_per_chunk: int = 1 << 14
+) -> Dict[str, float]:
+    """Mean metrics over the eval split at one checkpoint.
+
+    Keys: ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when LPIPS is unavailable), ``psnr_clean``,
+    ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the rescaled thermal frames).
+    """
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    _, pipeline, _, _ = eval_setup(
+        config_path,
+        eval_num_rays_per_chunk=rays_per_chunk,
+        test_mode="test",
+        update_config_callback=_load_at_step(step),
+    )
+    datamanager = pipeline.datamanager
+    names = [Path(p).name for p in datamanager.eval_dataset._dataparser_outputs.image_filenames]
+    per_image: List[Dict[str, float]] = []
+    for camera, batch in datamanager.fixed_indices_eval_dataloader:
+        with torch.no_grad():
+            outputs = pipeline.model.get_outputs_for_camera(camera=camera)
+        metrics, _ = pipeline.model.get_image_metrics_and_images(outputs, batch)
+        row = {
+            k: float(v) for k, v in metrics.items() if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim")
+        }
+        if method.supervision == "thermal":  # a thermal-only method's psnr/ssim are thermal figures
+            row = {"thermal_psnr": row["psnr"], "thermal_ssim": row["ssim"]}
+        elif truth is not None:
+            target = truth.get(names[int(batch["image_idx"])])
+            aligned = image_metrics.exposure_align(outputs["rgb"].detach().cpu().float(), target)
+            row["psnr_clean"] = image_metrics.psnr(aligned, target)
+            row["ssim_clean"] = image_metrics.ssim(aligned, target)
+        per_image.append(row)
+    keys = sorted({k for row in per_image for k in row})
+    return {k: _nanmean([row.get(k, math.nan) for row in per_image]) for k in keys}
+
+
+def _nanmean(values: List[float]) -> float:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan

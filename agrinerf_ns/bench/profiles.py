@@ -1,0 +1,49 @@
+"""Benchmark profiles: scene size, step budget per method, checkpoints per run, rays per batch."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Tuple
+
+
+@dataclass(frozen=True)
+class BenchProfile:
+    """How big the scenes are and how long each method trains."""
+
+    views: int
+    width: int
+    height: int
+    steps: Dict[str, int]
+    """Training steps per method (keys of ``agrinerf_ns.bench.methods.METHODS``): per-method budgets that take
+    comparable wall time, so the curves overlap in time."""
+    evaluations: int
+    """Checkpoints evaluated per run, evenly spaced in steps (each is one point of the quality/time curve)."""
+    rays_per_batch: int = 1024
+    """The same for every method (the paper's 1024)."""
+    scenes: Tuple[str, ...] = ("orchard-dark", "orchard-shadowed")
+    """``<scene>-<lighting>`` synthetic captures."""
+    extra_args: Dict[str, Tuple[str, ...]] = field(default_factory=dict)
+    """Extra ``ns-train`` options per method."""
+
+
+PROFILES: Dict[str, BenchProfile] = {
+    # CPU, 2 cores, under 30 minutes for both scenes.
+    "quick": BenchProfile(
+        views=24, width=96, height=72,
+        steps={"agrinerf-lite": 800, "agrinerf": 80, "nerfacto": 160, "nerfacto-thermal": 160, "tensorf": 240},
+        evaluations=4, rays_per_batch=1024,
+    ),
+    # A GPU at the paper's settings: 30k steps of every method on the default scene size.
+    "full": BenchProfile(
+        views=40, width=160, height=120,
+        steps={"agrinerf-lite": 30000, "agrinerf": 30000, "nerfacto": 30000, "nerfacto-thermal": 30000,
+               "tensorf": 30000},
+        evaluations=6, rays_per_batch=1024,
+    ),
+    # The machinery end to end in a test: minutes on a CPU.
+    "tiny": BenchProfile(
+        views=8, width=64, height=48,
+        steps={"agrinerf-lite": 8, "agrinerf": 4, "nerfacto": 4, "nerfacto-thermal": 4, "tensorf": 4},
+        evaluations=2, rays_per_batch=128, scenes=("orchard-dark",),
+    ),
+}  # fmt: skip

@@ -1,0 +1,139 @@
+"""Benchmark results: an append-only CSV (a crashed run loses only itself), a Markdown table and a trade-off plot."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+from typing import Dict, Iterable, List, Sequence, Set, Tuple
+
+COLUMNS = (
+    "scene", "method", "label", "step", "wall_s", "s_per_step", "peak_rss_mb", "device",
+    "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim",
+)  # fmt: skip
+"""One row per evaluated checkpoint."""
+
+Row = Dict[str, str]
+
+
+def append_rows(csv_path: Path, rows: Iterable[Dict[str, object]]) -> None:
+    """Append rows (and the header if the file is new), flushed to disk before returning."""
+    csv_path.parent.mkdir(parents=True, exist_ok=True)
+    new = not csv_path.exists() or csv_path.stat().st_size == 0
+    with open(csv_path, "a", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=COLUMNS, extrasaction="ignore")
+        if new:
+            writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _fmt(row.get(k, "")) for k in COLUMNS})
+        handle.flush()
+        os.fsync(handle.fileno())
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.6g}"
+    return str(value)
+
+
+def read_rows(csv_path: Path) -> List[Row]:
+    """All rows of a results file (empty if it does not exist)."""
+    if not csv_path.exists():
+        return []
+    with open(csv_path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def done_runs(rows: Sequence[Row]) -> Set[Tuple[str, str]]:
+    """(scene, method) pairs that already have results: a resumed benchmark skips them."""
+    return {(r["scene"], r["method"]) for r in rows}
+
+
+def as_float(row: Row, key: str) -> float:
+    try:
+        return float(row.get(key, "nan") or "nan")
+    except ValueError:
+        return math.nan
+
+
+def pareto_front(points: Sequence[Tuple[float, float]]) -> List[int]:
+    """Indices of points not dominated by another (less time and higher quality), by increasing time."""
+    order = sorted((i for i, (t, q) in enumerate(points) if math.isfinite(t) and math.isfinite(q)),
+                   key=lambda i: (points[i][0], -points[i][1]))  # fmt: skip
+    front, best = [], -math.inf
+    for i in order:
+        if points[i][1] > best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def quality_key(rows: Sequence[Row]) -> str:
+    """The quality figure to plot: PSNR against clean truth where the scene has it, else against captured frames."""
+    return "psnr_clean" if any(math.isfinite(as_float(r, "psnr_clean")) for r in rows) else "psnr"
+
+
+def psnr_at_time(rows: Sequence[Row], method: str, scene: str, wall_s: float, key: str) -> float:
+    """A method's quality at ``wall_s``: the best checkpoint reached by then (NaN if none had been saved)."""
+    reached = [as_float(r, key) for r in rows if r["method"] == method and r["scene"] == scene
+               and as_float(r, "wall_s") <= wall_s + 1e-9]  # fmt: skip
+    reached = [q for q in reached if math.isfinite(q)]
+    return max(reached) if reached else math.nan
+
+
+def time_to_quality(rows: Sequence[Row], method: str, scene: str, target: float, key: str) -> float:
+    """Wall seconds of a method's first checkpoint at or above ``target`` (NaN if never reached)."""
+    times = [as_float(r, "wall_s") for r in rows if r["method"] == method and r["scene"] == scene
+             and as_float(r, key) >= target]  # fmt: skip
+    return min(times) if times else math.nan
+
+
+def markdown_table(rows: Sequence[Row]) -> str:
+    """One line per evaluated checkpoint, grouped by scene and method."""
+    header = ("| scene | method | step | wall s | s/step | peak RSS MiB | PSNR | SSIM | LPIPS | PSNR clean | "
+              "SSIM clean | thermal PSNR | thermal SSIM |")  # fmt: skip
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    for r in sorted(rows, key=lambda r: (r["scene"], r["method"], int(r["step"]))):
+        cells = [r["scene"], r["label"], r["step"]]
+        for key, digits in (("wall_s", 0), ("s_per_step", 3), ("peak_rss_mb", 0), ("psnr", 2), ("ssim", 3),
+                            ("lpips", 3), ("psnr_clean", 2), ("ssim_clean", 3), ("thermal_psnr", 2),
+                            ("thermal_ssim", 3)):  # fmt: skip
+            value = as_float(r, key)
+            cells.append("-" if not math.isfinite(value) else f"{value:.{digits}f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(rows: Sequence[Row], path: Path) -> Path:
+    """Quality against wall time, one line per method, one panel per scene, Pareto front marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["scene"] for r in rows})
+    key = quality_key(rows)
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4.2), squeeze=False)
+    for ax, scene in zip(axes[0], scenes, strict=True):
+        scene_rows = [r for r in rows if r["scene"] == scene and math.isfinite(as_float(r, key))]
+        for method in sorted({r["method"] for r in scene_rows}):
+            mine = sorted((r for r in scene_rows if r["method"] == method), key=lambda r: as_float(r, "wall_s"))
+            ax.plot(
+                [as_float(r, "wall_s") for r in mine], [as_float(r, key) for r in mine], "o-", label=mine[0]["label"]
+            )
+        points = [(as_float(r, "wall_s"), as_float(r, key)) for r in scene_rows]
+        front = pareto_front(points)
+        if front:
+            ax.plot([points[i][0] for i in front], [points[i][1] for i in front], "k--", lw=1, alpha=0.6,
+                    label="Pareto front")  # fmt: skip
+        ax.set_title(scene)
+        ax.set_xlabel("wall time (s)")
+        ax.set_ylabel("PSNR vs clean truth (dB)" if key == "psnr_clean" else "PSNR vs held-out frames (dB)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
