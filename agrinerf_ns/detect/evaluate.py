@@ -17,7 +17,7 @@ from typing import Dict, List, Literal, Optional, Tuple
 from agrinerf_ns.detect.boxes import list_images, truth_label_files, truth_labels_for, yolo_to_xyxy
 from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
-from agrinerf_ns.detect.render import MissingOutputError, Output, render_views
+from agrinerf_ns.detect.render import LoadedRun, MissingOutputError, Output, load_run, render_pipeline_views
 from agrinerf_ns.detect.scoring import DetectionMetrics, ImageBoxes, score_detections
 from agrinerf_ns.detect.tables import ResultRow, write_tables
 from agrinerf_ns.detect.yolo_data import (
@@ -150,12 +150,16 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in text).strip("_").lower()
 
 
-def _render(method: MethodSpec, out: Path, split: str, settings: EvalSettings) -> Path:
+def _render(method: MethodSpec, out: Path, split: str, settings: EvalSettings, runs: Dict[Path, LoadedRun]) -> Path:
+    """Render (or reuse) a method's views of ``split``; ``runs`` caches loaded runs by config path."""
     if settings.reuse and (out / "renders.json").is_file() and list_images(out):
-        return out
+        if json.loads((out / "renders.json").read_text()).get("output") == method.output:
+            return out
     assert method.config is not None
+    if method.config not in runs:
+        runs[method.config] = load_run(method.config)
     max_views = settings.max_render_views if split == "eval" else None
-    render_views(method.config, method.output, out, split=split, max_views=max_views)  # type: ignore[arg-type]
+    render_pipeline_views(runs[method.config], method.output, out, split, max_views)  # type: ignore[arg-type]
     return out
 
 
@@ -206,14 +210,16 @@ def evaluate_scene(scene: SceneSpec, work: Path, settings: EvalSettings) -> Scen
     check_scene(scene)
     work = Path(work) / _slug(scene.name)
     renders: Dict[str, Path] = {}
+    runs: Dict[Path, LoadedRun] = {}
     for m in scene.methods:
-        renders[m.label] = m.renders or _render(m, work / "renders" / _slug(m.label), "eval", settings)
+        renders[m.label] = m.renders or _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
     held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
     cross_spectral = [
-        _render(m, work / "train_renders" / _slug(m.label), "train", settings)
+        _render(m, work / "train_renders" / _slug(m.label), "train", settings, runs)
         for m in scene.methods
         if m.output == "thermal" and m.config is not None
     ]
+    runs.clear()  # free the pipelines before training detectors
     weights = {
         modality: train_scene_detector(scene, modality, held_out, cross_spectral, work, settings)
         for modality in sorted({m.detector_modality() for m in scene.methods})

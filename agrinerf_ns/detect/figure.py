@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Sequence
+from typing import Dict, List
 
 import numpy as np
 from jaxtyping import Float
@@ -62,6 +62,6 @@ def detection_figure(
     return out
 
 
-def _draw(ax, rectangle, boxes: Sequence[Sequence[float]], colour: str, style: str) -> None:
+def _draw(ax, rectangle, boxes: Float[np.ndarray, "n 4"], colour: str, style: str) -> None:
     for x1, y1, x2, y2 in np.asarray(boxes).reshape(-1, 4):
         ax.add_patch(rectangle((x1, y1), x2 - x1, y2 - y1, fill=False, edgecolor=colour, linestyle=style, linewidth=1))

@@ -1,0 +1,165 @@
+"""agrinerf-detect end to end on a tiny synthetic scene: a real nerfacto run rendered, YOLOv8 trained from scratch,
+detections scored; plus the bad-input errors of the CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from agrinerf_ns.detect.boxes import MissingTruthError, list_images
+from agrinerf_ns.detect.cli import entrypoint
+from agrinerf_ns.detect.detector import DetectorConfig
+from agrinerf_ns.detect.evaluate import EvalSettings, MethodSpec, SceneSpec, check_scene, evaluate_plan
+from agrinerf_ns.detect.render import MissingOutputError, load_run, render_pipeline_views
+
+pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory: pytest.TempPathFactory):
+    """Tiny dark orchard (12 frames, so the processed dataset has held-out test frames) and its processed dataset."""
+    from agrinerf_ns.process.pipeline import ProcessConfig, process_capture
+    from agrinerf_ns.synth import generate_capture
+    from agrinerf_ns.synth.config import SynthConfig
+
+    root = tmp_path_factory.mktemp("detect_scene")
+    raw = generate_capture(SynthConfig.tiny(seed=3, lighting="dark", views=12), root / "raw")
+    dataset = process_capture(raw, root / "dataset", ProcessConfig(poses="given", show_progress=False))
+    return raw, dataset
+
+
+def _cli_error(args, capsys) -> str:
+    with pytest.raises(SystemExit) as exit_info:
+        entrypoint(args)
+    assert exit_info.value.code == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
+    from agrinerf_ns.bench.ns_commands import ns_train
+
+    raw, dataset = scene
+    config = ns_train(
+        "nerfacto",
+        dataset,
+        tmp_path / "outputs",
+        "tiny",
+        max_steps=2,
+        rays_per_batch=256,
+        extra_args=["--pipeline.model.eval-num-rays-per-chunk", "4096"],
+        dataparser_args=["nerfstudio-data"],
+    ).config
+    test_stems = [Path(name).stem for name in json.loads((dataset / "transforms.json").read_text())["test_filenames"]]
+    assert test_stems, "the processed dataset should hold out test frames"
+    # the thermal branch: the dataset's own (aligned) thermal frames at the held-out views, as a reference "method"
+    captured_thermal = tmp_path / "captured_thermal"
+    captured_thermal.mkdir()
+    for stem in test_stems:
+        shutil.copy(dataset / "thermal" / f"{stem}.png", captured_thermal / f"{stem}.png")
+
+    scenes = [
+        SceneSpec(
+            "orchard",
+            "dark",
+            raw,
+            dataset,
+            [
+                MethodSpec("Nerfacto (RGB)", "rgb", config=config),
+                MethodSpec("Captured thermal", "thermal", renders=captured_thermal),
+            ],
+        )
+    ]
+    settings = EvalSettings(DetectorConfig(epochs=2, imgsz=64, batch=8), cross_spectral_fraction=0.25)
+    out = tmp_path / "detect"
+    written = evaluate_plan(scenes, out, settings, "III", "pytest")
+
+    renders = out / "work" / "orchard" / "renders" / "nerfacto__rgb"
+    assert sorted(p.stem for p in list_images(renders)) == sorted(test_stems)
+    rows = list(csv.DictReader(written["csv"].open()))
+    assert [r["method"] for r in rows] == ["Nerfacto (RGB)", "Captured thermal"]
+    for row in rows:
+        assert int(row["num_images"]) == len(test_stems) and int(row["num_true"]) > 0
+        for key in ("map50", "map50_95", "precision", "recall", "f1"):
+            value = float(row[key])
+            assert math.isfinite(value) and 0.0 <= value <= 1.0, (key, value)
+    markdown = written["markdown"].read_text()
+    assert "| orchard | Nerfacto (RGB) |" in markdown and "Captured thermal" in markdown and "dark" in markdown
+    assert written["figure"].stat().st_size > 1000
+    # detectors never saw the held-out frames; the thermal one trained on thermal frames
+    for modality in ("rgb", "thermal"):
+        trained = [p.stem for p in list_images(out / "work" / "orchard" / f"yolo_{modality}" / "images" / "train")]
+        assert trained and all(name.startswith(f"{modality}_") for name in trained)
+        assert not {name.split("_", 1)[1] for name in trained} & set(test_stems)
+        assert (out / "work" / "orchard" / f"detector_{modality}" / "weights").is_dir()
+
+    # a method without a thermal output asked for the cross-spectral rendering
+    run = load_run(config)
+    with pytest.raises(MissingOutputError, match="no 'thermal' output"):
+        render_pipeline_views(run, "thermal", tmp_path / "nope", max_views=1)
+    assert not (tmp_path / "nope").exists()
+
+
+def test_scene_without_truth_boxes(scene, tmp_path: Path, capsys) -> None:
+    raw, dataset = scene
+    bare = tmp_path / "bare"
+    shutil.copytree(raw, bare, ignore=shutil.ignore_patterns("truth"))
+    with pytest.raises(MissingTruthError, match="no true fruit boxes"):
+        check_scene(SceneSpec("bare", "dark", bare, dataset, [MethodSpec("x", renders=raw / "rgb")]))
+    err = _cli_error(["train", "--raw", str(bare), "--out", str(tmp_path / "det")], capsys)
+    assert "no true fruit boxes" in err and str(bare) in err
+
+
+def test_empty_render_folder(scene, tmp_path: Path, capsys) -> None:
+    raw, _ = scene
+    empty = tmp_path / "renders"
+    empty.mkdir()
+    (empty / "renders.json").write_text("{}")
+    err = _cli_error(["score", "--raw", str(raw), "--renders", str(empty), "--weights", str(tmp_path / "w.pt")], capsys)
+    assert "empty render folder" in err and str(empty) in err
+    plan = tmp_path / "plan.json"
+    plan.write_text(
+        json.dumps(
+            {
+                "scenes": [
+                    {
+                        "name": "s",
+                        "lighting": "dark",
+                        "raw": str(raw),
+                        "methods": [{"label": "m", "renders": str(empty)}],
+                    }
+                ]
+            }
+        )
+    )
+    err = _cli_error(["evaluate", "--plan", str(plan), "--out", str(tmp_path / "out")], capsys)
+    assert "empty render folder" in err
+
+
+def test_rgb_renders_or_no_dataset_for_cross_spectral(scene, tmp_path: Path) -> None:
+    raw, dataset = scene
+    rgb_renders = tmp_path / "rgb_renders"
+    shutil.copytree(raw / "truth" / "rgb_clean", rgb_renders)
+    (rgb_renders / "renders.json").write_text(json.dumps({"output": "rgb", "method": "nerfacto"}))
+    method = MethodSpec("Ours (Cross-Spectral)", "thermal", renders=rgb_renders)
+    with pytest.raises(MissingOutputError, match="asks for 'thermal'"):
+        check_scene(SceneSpec("s", "dark", raw, dataset, [method]))
+    (rgb_renders / "renders.json").unlink()
+    with pytest.raises(ValueError, match="thermal detector"):
+        check_scene(SceneSpec("s", "dark", raw, None, [method]))
+
+
+def test_render_frames_without_truth_are_named(scene, tmp_path: Path) -> None:
+    from agrinerf_ns.detect.yolo_data import rendered_images
+
+    raw, _ = scene
+    renders = tmp_path / "renders"
+    renders.mkdir()
+    shutil.copy(raw / "truth" / "rgb_clean" / "000000.png", renders / "view_9.png")
+    with pytest.raises(MissingTruthError, match="view_9.png: no true boxes for frame 'view_9'"):
+        rendered_images(raw, renders)
