@@ -149,3 +149,19 @@ def test_cli_errors_and_preview(tmp_path: Path) -> None:
 def test_contact_sheet_rows(tiny: Path, tmp_path: Path) -> None:
     sheet = Image.open(contact_sheet(tiny, tmp_path / "sheet.png", rows=3, tile_height=60))
     assert sheet.height == 16 + 3 * 64
+
+
+def test_garden_scene_and_motion_blur(tmp_path: Path) -> None:
+    cfg = SynthConfig.tiny(scene="garden", lighting="dark", views=2, heldout=1, event_substeps=2, seed=1)
+    sharp = generate_capture(cfg, tmp_path / "sharp")
+    depth = np.load(sharp / "truth" / "depth" / "000000.npy")
+    assert np.isinf(depth).any() and np.isfinite(depth).mean() > 0.5
+    assert np.nanmax(np.where(np.isfinite(depth), depth, np.nan)) < 15  # the hedge closes the view
+    assert sum(len(p.read_text().splitlines()) for p in (sharp / "truth" / "boxes_yolo").glob("*.txt")) >= 2
+    blurred = generate_capture(cfg.replace(motion_blur=True), tmp_path / "blur")
+    # same truth, different camera frames: the long dark exposure smears the noisy frame
+    assert (blurred / "truth" / "rgb_clean" / "000001.png").read_bytes() == (
+        sharp / "truth" / "rgb_clean" / "000001.png").read_bytes()
+    a = np.asarray(Image.open(blurred / "rgb" / "000001.png")).astype(np.float64)
+    b = np.asarray(Image.open(sharp / "rgb" / "000001.png")).astype(np.float64)
+    assert not np.array_equal(a, b)

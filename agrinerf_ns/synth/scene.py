@@ -154,6 +154,14 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
             x = (k + shift) * spacing + trng.uniform(-0.12, 0.12) * spacing
             _plant(trng, kind, x, y + trng.uniform(-0.08, 0.08), fruit_color, out, tree_index)
             tree_index += 1
+    # a hedge far behind the rows closes the view (no ground to the horizon), leaving sky above it
+    hedge_y, hedge_h = (back_y + 5.0, 3.2) if kind == "orchard" else (back_y + 3.3, 1.8)
+    for k in range(int(np.floor(x_min)) - 4, int(np.ceil(x_max)) + 5):
+        hrng = np.random.default_rng([seed, 202, k + 1000])
+        r = np.array([hrng.uniform(0.7, 1.0), hrng.uniform(0.6, 0.9), hedge_h * hrng.uniform(0.4, 0.55)])
+        c = np.array([k + hrng.uniform(-0.3, 0.3), hedge_y + hrng.uniform(-0.3, 0.3), r[2] * hrng.uniform(0.7, 0.9)])
+        col = np.array([0.07, 0.18, 0.05]) * hrng.uniform(0.75, 1.2, 3)
+        out["ell"].append((c, r, LEAF, col, float(hrng.normal(0, 0.4)), -1, -1))
     ell, cyl = out["ell"], out["cyl"]
     prims = Primitives(
         ell_center=np.array([e[0] for e in ell]), ell_radii=np.array([e[1] for e in ell]),
@@ -162,8 +170,9 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
     )
     cyl_col = {BARK: np.array([0.24, 0.17, 0.11]), STAKE: np.array([0.50, 0.40, 0.26])}
     fruits = []
+    fruit_ell = {e[5]: e for e in ell if e[5] >= 0}
     for i, f in enumerate(out["fruits"]):
-        e = next(e for e in ell if e[5] == i)
+        e = fruit_ell[i]
         fruits.append({"id": i, "center": [round(float(v), 6) for v in f["center"]],
                        "radii": [round(float(v), 6) for v in f["radii"]], "plant": int(f["tree"]),
                        "temperature_c": round(temps["fruit"] + float(e[4]), 4)})
