@@ -33,8 +33,8 @@ class ProcessConfig:
     """Options of ``agrinerf-process`` (and :func:`process_capture`)."""
 
     poses: Literal["auto", "sfm-rgb", "sfm-thermal", "given"] = "auto"
-    """Pose source: SfM on RGB, on rescaled thermal, auto (both, keep the one registering more frames), or the
-    capture's odometry.txt."""
+    """Pose source: SfM on RGB, on the rescaled aligned thermal frames, auto (RGB first; thermal too unless RGB
+    registered every frame; keep whichever registers more, RGB on a tie), or the capture's odometry.txt."""
     thermal: ThermalRescaleConfig = field(default_factory=ThermalRescaleConfig)
     """Thermal rescaling."""
     events: EventFrameConfig = field(default_factory=EventFrameConfig)
@@ -328,6 +328,8 @@ def _estimate_poses(raw, tmp, cap: _Capture, config: ProcessConfig, frames, keep
     if cap.thermal is None:
         wanted = [w for w in wanted if w != "thermal"]
     for source in wanted:
+        if runs and max(r.num_registered for r in runs.values()) == len(idx):
+            break  # auto: RGB registered every frame, thermal cannot do better
         task = progress.add_task(f"SfM ({source})", total=None)
         if source == "rgb":
             images = [cv2.cvtColor(cv2.imread(str(tmp / frames[i]["file_path"])), cv2.COLOR_BGR2RGB) for i in idx]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -79,22 +79,38 @@ def umeyama(src: Float[np.ndarray, "n 3"], dst: Float[np.ndarray, "n 3"]) -> Tup
 
 
 def pose_errors(est_c2w: Float[np.ndarray, "n 4 4"], true_c2w: Float[np.ndarray, "n 4 4"]) -> Dict[str, float]:
-    """Align estimated camera centres to truth by a similarity, then rotation (deg) and translation errors
-    (truth units). Both sets in the same camera-axis convention."""
+    """Errors of estimated camera poses against truth, up to the similarity that SfM cannot observe.
+
+    - translation: Umeyama similarity of the camera centres, then distances (truth units);
+    - rotation: the best common rotation of the orientations (chordal mean of R_true R_est^T, which is also
+      defined when the path is a straight line, where the centres leave the roll about it free), then the
+      angle of each residual (degrees);
+    - relative rotation: angle between estimated and true rotations from each frame to the next (no alignment).
+    Both sets in the same camera-axis convention.
+    """
     s, R, t = umeyama(est_c2w[:, :3, 3], true_c2w[:, :3, 3])
     centres = (s * (R @ est_c2w[:, :3, 3].T)).T + t
     trans_err = np.linalg.norm(centres - true_c2w[:, :3, 3], axis=1)
-    rot_est = R[None] @ est_c2w[:, :3, :3]
-    rel = np.einsum("nji,njk->nik", rot_est, true_c2w[:, :3, :3])
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)
-    rot_err = np.degrees(np.arccos(cos))
+    M = np.einsum("nij,nkj->ik", true_c2w[:, :3, :3], est_c2w[:, :3, :3])
+    U, _, Vt = np.linalg.svd(M)
+    R_rot = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    rot_err = _angle_deg(np.einsum("ij,njk->nik", R_rot, est_c2w[:, :3, :3]), true_c2w[:, :3, :3])
+    rel_est = np.einsum("nji,njk->nik", est_c2w[:-1, :3, :3], est_c2w[1:, :3, :3])
+    rel_true = np.einsum("nji,njk->nik", true_c2w[:-1, :3, :3], true_c2w[1:, :3, :3])
+    rel_err = _angle_deg(rel_est, rel_true) if len(est_c2w) > 1 else np.zeros(1)
     return {
         "rotation_deg_mean": float(rot_err.mean()),
         "rotation_deg_max": float(rot_err.max()),
+        "relative_rotation_deg_mean": float(rel_err.mean()),
         "translation_mean": float(trans_err.mean()),
         "translation_max": float(trans_err.max()),
         "scale": s,
     }
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    rel = np.einsum("nji,njk->nik", Ra, Rb)
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -111,14 +127,16 @@ class SfmConfig:
     """SIFT peak threshold (COLMAP default 0.0067; lower finds more features on small, low-contrast frames)."""
     upscale: int = 2
     """Upsample images by this factor before SfM (intrinsics scaled to match, poses unaffected)."""
-    matcher: str = "exhaustive"
-    """exhaustive or sequential matching."""
+    matcher: Literal["exhaustive", "sequential"] = "exhaustive"
+    """Image pairs to match: all pairs, or each frame with its ``sequential_overlap`` successors."""
     sequential_overlap: int = 10
     """Neighbours matched per image in sequential mode."""
     min_num_matches: int = 15
     """Minimum verified matches for an image pair."""
     seed: int = 0
     """Random seed for the mapper."""
+    verbose: bool = False
+    """Show COLMAP's log (warnings only otherwise)."""
 
 
 @dataclass
@@ -135,7 +153,7 @@ class SfmResult:
 
 
 def run_sfm(
-    images: List[Float[np.ndarray, "h w c"]],
+    images: List[np.ndarray],
     K: Float[np.ndarray, "3 3"],
     work_dir: Path,
     config: SfmConfig,
@@ -147,6 +165,7 @@ def run_sfm(
     import cv2
     import pycolmap
 
+    pycolmap.logging.minloglevel = 1 if config.verbose else 2  # glog: 0 INFO, 1 WARNING, 2 ERROR
     work_dir.mkdir(parents=True, exist_ok=True)
     img_dir = work_dir / "images"
     img_dir.mkdir(exist_ok=True)

@@ -37,6 +37,8 @@ class ThermalRescaleConfig:
     """fieldscale: local min/max fields; global: one min/max for the sequence; per-frame: min/max of each frame."""
     grid: Tuple[int, int] = (8, 8)
     """Patches per column and per row (rows, cols) of the local min/max fields."""
+    min_patch_px: int = 12
+    """Patches are at least this many pixels on a side (fewer patches on small frames)."""
     patch_percentile: float = 0.0
     """Robust patch extremes: percentile p and 100 - p instead of min and max (0 = strict min/max)."""
     suppress_extrema: bool = True
@@ -73,6 +75,7 @@ class ThermalRescaler:
         self.global_lo = 0.0
         self.global_hi = 1.0
         self.min_range = 1.0
+        self.shape: Tuple[int, ...] = ()
 
     def fit(self, frames: Iterable[np.ndarray]) -> "ThermalRescaler":
         """``frames``: a sequence (or any re-iterable) of raw frames in time order."""
@@ -80,6 +83,7 @@ class ThermalRescaler:
         los, his, g_lo, g_hi = [], [], [], []
         for frame in frames:
             f = np.asarray(frame, dtype=np.float32)
+            self.shape = f.shape
             if cfg.global_percentile > 0:
                 lo, hi = np.percentile(f, [cfg.global_percentile, 100 - cfg.global_percentile])
             else:
@@ -87,7 +91,7 @@ class ThermalRescaler:
             g_lo.append(lo)
             g_hi.append(hi)
             if cfg.method == "fieldscale":
-                lo_f, hi_f = local_minmax_fields(f, cfg.grid, cfg.patch_percentile)
+                lo_f, hi_f = local_minmax_fields(f, effective_grid(f.shape, cfg), cfg.patch_percentile)
                 if cfg.suppress_extrema:
                     lo_f, hi_f = suppress_local_extrema(lo_f, hi_f)
                 lo_f, hi_f = message_passing(lo_f, hi_f, cfg.message_passing_iters)
@@ -132,7 +136,8 @@ class ThermalRescaler:
 
     def params(self) -> Dict:
         """Configuration plus the fitted sequence statistics, for the dataset metadata."""
-        return {**self.config.as_dict(), "global_lo": self.global_lo, "global_hi": self.global_hi,
+        grid = list(effective_grid(self.shape, self.config)) if self.shape else list(self.config.grid)
+        return {**self.config.as_dict(), "effective_grid": grid, "global_lo": self.global_lo, "global_hi": self.global_hi,
                 "min_range": self.min_range}
 
 
@@ -140,6 +145,12 @@ def rescale_sequence(frames: List[UInt16[np.ndarray, "h w"]], config: ThermalRes
     """Convenience: fit on ``frames`` and rescale all of them."""
     r = ThermalRescaler(config).fit(frames)
     return [r.apply(f, i) for i, f in enumerate(frames)]
+
+
+def effective_grid(shape: Tuple[int, ...], cfg: ThermalRescaleConfig) -> Tuple[int, int]:
+    """The configured grid, reduced so that patches have at least ``min_patch_px`` pixels a side."""
+    m = max(1, cfg.min_patch_px)
+    return max(1, min(cfg.grid[0], shape[0] // m)), max(1, min(cfg.grid[1], shape[1] // m))
 
 
 def local_minmax_fields(

@@ -1,0 +1,62 @@
+"""pycolmap SfM on synthetic captures: registration, auto's choice, pose error against truth after a similarity.
+
+The default-scene figures (40 frames, 160x120) are in docs/process.md; here a small bright scene (RGB SfM) and the
+default dark scene (auto must fall back to thermal) run for real.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agrinerf_ns.process import ProcessConfig, process_capture
+from agrinerf_ns.process.evaluate import pose_report
+from agrinerf_ns.process.poses import opencv_to_opengl, pose_errors, umeyama
+from agrinerf_ns.synth import SynthConfig, generate_capture
+
+
+def test_umeyama_and_pose_errors_recover_a_similarity():
+    rng = np.random.default_rng(0)
+    true = np.tile(np.eye(4), (10, 1, 1))
+    true[:, :3, 3] = np.c_[np.linspace(0, 3, 10), rng.normal(0, 0.02, 10), np.zeros(10)]  # nearly a line
+    for i in range(10):
+        true[i, :3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0] * [1, 1, 1]
+        if np.linalg.det(true[i, :3, :3]) < 0:
+            true[i, :3, 0] *= -1
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    R *= np.sign(np.linalg.det(R))
+    s, t = 0.3, np.array([1.0, -2.0, 0.5])
+    est = true.copy()
+    est[:, :3, :3] = R @ true[:, :3, :3]
+    est[:, :3, 3] = (s * (R @ true[:, :3, 3].T)).T + t
+    s2, R2, t2 = umeyama(est[:, :3, 3], true[:, :3, 3])
+    assert s2 == pytest.approx(1 / s, rel=1e-6)
+    err = pose_errors(est, true)
+    assert err["rotation_deg_max"] < 1e-5 and err["translation_max"] < 1e-6
+    np.testing.assert_allclose(opencv_to_opengl(opencv_to_opengl(est)), est)
+
+
+@pytest.mark.slow
+def test_sfm_rgb_registers_small_bright_scene(tmp_path: Path):
+    raw = generate_capture(SynthConfig.tiny(lighting="bright", views=12, width=96, height=72), tmp_path / "raw")
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="sfm-rgb", show_progress=False))
+    meta = json.loads((out / "transforms.json").read_text())
+    assert meta["agrinerf"]["poses"]["source"] == "sfm-rgb"
+    assert len(meta["frames"]) >= 11  # >= 90 %
+    err = pose_report(raw, out)
+    path_len = 0.75 / 10 * 11  # speed x frame interval x intervals
+    assert err["rotation_deg_mean"] < 2.0 and err["translation_mean"] < 0.05 * path_len, err
+
+
+@pytest.mark.slow
+def test_auto_picks_thermal_on_the_default_dark_scene(tmp_path: Path):
+    raw = generate_capture(SynthConfig(lighting="dark"), tmp_path / "raw")
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="auto", show_progress=False))
+    meta = json.loads((out / "transforms.json").read_text())
+    poses = meta["agrinerf"]["poses"]
+    assert poses["source"] == "sfm-thermal", poses
+    assert poses["registered"]["sfm-thermal"] > poses["registered"]["sfm-rgb"]
+    assert len(meta["frames"]) >= 36  # >= 90 % of 40
+    err = pose_report(raw, out)
+    assert err["rotation_deg_mean"] < 3.0 and err["translation_mean"] < 0.1, err
