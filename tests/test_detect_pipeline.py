@@ -50,7 +50,7 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
         dataset,
         tmp_path / "outputs",
         "tiny",
-        max_steps=2,
+        max_steps=1,
         rays_per_batch=256,
         extra_args=["--pipeline.model.eval-num-rays-per-chunk", "4096"],
         dataparser_args=["nerfstudio-data"],
@@ -75,9 +75,16 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
             ],
         )
     ]
+    # a method without a thermal output asked for the cross-spectral rendering (checked before anything is written)
+    runs = {config: load_run(config)}
+    with pytest.raises(MissingOutputError, match="no 'thermal' output"):
+        render_pipeline_views(runs[config], "thermal", tmp_path / "nope", max_views=1)
+    assert not (tmp_path / "nope").exists()
+
     settings = EvalSettings(DetectorConfig(epochs=2, imgsz=64, batch=8), cross_spectral_fraction=0.25)
     out = tmp_path / "detect"
-    written = evaluate_plan(scenes, out, settings, "III", "pytest")
+    written = evaluate_plan(scenes, out, settings, "III", "pytest", runs=runs)  # renders with the loaded run
+    assert not runs, "loaded pipelines are released before the detectors train"
 
     renders = out / "work" / "orchard" / "renders" / "nerfacto__rgb"
     assert sorted(p.stem for p in list_images(renders)) == sorted(test_stems)
@@ -97,12 +104,6 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
         assert trained and all(name.startswith(f"{modality}_") for name in trained)
         assert not {name.split("_", 1)[1] for name in trained} & set(test_stems)
         assert (out / "work" / "orchard" / f"detector_{modality}" / "weights").is_dir()
-
-    # a method without a thermal output asked for the cross-spectral rendering
-    run = load_run(config)
-    with pytest.raises(MissingOutputError, match="no 'thermal' output"):
-        render_pipeline_views(run, "thermal", tmp_path / "nope", max_views=1)
-    assert not (tmp_path / "nope").exists()
 
 
 def test_scene_without_truth_boxes(scene, tmp_path: Path, capsys) -> None:

@@ -31,9 +31,12 @@ class EvaluateCommand:
     <frame>.png held-out views) instead of "config".
     """
 
-    plan: Path
     out: Path
     """Output folder: table_<iii|iv>.md/.csv, metrics.json, detections.png, work/ (renders, YOLO sets, detectors)."""
+    plan: Optional[Path] = None
+    """Plan JSON (see above)."""
+    bench: Optional[Path] = None
+    """Or: an agrinerf-bench output folder (all its finished runs; agrinerf gives an RGB and a cross-spectral row)."""
     table: Literal["III", "IV"] = "III"
     """Table III (methods x lighting) or IV (modality ablations of one scene)."""
     detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
@@ -41,6 +44,8 @@ class EvaluateCommand:
     """Score threshold for precision, recall, F1 and the picture."""
     cross_spectral_fraction: float = 0.25
     """Cross-spectral renders of training views added to the thermal detector's set (fraction of its size)."""
+    rgb_source: Literal["clean", "captured"] = "clean"
+    """RGB detector training images: the clean truth views, or the captured (dataset) frames as the paper labels."""
     max_render_views: Optional[int] = None
     reuse: bool = True
     """Reuse renders and detector weights already in OUT/work."""
@@ -48,13 +53,22 @@ class EvaluateCommand:
     def main(self) -> None:
         from rich.console import Console
 
-        from agrinerf_ns.detect.evaluate import EvalSettings, evaluate_plan, load_plan
+        from agrinerf_ns.detect.evaluate import EvalSettings, evaluate_plan, load_plan, plan_from_bench
+
+        if (self.plan is None) == (self.bench is None):
+            raise ValueError("give exactly one of --plan PLAN.json or --bench AGRINERF_BENCH_OUT")
+        scenes = load_plan(self.plan) if self.plan is not None else plan_from_bench(self.bench)  # type: ignore[arg-type]
 
         settings = EvalSettings(
-            self.detector, self.conf_threshold, self.cross_spectral_fraction, self.max_render_views, self.reuse
+            self.detector,
+            self.conf_threshold,
+            self.cross_spectral_fraction,
+            self.max_render_views,
+            self.reuse,
+            self.rgb_source,
         )
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        written = evaluate_plan(load_plan(self.plan), self.out, settings, self.table, command)
+        written = evaluate_plan(scenes, self.out, settings, self.table, command)
         console = Console()
         console.print(written["markdown"].read_text())
         for kind, path in written.items():

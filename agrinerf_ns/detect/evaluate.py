@@ -22,10 +22,10 @@ from agrinerf_ns.detect.scoring import DetectionMetrics, ImageBoxes, score_detec
 from agrinerf_ns.detect.tables import ResultRow, write_tables
 from agrinerf_ns.detect.yolo_data import (
     LabelledImage,
+    dataset_images,
     rendered_images,
     rgb_truth_images,
     subsample,
-    thermal_dataset_images,
     write_yolo_dataset,
 )
 
@@ -77,6 +77,9 @@ class EvalSettings:
     """Render at most this many held-out views per method (None: all)."""
     reuse: bool = True
     """Reuse renders and detector weights already in the work folder."""
+    rgb_source: Literal["clean", "captured"] = "clean"
+    """RGB detector training images: ``truth/rgb_clean`` (noise-free, well exposed) or the dataset's captured frames
+    (the paper labels "the original dataset images")."""
 
 
 @dataclass
@@ -112,6 +115,40 @@ def load_plan(path: Path) -> List[SceneSpec]:
             raise ValueError(f"{path}: scene {i} lacks the key {err}") from err
     if not scenes:
         raise ValueError(f"{path}: the plan lists no scenes")
+    return scenes
+
+
+BENCH_METHODS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
+    "nerfacto": [("Nerfacto (RGB)", "rgb", None)],
+    "nerfacto-thermal": [("Nerfacto (Thermal)", "rgb", "thermal")],
+    "tensorf": [("TensoRF (RGB)", "rgb", None)],
+    "agrinerf-lite": [("Ours-lite (RGB)", "rgb", None), ("Ours-lite (Cross-Spectral)", "thermal", None)],
+    "agrinerf": [("Ours (RGB)", "rgb", None), ("Ours (Cross-Spectral)", "thermal", None)],
+}
+"""agrinerf-bench method key -> the detection rows it gives (label, rendered output, detector)."""
+
+
+def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
+    """The plan for an ``agrinerf-bench`` output folder: OUT/scenes/<scene>-<lighting>/{raw,data} and
+    OUT/runs/<scene>-<lighting>/<method key>/<ns method>/run/config.yml, every finished run of a known method."""
+    bench_out = Path(bench_out)
+    runs_root = bench_out / "runs"
+    if not runs_root.is_dir():
+        raise FileNotFoundError(f"{bench_out}: not an agrinerf-bench output folder ({runs_root} does not exist)")
+    scenes = []
+    for scene_dir in sorted(p for p in runs_root.iterdir() if p.is_dir()):
+        name, _, lighting = scene_dir.name.partition("-")
+        methods = []
+        for key, rows in BENCH_METHODS.items():
+            configs = sorted((scene_dir / key).glob("*/run/config.yml"))
+            if configs:
+                methods += [MethodSpec(label, output, config=configs[0], detector=det) for label, output, det in rows]
+        if methods:
+            data = bench_out / "scenes" / scene_dir.name / "data"
+            raw = bench_out / "scenes" / scene_dir.name / "raw"
+            scenes.append(SceneSpec(name, lighting or "-", raw, data if data.is_dir() else None, methods))
+    if not scenes:
+        raise FileNotFoundError(f"{runs_root}: no finished run of {', '.join(BENCH_METHODS)}")
     return scenes
 
 
@@ -176,11 +213,15 @@ def train_scene_detector(
     for name in ("best.pt", "last.pt"):
         if settings.reuse and (run_dir / "weights" / name).is_file():
             return run_dir / "weights" / name
-    if modality == "rgb":
+    if modality == "rgb" and settings.rgb_source == "clean":
         items: List[LabelledImage] = rgb_truth_images(scene.raw, exclude)
+    elif modality == "rgb":
+        if scene.dataset is None:
+            raise ValueError(f"scene {scene.name}: rgb_source 'captured' needs the scene's processed dataset")
+        items = dataset_images(scene.raw, scene.dataset, "rgb", exclude)
     else:
         assert scene.dataset is not None
-        items = thermal_dataset_images(scene.raw, scene.dataset, exclude)
+        items = dataset_images(scene.raw, scene.dataset, "thermal", exclude)
         extra: List[LabelledImage] = []
         for folder in cross_spectral:
             extra += [i for i in rendered_images(scene.raw, folder, "xspec") if i.image.stem not in set(exclude)]
@@ -205,12 +246,18 @@ def score_render_folder(
     return score_detections(images, conf_threshold=settings.conf_threshold), panels
 
 
-def evaluate_scene(scene: SceneSpec, work: Path, settings: EvalSettings) -> SceneResult:
-    """Render, train detectors, detect and score every method of one scene."""
+def evaluate_scene(
+    scene: SceneSpec, work: Path, settings: EvalSettings, runs: Optional[Dict[Path, LoadedRun]] = None
+) -> SceneResult:
+    """Render, train detectors, detect and score every method of one scene.
+
+    ``runs``: runs already loaded (:func:`~agrinerf_ns.detect.render.load_run`) by config path; others are loaded
+    here. All are released before the detectors train.
+    """
     check_scene(scene)
     work = Path(work) / _slug(scene.name)
     renders: Dict[str, Path] = {}
-    runs: Dict[Path, LoadedRun] = {}
+    runs = {} if runs is None else runs
     for m in scene.methods:
         renders[m.label] = m.renders or _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
     held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
@@ -253,13 +300,22 @@ def machine_note(command: str) -> str:
 
 
 def evaluate_plan(
-    scenes: List[SceneSpec], out: Path, settings: EvalSettings, table: str, command: str, figure_views: int = 3
+    scenes: List[SceneSpec],
+    out: Path,
+    settings: EvalSettings,
+    table: str,
+    command: str,
+    figure_views: int = 3,
+    runs: Optional[Dict[Path, LoadedRun]] = None,
 ) -> Dict[str, Path]:
-    """Evaluate every scene, then write ``out/table_<kind>.md|csv``, ``out/metrics.json`` and ``out/detections.png``."""
+    """Evaluate every scene, then write ``out/table_<kind>.md|csv``, ``out/metrics.json`` and ``out/detections.png``.
+
+    ``runs``: already loaded runs by config path (optional; see :func:`evaluate_scene`).
+    """
     for scene in scenes:
         check_scene(scene)
     out = Path(out)
-    results = [evaluate_scene(scene, out / "work", settings) for scene in scenes]
+    results = [evaluate_scene(scene, out / "work", settings, runs) for scene in scenes]
     rows = [row for r in results for row in r.rows]
     md, csv_path = write_tables(rows, out, table, f"table_{table.lower()}", footer=machine_note(command))
     figure = detection_figure(

@@ -6,7 +6,7 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, List, Optional, Sequence
+from typing import Iterable, List, Literal, Optional, Sequence
 
 import numpy as np
 from jaxtyping import Float
@@ -48,32 +48,33 @@ def rgb_truth_images(scene: Path, exclude: Iterable[str] = ()) -> List[LabelledI
     ]
 
 
-def thermal_dataset_images(scene: Path, dataset: Path, exclude: Iterable[str] = ()) -> List[LabelledImage]:
-    """Thermal frames of a processed dataset (warped into the RGB camera, so the RGB truth boxes apply).
+def dataset_images(
+    scene: Path, dataset: Path, modality: Literal["rgb", "thermal"], exclude: Iterable[str] = ()
+) -> List[LabelledImage]:
+    """Frames of a processed dataset: its RGB images (``file_path``) or its thermal frames (``thermal_file_path``,
+    warped into the RGB camera, so the RGB truth boxes apply).
 
-    Frames are read from ``dataset/transforms.json`` (``thermal_file_path``); each is paired with the truth boxes of
-    its RGB frame by the stem of ``file_path``.
+    Frames are read from ``dataset/transforms.json``; each is paired with the truth boxes of its RGB frame by the stem
+    of ``file_path``.
     """
     transforms = Path(dataset) / "transforms.json"
     if not transforms.is_file():
         raise FileNotFoundError(f"{dataset}: not a processed dataset: {transforms} does not exist")
-    frames = json.loads(transforms.read_text()).get("frames", [])
-    with_thermal = [f for f in frames if "thermal_file_path" in f]
-    if not with_thermal:
-        raise ValueError(
-            f"{transforms}: no frame has a thermal_file_path, so a thermal detector cannot be trained from it"
-        )
+    key = "file_path" if modality == "rgb" else "thermal_file_path"
+    frames = [f for f in json.loads(transforms.read_text()).get("frames", []) if key in f]
+    if not frames:
+        raise ValueError(f"{transforms}: no frame has a {key}, so a {modality} detector cannot be trained from it")
     labels = truth_label_files(scene)
     skip = set(exclude)
     items = []
-    for frame in with_thermal:
+    for frame in frames:
         stem = Path(frame["file_path"]).stem
         if stem in skip:
             continue
-        image = Path(dataset) / frame["thermal_file_path"]
+        image = Path(dataset) / frame[key]
         if not image.is_file():
-            raise FileNotFoundError(f"{transforms}: thermal image {image} of frame {frame['file_path']} is missing")
-        items.append(LabelledImage(image, truth_labels_for(scene, stem, labels, image), f"thermal_{stem}"))
+            raise FileNotFoundError(f"{transforms}: {modality} image {image} of frame {frame['file_path']} is missing")
+        items.append(LabelledImage(image, truth_labels_for(scene, stem, labels, image), f"{modality}_{stem}"))
     return items
 
 
