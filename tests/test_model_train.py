@@ -4,6 +4,9 @@ an upsampling step continues at the upsampled grid size."""
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 from pathlib import Path
 from typing import Dict
 
@@ -94,3 +97,23 @@ def test_resume_after_upsampling_continues_at_the_upsampled_size(tmp_path: Path)
     resumed.train()  # steps 6-8
     assert model.field.density_encoding.plane_coef.shape == (3, 4, 24, 24)
     assert not torch.equal(model.field.density_encoding.plane_coef.detach(), saved)  # the grid keeps learning
+
+
+def test_ns_eval_and_ns_render_load_the_checkpoint(trained: Dict, tmp_path: Path) -> None:
+    """The real commands: `ns-eval` reports the training-time metrics, `ns-render dataset` renders the thermal output."""
+    config_path = trained["config"].get_base_dir() / "config.yml"
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    out_json = tmp_path / "eval.json"
+    subprocess.run(
+        ["ns-eval", "--load-config", str(config_path), "--output-path", str(out_json)], check=True, env=env, timeout=600
+    )
+    results = json.loads(out_json.read_text())["results"]
+    assert results["psnr"] == pytest.approx(trained["metrics"]["psnr"], abs=1e-3)
+    assert results["thermal_psnr"] == pytest.approx(trained["metrics"]["thermal_psnr"], abs=1e-3)
+    renders = tmp_path / "renders"
+    cmd = ["ns-render", "dataset", "--load-config", str(config_path), "--output-path", str(renders)]
+    cmd += ["--split", "test", "--rendered-output-names", "thermal", "rgb"]
+    subprocess.run(cmd, check=True, env=env, timeout=600)
+    thermal = sorted(p for p in renders.rglob("*") if p.is_file() and "thermal" in str(p.relative_to(renders)))
+    rgb = sorted(p for p in renders.rglob("*") if p.is_file() and "rgb" in str(p.relative_to(renders)))
+    assert thermal and rgb and len(thermal) == len(rgb)
