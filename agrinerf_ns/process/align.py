@@ -101,7 +101,8 @@ def locate_in_aligned(
 ) -> Float[np.ndarray, "2"] | None:
     """Invert a warp map numerically: the aligned (RGB) pixel whose map value is the other camera's ``target``.
 
-    Nearest grid node first, then Gauss-Newton steps on the bilinearly interpolated map. None when not found.
+    Nearest grid node first, then Gauss-Newton steps on the bilinearly interpolated map. None when not found or
+    when the map at the result is more than 0.1 px from ``target``.
     """
     mx, my, valid = maps
     d2 = (mx - target[0]) ** 2 + (my - target[1]) ** 2
@@ -124,6 +125,8 @@ def locate_in_aligned(
         if np.linalg.cond(J) > 1e6:
             break
         p = p - np.linalg.solve(J, val - target)
+    if np.linalg.norm(_bilinear(mx, my, p) - target) > 0.1:
+        return None  # not converged (e.g. at the edge of the valid region)
     return p
 
 

@@ -135,6 +135,8 @@ class SfmConfig:
     """Minimum verified matches for an image pair."""
     seed: int = 0
     """Random seed for the mapper."""
+    num_threads: int = 1
+    """Threads for extraction, matching and mapping; 1 keeps the result deterministic given the seed."""
     verbose: bool = False
     """Show COLMAP's log (warnings only otherwise)."""
 
@@ -201,13 +203,13 @@ def run_sfm(
     extraction.sift.max_num_features = config.max_num_features
     extraction.sift.peak_threshold = config.peak_threshold
     extraction.use_gpu = False
-    extraction.num_threads = 2
+    extraction.num_threads = config.num_threads
     pycolmap.extract_features(
         db_path, img_dir, camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader, extraction_options=extraction
     )
     matching = pycolmap.FeatureMatchingOptions()
     matching.use_gpu = False
-    matching.num_threads = 2
+    matching.num_threads = config.num_threads
     verification = pycolmap.TwoViewGeometryOptions()
     verification.min_num_inliers = config.min_num_matches
     if config.matcher == "sequential":
@@ -223,7 +225,7 @@ def run_sfm(
     pipeline.ba_refine_focal_length = False
     pipeline.ba_refine_principal_point = False
     pipeline.ba_refine_extra_params = False
-    pipeline.num_threads = 2
+    pipeline.num_threads = config.num_threads
     pipeline.random_seed = config.seed
     recs = pycolmap.incremental_mapping(db_path, img_dir, work_dir / "sparse", options=pipeline)
     n = len(images)
