@@ -57,7 +57,19 @@ def test_plan_from_bench_layout(tmp_path: Path) -> None:
             run = tmp_path / "runs" / scene / key / method / "run"
             run.mkdir(parents=True)
             (run / "config.yml").write_text("")
-    (tmp_path / "runs" / "orchard-shadowed" / "agrinerf-lite" / "agrinerf-lite" / "run" / "config.yml").unlink()
+            (run / "nerfstudio_models").mkdir()
+            (run / "nerfstudio_models" / "step-000000009.ckpt").write_bytes(b"")
+    # a run still training (no checkpoint yet) is left out
+    (
+        tmp_path
+        / "runs"
+        / "orchard-shadowed"
+        / "agrinerf-lite"
+        / "agrinerf-lite"
+        / "run"
+        / "nerfstudio_models"
+        / "step-000000009.ckpt"
+    ).unlink()
     garden, orchard = plan_from_bench(tmp_path)
     assert (garden.name, garden.lighting, garden.raw) == ("garden", "dark", tmp_path / "scenes" / "garden-dark" / "raw")
     assert [(m.label, m.output, m.detector_modality()) for m in garden.methods] == [

@@ -130,7 +130,8 @@ BENCH_METHODS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
 
 def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
     """The plan for an ``agrinerf-bench`` output folder: OUT/scenes/<scene>-<lighting>/{raw,data} and
-    OUT/runs/<scene>-<lighting>/<method key>/<ns method>/run/config.yml, every finished run of a known method."""
+    OUT/runs/<scene>-<lighting>/<method key>/<ns method>/run/config.yml: every run of a known method with a
+    checkpoint."""
     bench_out = Path(bench_out)
     runs_root = bench_out / "runs"
     if not runs_root.is_dir():
@@ -140,7 +141,7 @@ def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
         name, _, lighting = scene_dir.name.partition("-")
         methods = []
         for key, rows in BENCH_METHODS.items():
-            configs = sorted((scene_dir / key).glob("*/run/config.yml"))
+            configs = [c for c in sorted((scene_dir / key).glob("*/run/config.yml")) if _has_checkpoint(c)]
             if configs:
                 methods += [MethodSpec(label, output, config=configs[0], detector=det) for label, output, det in rows]
         if methods:
@@ -150,6 +151,10 @@ def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
     if not scenes:
         raise FileNotFoundError(f"{runs_root}: no finished run of {', '.join(BENCH_METHODS)}")
     return scenes
+
+
+def _has_checkpoint(config: Path) -> bool:
+    return any((config.parent / "nerfstudio_models").glob("step-*.ckpt"))
 
 
 def check_scene(scene: SceneSpec) -> None:
