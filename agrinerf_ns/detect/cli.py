@@ -131,7 +131,8 @@ class ScoreCommand:
     raw: Path
     renders: Path
     weights: Path
-    imgsz: int = 128
+    imgsz: Optional[int] = None
+    """Inference size; None: the size the detector was trained at."""
     conf_threshold: float = 0.25
     out: Optional[Path] = None
     """Also write the metrics JSON here."""
@@ -139,8 +140,8 @@ class ScoreCommand:
     def main(self) -> None:
         from agrinerf_ns.detect.evaluate import EvalSettings, score_render_folder
 
-        settings = EvalSettings(DetectorConfig(imgsz=self.imgsz), conf_threshold=self.conf_threshold)
-        metrics, _ = score_render_folder(self.raw, self.renders, self.weights, settings)
+        settings = EvalSettings(conf_threshold=self.conf_threshold)
+        metrics, _ = score_render_folder(self.raw, self.renders, self.weights, settings, imgsz=self.imgsz)
         text = json.dumps(metrics.as_dict(), indent=2)
         print(text)
         if self.out is not None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -102,11 +102,17 @@ def train_detector(data_yaml: Path, out_dir: Path, config: DetectorConfig = Dete
 
 
 def predict_folder(
-    weights: Path, image_dir: Path, imgsz: int = 128, conf: float = 0.001, device: str = "cpu", max_det: int = 100
+    weights: Path,
+    image_dir: Path,
+    imgsz: Optional[int] = None,
+    conf: float = 0.001,
+    device: str = "cpu",
+    max_det: int = 100,
 ) -> Dict[str, Tuple[Float[np.ndarray, "n 4"], Float[np.ndarray, " n"], Tuple[int, int]]]:
     """Run the detector on every image in ``image_dir``: stem -> (pixel xyxy boxes, scores, (width, height)).
 
-    ``conf`` is the lowest score kept (low, as for mAP); precision/recall thresholds are applied when scoring.
+    ``imgsz`` defaults to the size the detector was trained at. ``conf`` is the lowest score kept (low, as for mAP);
+    precision/recall thresholds are applied when scoring.
     """
     images = list_images(image_dir)
     if not images:
@@ -117,6 +123,7 @@ def predict_folder(
     from ultralytics import YOLO
 
     model = YOLO(str(weights))
+    imgsz = imgsz or int(model.overrides.get("imgsz", 640))
     detections = {}
     for chunk in _chunks(images, 16):
         for path, result in zip(

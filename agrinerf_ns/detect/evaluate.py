@@ -213,11 +213,12 @@ def train_scene_detector(
     work: Path,
     settings: EvalSettings,
 ) -> Path:
-    """Train (or reuse) the scene's RGB or thermal detector without the held-out frames; returns its weights."""
+    """Train (or reuse) the scene's RGB or thermal detector without the held-out frames; returns its weights.
+
+    Weights in the work folder are reused only when they were trained with the same settings on the same images
+    (recorded in ``detector_<modality>/agrinerf_detect.json``).
+    """
     run_dir = work / f"detector_{modality}"
-    for name in ("best.pt", "last.pt"):
-        if settings.reuse and (run_dir / "weights" / name).is_file():
-            return run_dir / "weights" / name
     if modality == "rgb" and settings.rgb_source == "clean":
         items: List[LabelledImage] = rgb_truth_images(scene.raw, exclude)
     elif modality == "rgb":
@@ -229,19 +230,29 @@ def train_scene_detector(
         items = dataset_images(scene.raw, scene.dataset, "thermal", exclude)
         extra: List[LabelledImage] = []
         for folder in cross_spectral:
-            extra += [i for i in rendered_images(scene.raw, folder, "xspec") if i.image.stem not in set(exclude)]
+            renders = rendered_images(scene.raw, folder, f"xspec_{folder.name}")
+            extra += [item for item in renders if item.image.stem not in set(exclude)]
         count = settings.cross_spectral_fraction * len(items) / max(1, len(extra))
         items += subsample(extra, min(1.0, count), settings.detector.seed)
+    record = {"detector": asdict(settings.detector), "images": [str(item.image) for item in items]}
+    record_path = run_dir / "agrinerf_detect.json"
+    if settings.reuse and record_path.is_file() and json.loads(record_path.read_text()) == record:
+        for name in ("best.pt", "last.pt"):
+            if (run_dir / "weights" / name).is_file():
+                return run_dir / "weights" / name
     data_yaml = write_yolo_dataset(work / f"yolo_{modality}", items)
-    return train_detector(data_yaml, run_dir, settings.detector)
+    weights = train_detector(data_yaml, run_dir, settings.detector)
+    record_path.write_text(json.dumps(record, indent=1))
+    return weights
 
 
 def score_render_folder(
-    raw: Path, renders: Path, weights: Path, settings: EvalSettings
+    raw: Path, renders: Path, weights: Path, settings: EvalSettings, imgsz: Optional[int] = None
 ) -> Tuple[DetectionMetrics, Dict[str, PanelBoxes]]:
-    """Detect on every rendered view and score against the scene's true boxes."""
+    """Detect on every rendered view (at ``imgsz``, default the detector's training size) and score against the
+    scene's true boxes."""
     labels = truth_label_files(raw)
-    detections = predict_folder(weights, renders, imgsz=settings.detector.imgsz, device=settings.detector.device)
+    detections = predict_folder(weights, renders, imgsz=imgsz, device=settings.detector.device)
     images, panels = [], {}
     for path in list_images(renders):
         boxes, scores, (width, height) = detections[path.stem]
@@ -281,7 +292,9 @@ def evaluate_scene(
         metrics, method_panels = score_render_folder(
             scene.raw, renders[m.label], weights[m.detector_modality()], settings
         )
-        rows.append(ResultRow(scene.name, scene.lighting, m.label, metrics))
+        manifest = renders[m.label] / "renders.json"
+        step = json.loads(manifest.read_text()).get("step") if manifest.is_file() else None
+        rows.append(ResultRow(scene.name, scene.lighting, m.label, metrics, step))
         panels[m.label] = method_panels
     return SceneResult(rows, panels)
 
@@ -322,7 +335,9 @@ def evaluate_plan(
     out = Path(out)
     results = [evaluate_scene(scene, out / "work", settings, runs) for scene in scenes]
     rows = [row for r in results for row in r.rows]
-    md, csv_path = write_tables(rows, out, table, f"table_{table.lower()}", footer=machine_note(command))
+    steps = ", ".join(f"{r.scene}/{r.method}: {r.step + 1}" for r in rows if r.step is not None)
+    footer = machine_note(command) + (f"  \nTraining steps of the rendered checkpoints: {steps}." if steps else "")
+    md, csv_path = write_tables(rows, out, table, f"table_{table.lower()}", footer=footer)
     figure = detection_figure(
         results[0].panels, out / "detections.png", settings.conf_threshold, max_views=figure_views
     )
@@ -333,7 +348,14 @@ def evaluate_plan(
                 "command": command,
                 "settings": asdict(settings),
                 "results": [
-                    {"scene": r.scene, "lighting": r.lighting, "method": r.method, **r.metrics.as_dict()} for r in rows
+                    {
+                        "scene": r.scene,
+                        "lighting": r.lighting,
+                        "method": r.method,
+                        "step": r.step,
+                        **r.metrics.as_dict(),
+                    }
+                    for r in rows
                 ],
             },
             indent=2,

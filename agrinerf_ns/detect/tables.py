@@ -29,6 +29,8 @@ class ResultRow:
     lighting: str
     method: str
     metrics: DetectionMetrics
+    step: Optional[int] = None
+    """Training step of the rendered checkpoint (None for a folder of renders without renders.json)."""
 
 
 def _csv_fields(row: ResultRow) -> Dict[str, object]:
@@ -46,6 +48,7 @@ def _csv_fields(row: ResultRow) -> Dict[str, object]:
         "num_images": m.num_images,
         "num_true": m.num_true,
         "num_pred": m.num_pred,
+        "step": "" if row.step is None else row.step,
     }
 
 
