@@ -1,0 +1,71 @@
+"""agrinerf-bench: result bookkeeping, clean-truth metrics, and the machinery end to end on a tiny scene."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from agrinerf_ns.bench import image_metrics, results
+from agrinerf_ns.bench.cli import BenchConfig, main
+
+
+def test_pareto_front_keeps_only_undominated_points() -> None:
+    points = [(10.0, 20.0), (5.0, 18.0), (20.0, 19.0), (30.0, 25.0), (7.0, float("nan"))]
+    assert results.pareto_front(points) == [1, 0, 3]
+
+
+def test_quality_at_time_and_time_to_quality() -> None:
+    rows = [
+        {"scene": "s", "method": "a", "wall_s": "10", "psnr": "15"},
+        {"scene": "s", "method": "a", "wall_s": "20", "psnr": "18"},
+        {"scene": "s", "method": "b", "wall_s": "12", "psnr": "17"},
+    ]
+    assert results.psnr_at_time(rows, "a", "s", 15.0, "psnr") == 15.0
+    assert results.psnr_at_time(rows, "a", "s", 25.0, "psnr") == 18.0
+    assert math.isnan(results.psnr_at_time(rows, "b", "s", 5.0, "psnr"))
+    assert results.time_to_quality(rows, "a", "s", 16.0, "psnr") == 20.0
+    assert math.isnan(results.time_to_quality(rows, "b", "s", 30.0, "psnr"))
+
+
+def test_csv_append_survives_and_resumes(tmp_path: Path) -> None:
+    path = tmp_path / "r.csv"
+    results.append_rows(path, [{"scene": "s", "method": "a", "step": 1, "psnr": 1.5, "lpips": float("nan")}])
+    results.append_rows(path, [{"scene": "s", "method": "b", "step": 2, "psnr": 2.5}])
+    rows = results.read_rows(path)
+    assert [r["method"] for r in rows] == ["a", "b"] and rows[0]["lpips"] == "nan"
+    assert results.done_runs(rows) == {("s", "a"), ("s", "b")}
+
+
+def test_exposure_alignment_scores_structure_not_exposure() -> None:
+    torch.manual_seed(0)
+    truth = torch.rand(24, 32, 3) * 0.8 + 0.1
+    dark = image_metrics.linear_to_srgb(image_metrics.srgb_to_linear(truth) * 0.05)
+    assert image_metrics.psnr(dark, truth) < 15
+    assert image_metrics.psnr(image_metrics.exposure_align(dark, truth), truth) > 40
+    noisy = (dark + 0.02 * torch.randn_like(dark)).clamp(0, 1)
+    assert image_metrics.psnr(image_metrics.exposure_align(noisy, truth), truth) < 30, "noise is still penalised"
+
+
+@pytest.mark.slow
+def test_bench_end_to_end_tiny(tmp_path: Path) -> None:
+    config = BenchConfig(out=tmp_path / "bench", profile="tiny", methods=("agrinerf-lite", "nerfacto-thermal"))
+    rows = main(config)
+    methods = {r["method"] for r in rows}
+    assert methods == {"agrinerf-lite", "nerfacto-thermal"}
+    assert len(rows) == 2 * 2, "two evaluated checkpoints per run"
+    for row in rows:
+        for key in ("wall_s", "s_per_step", "peak_rss_mb", "thermal_psnr", "thermal_ssim"):
+            assert math.isfinite(results.as_float(row, key)), (row["method"], key)
+        if row["method"] == "agrinerf-lite":
+            for key in ("psnr", "ssim", "psnr_clean", "ssim_clean"):
+                assert math.isfinite(results.as_float(row, key)), key
+    table = (tmp_path / "bench" / "results.md").read_text()
+    assert "AgriNeRF-lite" in table and "Nerfacto (Thermal)" in table and "Command:" in table
+    assert (tmp_path / "bench" / "tradeoff.png").stat().st_size > 5000
+    # resumable: a second call trains nothing new and appends nothing
+    again = main(config)
+    assert len(again) == len(rows)
+    assert len(results.read_rows(tmp_path / "bench" / "results.csv")) == len(rows)
