@@ -1,7 +1,7 @@
 """pycolmap SfM on synthetic captures: registration, auto's choice, pose error against truth after a similarity.
 
 The default-scene figures (40 frames, 160x120) are in docs/process.md; here a small bright scene (RGB SfM) and the
-default dark scene (auto must fall back to thermal) run for real.
+default dark scene at 20 frames (auto must fall back to thermal) run for real.
 """
 
 import json
@@ -39,7 +39,8 @@ def test_umeyama_and_pose_errors_recover_a_similarity():
 
 @pytest.mark.slow
 def test_sfm_rgb_registers_small_bright_scene(tmp_path: Path):
-    raw = generate_capture(SynthConfig.tiny(lighting="bright", views=12, width=96, height=72), tmp_path / "raw")
+    raw = tmp_path / "raw"
+    generate_capture(SynthConfig.tiny(lighting="bright", views=12, width=96, height=72), raw)
     out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="sfm-rgb", show_progress=False))
     meta = json.loads((out / "transforms.json").read_text())
     assert meta["agrinerf"]["poses"]["source"] == "sfm-rgb"
@@ -51,12 +52,15 @@ def test_sfm_rgb_registers_small_bright_scene(tmp_path: Path):
 
 @pytest.mark.slow
 def test_auto_picks_thermal_on_the_default_dark_scene(tmp_path: Path):
-    raw = generate_capture(SynthConfig(lighting="dark"), tmp_path / "raw")
+    """The default dark scene at half its length (20 of 40 frames, to keep the suite short; the 40-frame
+    figures are in docs/process.md)."""
+    raw = tmp_path / "raw"
+    generate_capture(SynthConfig(lighting="dark", views=20, heldout=2), raw)
     out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="auto", show_progress=False))
     meta = json.loads((out / "transforms.json").read_text())
     poses = meta["agrinerf"]["poses"]
     assert poses["source"] == "sfm-thermal", poses
     assert poses["registered"]["sfm-thermal"] > poses["registered"]["sfm-rgb"]
-    assert len(meta["frames"]) >= 36  # >= 90 % of 40
+    assert len(meta["frames"]) >= 18  # >= 90 %
     err = pose_report(raw, out)
     assert err["rotation_deg_mean"] < 3.0 and err["translation_mean"] < 0.1, err

@@ -109,6 +109,8 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
     ``out`` then, and ``raw`` is never written to.
     """
     raw, out = Path(raw), Path(out)
+    if not config.plane_depth > 0:
+        raise ValueError(f"plane depth must be positive (or inf), got {config.plane_depth}")
     if not raw.is_dir():
         raise RawInputError(f"{raw}: raw capture folder does not exist")
     check_output(raw, out, config.overwrite)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Literal, Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -127,10 +127,6 @@ class SfmConfig:
     """SIFT peak threshold (COLMAP default 0.0067; lower finds more features on small, low-contrast frames)."""
     upscale: int = 2
     """Upsample images by this factor before SfM (intrinsics scaled to match, poses unaffected)."""
-    matcher: Literal["exhaustive", "sequential"] = "exhaustive"
-    """Image pairs to match: all pairs, or each frame with its ``sequential_overlap`` successors."""
-    sequential_overlap: int = 10
-    """Neighbours matched per image in sequential mode."""
     min_num_matches: int = 15
     """Minimum verified matches for an image pair."""
     seed: int = 0
@@ -212,13 +208,8 @@ def run_sfm(
     matching.num_threads = config.num_threads
     verification = pycolmap.TwoViewGeometryOptions()
     verification.min_num_inliers = config.min_num_matches
-    if config.matcher == "sequential":
-        pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = config.sequential_overlap
-        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
-                                  verification_options=verification)
-    else:
-        pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
+    # exhaustive: every pair (sequential pairing registered far fewer thermal frames in trials here)
+    pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
 
     pipeline = pycolmap.IncrementalPipelineOptions()
     pipeline.min_num_matches = config.min_num_matches
