@@ -47,6 +47,11 @@ class DetectorConfig:
     device: str = "cpu"
     patience: int = 0
     """Early-stopping patience in epochs (0: off)."""
+    warmup_epochs: float = 0.0
+    """Ultralytics' learning-rate warm-up; when on it lasts at least 100 iterations, which for a few dozen images is
+    the whole run (nothing is learnt), hence off by default."""
+    lr0: float = 0.002
+    """Initial learning rate (AdamW)."""
 
 
 def configure_offline(config_dir: Path | None = None) -> None:
@@ -89,6 +94,9 @@ def train_detector(data_yaml: Path, out_dir: Path, config: DetectorConfig = Dete
         amp=False,
         plots=False,
         patience=config.patience if config.patience > 0 else config.epochs + 1,
+        warmup_epochs=config.warmup_epochs,
+        optimizer="AdamW",
+        lr0=config.lr0,
         project=str(out_dir.parent),
         name=out_dir.name,
         exist_ok=True,

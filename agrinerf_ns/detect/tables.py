@@ -66,11 +66,11 @@ def write_csv(rows: Sequence[ResultRow], path: Path) -> Path:
 
 
 def _bold_best(cells: List[List[str]], values: List[List[float]]) -> None:
-    """Bold the best value of each metric column (ties all bold; NaN ignored)."""
+    """Bold the best value of each metric column (ties for best all bold; NaN ignored; nothing when all are equal)."""
     for col in range(len(METRIC_HEADERS)):
         column = [v[col] for v in values]
         finite = [v for v in column if v == v]
-        if not finite:
+        if len(set(finite)) < 2:
             continue
         best = max(finite)
         for row_cells, value in zip(cells, column, strict=True):
