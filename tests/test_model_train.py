@@ -67,6 +67,7 @@ def test_checkpoint_round_trip_reproduces_eval_metrics(trained: Dict) -> None:
         assert reloaded[key] == pytest.approx(trained["metrics"][key], abs=1e-4), key
     original = trained["trainer"].pipeline.model.field.occupancy
     assert torch.equal(pipeline.model.field.occupancy.cpu(), original.cpu())
+    assert pipeline.model.field.occupancy_all == bool(original.all())  # the pruning cache follows the loaded grid
 
 
 def test_resume_after_upsampling_continues_at_the_upsampled_size(tmp_path: Path) -> None:

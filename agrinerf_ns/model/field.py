@@ -139,6 +139,11 @@ class AgriNeRFField(Field):
         occ_res = max(int(occupancy_resolution), 1)
         self.register_buffer("occupancy", torch.ones((occ_res, occ_res, occ_res), dtype=torch.bool))
         self.occupancy_enabled = occupancy_resolution > 0
+        self.occupancy_all = True  # cache: the grid keeps every cell (until the first update; refreshed on load)
+        self.register_load_state_dict_post_hook(lambda module, _: module._refresh_occupancy_cache())
+
+    def _refresh_occupancy_cache(self) -> None:
+        self.occupancy_all = bool(self.occupancy.all())
 
     # ---------------------------------------------------------------- geometry
     def volumes(self) -> Dict[str, TensorVMEncoding]:
@@ -162,7 +167,7 @@ class AgriNeRFField(Field):
 
     def occupied(self, coords: Float[Tensor, "n 3"]) -> Bool[Tensor, "n"]:
         """Whether each grid coordinate falls in a cell that the occupancy grid keeps."""
-        if not self.occupancy_enabled:
+        if not self.occupancy_enabled or self.occupancy_all:
             return torch.ones(coords.shape[0], dtype=torch.bool, device=coords.device)
         res = self.occupancy.shape[0]
         idx = ((coords + 1.0) * (res / 2.0)).long().clamp(0, res - 1)
@@ -174,9 +179,11 @@ class AgriNeRFField(Field):
         Only the valid, occupied points are looked up in the volume, so empty space costs nothing.
         """
         flat = coords.reshape(-1, 3)
-        keep = valid.reshape(-1).clone()
-        if keep.any():
-            keep[keep.clone()] = self.occupied(flat[keep])
+        keep = valid.reshape(-1) & self.occupied(flat)
+        if bool(keep.all()):  # nothing to prune: no gather/scatter
+            raw = self.density_encoding(flat).sum(dim=-1, keepdim=True)
+            density = F.softplus(raw + self.density_shift).clamp(max=self.max_density)
+            return density.reshape(*coords.shape[:-1], 1)
         density = flat.new_zeros(flat.shape[0], 1)
         if keep.any():
             raw = self.density_encoding(flat[keep]).sum(dim=-1, keepdim=True)
@@ -238,4 +245,5 @@ class AgriNeRFField(Field):
         occ = (dens > density_threshold).reshape(1, 1, res, res, res).float()
         occ = F.max_pool3d(occ, kernel_size=3, stride=1, padding=1)[0, 0] > 0
         self.occupancy.copy_(occ)
+        self._refresh_occupancy_cache()
         return float(occ.float().mean().item())
