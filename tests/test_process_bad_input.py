@@ -121,3 +121,14 @@ def test_odometry_does_not_overlap(raw, tmp_path):
 def test_missing_frame_file_and_bad_timestamp_line(raw, tmp_path):
     (raw / "rgb" / "000003.png").unlink()
     _expect_error(raw, tmp_path, r"rgb/timestamps.txt:4: frame file .*000003.png does not exist")
+
+
+def test_output_inside_raw_is_refused(raw):
+    with pytest.raises(ValueError, match="must not be inside the raw folder"):
+        _run(raw, raw / "dataset")
+    assert not (raw / "dataset").exists()
+
+
+def test_negative_plane_depth_is_refused(raw, tmp_path):
+    with pytest.raises(ValueError, match="plane depth must be positive"):
+        process_capture(raw, tmp_path / "out", ProcessConfig(poses="given", plane_depth=-1.0, show_progress=False))
