@@ -29,8 +29,8 @@ class BenchProfile:
 PROFILES: Dict[str, BenchProfile] = {
     # CPU, 2 cores, under 30 minutes for both scenes.
     "quick": BenchProfile(
-        views=24, width=96, height=72,
-        steps={"agrinerf-lite": 800, "agrinerf": 80, "nerfacto": 160, "nerfacto-thermal": 160, "tensorf": 240},
+        views=16, width=96, height=72,
+        steps={"agrinerf-lite": 300, "agrinerf": 40, "nerfacto": 90, "nerfacto-thermal": 90, "tensorf": 200},
         evaluations=4, rays_per_batch=1024,
     ),
     # A GPU at the paper's settings: 30k steps of every method on the default scene size.
