@@ -126,3 +126,26 @@ def test_thermal_at_a_different_rate_pairs_by_time_and_drops_unpaired(tmp_path: 
     with pytest.raises(ValueError, match="do not overlap"):
         process_capture(raw, tmp_path / "b", _config(max_time_offset_s=0.01))
     assert not (tmp_path / "b").exists()
+
+
+def test_frame_without_pose_is_dropped_from_every_modality(tmp_path: Path):
+    raw = make_raw_capture(tmp_path / "raw", n=6)
+    odo = raw / "odometry.txt"
+    lines = odo.read_text().splitlines()
+    odo.write_text("\n".join(lines[:2] + lines[3:]) + "\n")  # frame 2 has no pose
+    out = process_capture(raw, tmp_path / "ds", _config())
+    meta = json.loads((out / "transforms.json").read_text())
+    assert [f["file_path"] for f in meta["frames"]] == [f"images/{i:06d}.png" for i in (0, 1, 3, 4, 5)]
+    assert meta["agrinerf"]["poses"]["dropped_frames"] == [{"file": "rgb/000002.png", "reason": "no pose"}]
+    for sub, ext in (("images", "png"), ("thermal", "png"), ("thermal_masks", "png"), ("events", "png"),
+                     ("events", "npz"), ("event_masks", "png")):
+        assert not (out / sub / f"000002.{ext}").exists(), sub
+    th = json.loads((out / "transforms_thermal.json").read_text())
+    assert len(th["frames"]) == 5 and all(n in [f["file_path"] for f in th["frames"]] for n in th["train_filenames"])
+
+
+def test_cli_reports_bad_input_and_exits_2(tmp_path: Path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(ProcessArgs(raw=tmp_path / "missing", out=tmp_path / "ds", config=_config()))
+    assert exc.value.code == 2
+    assert "missing: raw capture folder does not exist" in capsys.readouterr().err.replace("\n", "")
