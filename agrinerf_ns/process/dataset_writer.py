@@ -123,18 +123,16 @@ def write_transforms(
             tf = {"file_path": f["thermal_file_path"], "transform_matrix": f["transform_matrix"]}
             if "thermal_mask_path" in f:
                 tf["mask_path"] = f["thermal_mask_path"]
-            for key in ("timestamp", "rgb_file_path"):
-                if key in f:
-                    tf[key] = f[key]
+            if "timestamp" in f:
+                tf["timestamp"] = f["timestamp"]
             tf["rgb_file_path"] = f["file_path"]
             th_frames.append(tf)
         th_names = [f["file_path"] for f in th_frames]
-        th_meta = {
-            **intrinsics,
-            **split_names(th_names, eval_every),
-            "frames": th_frames,
-            "agrinerf": {**agrinerf, "image_modality": "thermal"},
-        }
+        # this file's images *are* the thermal frames: no "modalities" list (it describes transforms.json's
+        # per-frame keys), the dataset's list is kept as "dataset_modalities"
+        th_block = {k: v for k, v in agrinerf.items() if k != "modalities"}
+        th_block.update(image_modality="thermal", dataset_modalities=agrinerf.get("modalities", []))
+        th_meta = {**intrinsics, **split_names(th_names, eval_every), "frames": th_frames, "agrinerf": th_block}
         _write_json(out / "transforms_thermal.json", th_meta)
 
 
