@@ -149,3 +149,13 @@ def test_cli_reports_bad_input_and_exits_2(tmp_path: Path, capsys):
         main(ProcessArgs(raw=tmp_path / "missing", out=tmp_path / "ds", config=_config()))
     assert exc.value.code == 2
     assert "missing: raw capture folder does not exist" in capsys.readouterr().err.replace("\n", "")
+
+
+def test_rgb_and_events_without_thermal(tmp_path: Path):
+    raw = make_raw_capture(tmp_path / "raw", n=4, with_thermal=False, event_format="npz")
+    out = process_capture(raw, tmp_path / "ds", _config())
+    meta = json.loads((out / "transforms.json").read_text())
+    assert meta["agrinerf"]["modalities"] == ["rgb", "events"]
+    assert meta["agrinerf"]["calibration"]["event"]["name"] == "cam1"
+    assert all("event_file_path" in f and "thermal_file_path" not in f for f in meta["frames"])
+    assert not (out / "transforms_thermal.json").exists()
