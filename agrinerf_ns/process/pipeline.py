@@ -338,6 +338,9 @@ def _estimate_poses(raw, tmp, cap: _Capture, config: ProcessConfig, frames, keep
             masks = None
         else:
             images = [cv2.imread(str(tmp / frames[i]["thermal_file_path"]), cv2.IMREAD_GRAYSCALE) for i in idx]
+            if config.sfm.thermal_clahe:
+                clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(4, 4))
+                images = [clahe.apply(im) for im in images]
             masks = [cv2.imread(str(tmp / frames[i]["thermal_mask_path"]), cv2.IMREAD_GRAYSCALE) for i in idx]
         work = tmp / f".sfm_{source}"
         res = pose_utils.run_sfm(images, cap.calib.rgb.K, work, config.sfm, f"sfm-{source}", masks=masks)

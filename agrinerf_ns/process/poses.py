@@ -131,6 +131,9 @@ class SfmConfig:
     """Minimum verified matches for an image pair."""
     seed: int = 0
     """Random seed for the mapper."""
+    thermal_clahe: bool = True
+    """Thermal SfM input only: CLAHE (clip 2, 4x4 tiles) on the rescaled frames for more features (the dataset's
+    thermal frames are not changed)."""
     num_threads: int = 1
     """Threads for extraction, matching and mapping; 1 keeps the result deterministic given the seed."""
     verbose: bool = False
