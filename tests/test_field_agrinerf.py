@@ -129,3 +129,10 @@ def test_occupancy_prunes_empty_space_and_keeps_dense_cells() -> None:
     density, _ = field.get_density(samples)
     assert (density.reshape(-1)[~occupied] == 0).all()
     assert (coords.reshape(-1, 3)[occupied][:, 0] > -0.5).all()  # only cells towards the slab survive
+
+
+def test_occupancy_update_never_prunes_everything() -> None:
+    field = _field()
+    field.density_shift = -30.0  # nothing is dense yet
+    assert field.update_occupancy(density_threshold=0.1) == 1.0
+    assert field.occupancy.all() and field.occupancy_all

@@ -112,7 +112,7 @@ class AgriNeRFField(Field):
         thermal_appearance_dim: int = 12,
         thermal_view_dependent: bool = False,
         mlp_width: int = 128,
-        density_shift: float = -1.0,
+        density_shift: float = -4.0,
         max_density: float = 1.0e4,
         occupancy_resolution: int = 64,
     ) -> None:
@@ -226,6 +226,7 @@ class AgriNeRFField(Field):
 
         A cell is kept when the density at its centre or at a jittered point in it exceeds `density_threshold`; the
         result is dilated by one cell so that surfaces on cell borders are not cut (TensoRF's alpha mask, simplified).
+        When no cell passes (an update too early in training) the grid is left as it is.
         """
         if not self.occupancy_enabled:
             return 1.0
@@ -244,6 +245,9 @@ class AgriNeRFField(Field):
                 dens[start : start + chunk] = torch.maximum(dens[start : start + chunk], val)
         occ = (dens > density_threshold).reshape(1, 1, res, res, res).float()
         occ = F.max_pool3d(occ, kernel_size=3, stride=1, padding=1)[0, 0] > 0
+        if not bool(occ.any()):
+            # nothing is dense yet (too early in training): pruning everything would stop all learning, keep the grid
+            return float(self.occupancy.float().mean().item())
         self.occupancy.copy_(occ)
         self._refresh_occupancy_cache()
         return float(occ.float().mean().item())

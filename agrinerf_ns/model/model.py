@@ -91,8 +91,9 @@ class AgriNeRFModelConfig(ModelConfig):
     """Feed the viewing direction to MLP_THERMAL."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB and MLP_THERMAL."""
-    density_shift: float = -1.0
-    """Added to the summed density features before the softplus."""
+    density_shift: float = -4.0
+    """Added to the summed density features before the softplus: zero features (where the L1 regulariser drives
+    empty space) give softplus(-4) = 0.018, below `occupancy_density_threshold`, so empty cells can be pruned."""
     max_density: float = 1.0e4
     """Densities are clamped here (no Inf in alpha compositing)."""
     scene_contraction: bool = True
@@ -110,8 +111,8 @@ class AgriNeRFModelConfig(ModelConfig):
     """Cells per axis of the occupancy grid that prunes empty space (0: no pruning)."""
     occupancy_update_iters: Tuple[int, ...] = (2000, 4000, 6000)
     """Steps after which the occupancy grid is recomputed from the density volume."""
-    occupancy_density_threshold: float = 1.0e-3
-    """A cell whose density stays below this is empty."""
+    occupancy_density_threshold: float = 0.1
+    """A cell whose density (centre and a jittered point) stays below this is empty (then dilated by one cell)."""
     loss_coefficients: Dict[str, float] = to_immutable_dict(
         {
             "rgb_loss": 1.0,
