@@ -79,7 +79,14 @@ def _bold_best(cells: List[List[str]], values: List[List[float]]) -> None:
 
 
 def _metric_values(m: DetectionMetrics) -> List[float]:
-    return [m.map50, m.map50_95, m.precision, m.recall, m.f1]
+    """The values as printed (so that "best" is judged on what the reader sees)."""
+    return [
+        round(100 * m.map50, 1),
+        round(100 * m.map50_95, 1),
+        round(m.precision, 3),
+        round(m.recall, 3),
+        round(m.f1, 3),
+    ]
 
 
 def table_iii_markdown(rows: Sequence[ResultRow], footer: Optional[str] = None) -> str:
