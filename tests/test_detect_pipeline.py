@@ -17,8 +17,6 @@ from agrinerf_ns.detect.detector import DetectorConfig
 from agrinerf_ns.detect.evaluate import EvalSettings, MethodSpec, SceneSpec, check_scene, evaluate_plan
 from agrinerf_ns.detect.render import MissingOutputError, load_run, render_pipeline_views
 
-pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
-
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory: pytest.TempPathFactory):
@@ -42,6 +40,7 @@ def _cli_error(args, capsys) -> str:
 
 @pytest.mark.slow
 def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
+    pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
     from agrinerf_ns.bench.ns_commands import ns_train
 
     raw, dataset = scene
