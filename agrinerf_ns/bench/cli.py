@@ -20,7 +20,7 @@ from rich.progress import Progress
 
 from agrinerf_ns.bench import results
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
-from agrinerf_ns.bench.ns_commands import ns_train
+from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
 
 CONSOLE = Console()
@@ -44,6 +44,8 @@ class BenchConfig:
     """PSNR whose time-to-reach is reported; None: the lowest final PSNR among the RGB methods (all reach it)."""
     results_csv: Optional[Path] = None
     """Where results are appended; None: OUT/results.csv."""
+    report_only: bool = False
+    """Train nothing: rewrite results.md and tradeoff.png from the rows already in the CSV."""
 
 
 def device_name() -> str:
@@ -99,9 +101,13 @@ def run_method(
 
     steps = profile.steps[method_key]
     save_every = max(1, steps // profile.evaluations)
-    run = ns_train(method.ns_method, data / method.data_file, runs / scene, method_key, max_steps=steps,
-                   rays_per_batch=profile.rays_per_batch, extra_args=profile.extra_args.get(method_key, ()),
-                   dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
+    record = runs / scene / method_key / "train_run.json"
+    run = TrainRun.load(record) if record.exists() else None
+    if run is None or not run.checkpoints():
+        run = ns_train(method.ns_method, data / method.data_file, runs / scene, method_key, max_steps=steps,
+                       rays_per_batch=profile.rays_per_batch, extra_args=profile.extra_args.get(method_key, ()),
+                       dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
+        run.save(record)  # an interrupted evaluation resumes without retraining
     truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
     rows = []
     for step, checkpoint in run.checkpoints():
@@ -168,7 +174,7 @@ def main(config: BenchConfig) -> List[results.Row]:
     csv_path = config.results_csv or config.out / "results.csv"
     device = device_name()
     done = results.done_runs(results.read_rows(csv_path))
-    todo = [(s, m) for s in scenes for m in config.methods if (s, m) not in done]
+    todo = [] if config.report_only else [(s, m) for s in scenes for m in config.methods if (s, m) not in done]
     with Progress(console=CONSOLE) as progress:
         task = progress.add_task("benchmark runs", total=len(todo))
         for scene, method_key in todo:

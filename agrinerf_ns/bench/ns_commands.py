@@ -5,6 +5,7 @@ The benchmark, the demo and the tests drive Nerfstudio exactly as a user does, s
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -129,6 +130,19 @@ class TrainRun:
     """``time.time()`` when ``ns-train`` was launched (checkpoint mtimes minus this give time-to-checkpoint)."""
     s_per_step: float
     """Mean seconds per training iteration, from Nerfstudio's own profiler (NaN if it printed none)."""
+
+    def save(self, path: Path) -> None:
+        """Write this record as JSON (atomically)."""
+        record = {**dataclasses.asdict(self), "config": str(self.config)}
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(record, indent=2))
+        tmp.replace(path)
+
+    @staticmethod
+    def load(path: Path) -> "TrainRun":
+        """Read a record written by :meth:`save`."""
+        record = json.loads(path.read_text())
+        return TrainRun(**{**record, "config": Path(record["config"])})
 
     def checkpoints(self) -> List[Tuple[int, Path]]:
         """(step, path) of every checkpoint, by step."""
