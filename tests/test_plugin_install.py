@@ -39,7 +39,7 @@ def test_dataparser_entry_points_are_dataparser_specifications() -> None:
         assert isinstance(ep.load(), DataParserSpecification), ep
 
 
-def test_entry_point_modules_are_light_and_activate_the_shims() -> None:
+def test_entry_point_modules_are_light_and_activate_the_shims(tmp_path: Path) -> None:
     """Every ns-* command imports these modules: they must not pull heavy optional stacks, and must apply the shims."""
     modules = sorted(
         {
@@ -57,7 +57,10 @@ def test_entry_point_modules_are_light_and_activate_the_shims() -> None:
         "print('HEAVY', heavy)\n"
         "print('LPIPS_PATCHED', compat.lpips_patched() or not compat.lpips_shim_needed())\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    # run outside the checkout, so that `python -c` imports the installed package, not the source tree
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = proc.stdout
     assert "HEAVY []" in out, out
     assert "LPIPS_PATCHED True" in out, out
 
