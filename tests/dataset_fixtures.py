@@ -14,19 +14,10 @@ from typing import Any, Callable, Dict, Iterable, Optional, Sequence
 import numpy as np
 import torch
 from PIL import Image
+from tiny_scene import look_at as _look_at
+from tiny_scene import write_transforms
 
 WIDTH, HEIGHT = 64, 48
-
-
-def _look_at(position: np.ndarray) -> np.ndarray:
-    """Camera-to-world (OpenGL: x right, y up, looking down -z) looking at the origin from ``position``."""
-    forward = -position / np.linalg.norm(position)
-    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, position
-    return c2w
 
 
 def _pixels(rng: np.random.Generator, fill: Optional[int], shape: Sequence[int]) -> np.ndarray:
@@ -92,24 +83,7 @@ def write_tridata(
                 frame[f"{key}_mask_path"] = f"{key}_masks/{name}"
         frames.append(frame)
 
-    transforms = {
-        "camera_model": "OPENCV",
-        "fl_x": 0.9 * width,
-        "fl_y": 0.9 * width,
-        "cx": width / 2,
-        "cy": height / 2,
-        "w": width,
-        "h": height,
-        "frames": frames,
-        "agrinerf": {
-            "modalities": ["rgb"] + [m for m in ("thermal", "events") if m in modalities],
-            "events": {"window": 0.05, "representation": "signed polarity sum, 0.5 = no change"},
-            "thermal_rescale": {"method": "test fixture"},
-            "poses": {"source": "test fixture", "dropped_frames": []},
-        },
-    }
-    (root / "transforms.json").write_text(json.dumps(transforms, indent=2))
-    return root
+    return write_transforms(root, frames, width, height, 0.9 * width, modalities, source="test fixture")
 
 
 def edit_transforms(root: Path, edit: Callable[[Dict[str, Any]], None]) -> None:

@@ -7,23 +7,13 @@ thermal frame (what the thermal camera did not see). Written as docs/formats.md 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Dict, Optional, Sequence
 
 import numpy as np
 from PIL import Image
-
-
-def _look_at(position: np.ndarray) -> np.ndarray:
-    """Camera-to-world (OpenGL: x right, y up, looking down -z) looking at the origin."""
-    forward = -position / np.linalg.norm(position)
-    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, position
-    return c2w
+from tiny_scene import look_at as _look_at
+from tiny_scene import write_transforms
 
 
 def _save(path: Path, values: np.ndarray) -> None:
@@ -88,24 +78,7 @@ def write_model_scene(
             _save(root / "event_masks" / name, np.ones_like(event))
             frame.update(event_file_path=f"events/{name}", event_mask_path=f"event_masks/{name}")
         frames.append(frame)
-    transforms = {
-        "camera_model": "OPENCV",
-        "fl_x": focal,
-        "fl_y": focal,
-        "cx": width / 2,
-        "cy": height / 2,
-        "w": width,
-        "h": height,
-        "frames": frames,
-        "agrinerf": {
-            "modalities": ["rgb"] + [m for m in ("thermal", "events") if m in modalities],
-            "events": {"window": 0.05, "representation": "signed polarity sum, 0.5 = no change"},
-            "thermal_rescale": {"method": "model test scene"},
-            "poses": {"source": "model test scene", "dropped_frames": []},
-        },
-    }
-    (root / "transforms.json").write_text(json.dumps(transforms, indent=2))
-    return root
+    return write_transforms(root, frames, width, height, focal, modalities, source="model test scene")
 
 
 def tiny_trainer_config(data: Path, output_dir: Path, max_num_iterations: int = 20, rays: int = 256, **model_overrides):

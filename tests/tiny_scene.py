@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 from PIL import Image
 
 
-def _look_at(position: np.ndarray) -> np.ndarray:
+def look_at(position: np.ndarray) -> np.ndarray:
     """Camera-to-world (OpenGL axes: x right, y up, looking down -z) looking at the origin."""
     forward = -position / np.linalg.norm(position)
     right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
@@ -30,7 +31,7 @@ def write_tiny_scene(root: Path, views: int = 8, width: int = 64, height: int = 
     frames = []
     for i in range(views):
         angle = 2 * np.pi * i / views
-        c2w = _look_at(np.array([3.0 * np.cos(angle), 3.0 * np.sin(angle), 0.8]))
+        c2w = look_at(np.array([3.0 * np.cos(angle), 3.0 * np.sin(angle), 0.8]))
         u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
         dirs_cam = np.stack([(u - width / 2) / focal, -(v - height / 2) / focal, -np.ones_like(u)], -1)
         dirs = dirs_cam @ c2w[:3, :3].T
@@ -48,7 +49,20 @@ def write_tiny_scene(root: Path, views: int = 8, width: int = 64, height: int = 
         name = f"images/frame_{i:05d}.png"
         Image.fromarray((np.clip(image, 0, 1) * 255).astype(np.uint8)).save(root / name)
         frames.append({"file_path": name, "transform_matrix": c2w.tolist()})
-    meta = {
+    return write_transforms(root, frames, width, height, focal)
+
+
+def write_transforms(
+    root: Path,
+    frames: List[Dict[str, Any]],
+    width: int,
+    height: int,
+    focal: float,
+    modalities: Optional[Sequence[str]] = None,
+    source: str = "test scene",
+) -> Path:
+    """Write a pinhole ``transforms.json`` (with an ``agrinerf`` block when ``modalities`` is given); returns ``root``."""
+    meta: Dict[str, Any] = {
         "camera_model": "OPENCV",
         "fl_x": focal,
         "fl_y": focal,
@@ -58,5 +72,12 @@ def write_tiny_scene(root: Path, views: int = 8, width: int = 64, height: int = 
         "h": height,
         "frames": frames,
     }
+    if modalities is not None:
+        meta["agrinerf"] = {
+            "modalities": ["rgb"] + [m for m in ("thermal", "events") if m in modalities],
+            "events": {"window": 0.05, "representation": "signed polarity sum, 0.5 = no change"},
+            "thermal_rescale": {"method": source},
+            "poses": {"source": source, "dropped_frames": []},
+        }
     (root / "transforms.json").write_text(json.dumps(meta, indent=2))
     return root
