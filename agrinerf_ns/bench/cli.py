@@ -132,15 +132,18 @@ def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
         if not methods:
             continue
         finals = {m: max(results.as_float(r, "wall_s") for r in scene_rows if r["method"] == m) for m in methods}
-        t_eq = min(finals.values())
-        at_eq = {m: results.psnr_at_time(scene_rows, m, scene, t_eq, key) for m in methods}
-        lines.append(f"\n**{scene}**, equal wall time {t_eq:.0f} s (the shortest run): "
-                     + ", ".join(f"{METHODS[m].label} {at_eq[m]:.2f} dB" for m in methods))  # fmt: skip
-        if "nerfacto" in at_eq:
-            for m in methods:
-                if m.startswith("agrinerf") and math.isfinite(at_eq[m]) and math.isfinite(at_eq["nerfacto"]):
-                    lines.append(f"- {METHODS[m].label} minus Nerfacto (RGB) at {t_eq:.0f} s: "
-                                 f"{at_eq[m] - at_eq['nerfacto']:+.2f} dB")  # fmt: skip
+        lines.append(f"\n**{scene}**")
+        for m in methods:
+            if m == "nerfacto" or "nerfacto" not in methods:
+                continue
+            # each pair at the shorter of the two runs: both have spent that much time, neither more
+            t_eq = min(finals[m], finals["nerfacto"])
+            mine, base = (results.psnr_at_time(scene_rows, k, scene, t_eq, key) for k in (m, "nerfacto"))
+            if math.isfinite(mine) and math.isfinite(base):
+                lines.append(f"- {METHODS[m].label} minus Nerfacto (RGB) at equal wall time {t_eq:.0f} s: "
+                             f"{mine:.2f} - {base:.2f} = {mine - base:+.2f} dB")  # fmt: skip
+            else:
+                lines.append(f"- {METHODS[m].label} vs Nerfacto (RGB) at {t_eq:.0f} s: no checkpoint of both by then")
         final_quality = {m: max(results.as_float(r, key) for r in scene_rows if r["method"] == m) for m in methods}
         target = target_psnr if target_psnr is not None else min(final_quality.values())
         lines.append(
