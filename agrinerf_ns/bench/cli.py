@@ -149,11 +149,15 @@ def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
         lines.append(
             f"- time to reach {target:.2f} dB: "
             + ", ".join(
-                f"{METHODS[m].label} {results.time_to_quality(scene_rows, m, scene, target, key):.0f} s"
+                f"{METHODS[m].label} {_seconds(results.time_to_quality(scene_rows, m, scene, target, key))}"
                 for m in methods
             )
         )
     return "\n".join(lines) + "\n"
+
+
+def _seconds(value: float) -> str:
+    return f"{value:.0f} s" if math.isfinite(value) else "not reached"
 
 
 def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[float], command: str) -> None:
