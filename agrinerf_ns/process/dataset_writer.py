@@ -11,19 +11,14 @@ OUT/images/  OUT/thermal/  OUT/thermal_masks/  OUT/events/ (PNG + NPZ)  OUT/even
 from __future__ import annotations
 
 import json
-import os
-import shutil
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional
+from typing import Dict, List, Optional
 
 import cv2
 import numpy as np
 from jaxtyping import Float
 
-
-class OutputExistsError(FileExistsError):
-    """The output folder exists and is not empty, and overwrite was not asked for."""
+from agrinerf_ns.atomic import OutputExistsError, atomic_output_dir  # noqa: F401 (re-exported)
 
 
 def check_output(raw: Path, out: Path, overwrite: bool) -> None:
@@ -35,33 +30,6 @@ def check_output(raw: Path, out: Path, overwrite: bool) -> None:
         raise OutputExistsError(f"{out}: exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise OutputExistsError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
-
-
-@contextmanager
-def atomic_output_dir(out: Path, overwrite: bool) -> Iterator[Path]:
-    """Yield a temporary sibling of ``out``; on success rename it to ``out`` (replacing it when ``overwrite``),
-    on any error delete it, leaving ``out`` as it was."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    try:
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    old = None
-    if out.exists():
-        if any(out.iterdir()) and not overwrite:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise OutputExistsError(f"{out}: folder appeared while processing (pass --overwrite to replace it)")
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        out.rename(old)
-    tmp.rename(out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def write_png(path: Path, image: np.ndarray, rgb: bool = False) -> None:

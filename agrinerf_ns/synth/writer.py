@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 import json
-import os
-import shutil
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, Iterator, List, Sequence, Tuple, Union
+from typing import ContextManager, Dict, List, Sequence, Tuple, Union
 
 import h5py
 import numpy as np
 import yaml
 from PIL import Image
 
+from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.synth.raycast import PinholeRadtan
 from agrinerf_ns.synth.rig import quat_from_R
 
@@ -42,19 +40,29 @@ def tum_line(t: float, T: np.ndarray) -> str:
     return f"{t:.6f} {x:.6f} {y:.6f} {z:.6f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n"
 
 
-def write_tum(path: Path, times: Union[np.ndarray, Sequence[float]], poses: Sequence[np.ndarray], header: str = "") -> None:
+def write_tum(
+    path: Path, times: Union[np.ndarray, Sequence[float]], poses: Sequence[np.ndarray], header: str = ""
+) -> None:
     path.write_text(header + "".join(tum_line(t, T) for t, T in zip(times, poses, strict=True)))
 
 
-def write_events(path: Path, x: np.ndarray, y: np.ndarray, t_us: np.ndarray, p: np.ndarray, width: int,
-                 height: int) -> None:
+def write_events(
+    path: Path, x: np.ndarray, y: np.ndarray, t_us: np.ndarray, p: np.ndarray, width: int, height: int
+) -> None:
     """events/{x,y,t,p} datasets (uint16, uint16, int64 microseconds, uint8), no object timestamps."""
     with h5py.File(path, "w", libver="earliest") as f:
         g = f.create_group("events", track_order=False)
-        for name, arr in (("x", x.astype(np.uint16)), ("y", y.astype(np.uint16)), ("t", t_us.astype(np.int64)),
-                          ("p", p.astype(np.uint8))):
-            kw = dict(chunks=(min(65536, arr.size),), compression="gzip", compression_opts=4, shuffle=True) \
-                if arr.size else {}
+        for name, arr in (
+            ("x", x.astype(np.uint16)),
+            ("y", y.astype(np.uint16)),
+            ("t", t_us.astype(np.int64)),
+            ("p", p.astype(np.uint8)),
+        ):
+            kw = (
+                dict(chunks=(min(65536, arr.size),), compression="gzip", compression_opts=4, shuffle=True)
+                if arr.size
+                else {}
+            )
             g.create_dataset(name, data=arr, track_times=False, **kw)
         g.attrs["width"] = np.int64(width)
         g.attrs["height"] = np.int64(height)
@@ -96,15 +104,25 @@ def yolo_lines(boxes: List[Tuple[int, int, int, int, int, int]], width: int, hei
     return "".join(lines)
 
 
-def coco(boxes_per_image: List[List[Tuple[int, int, int, int, int, int]]], names: List[str], width: int,
-         height: int) -> dict:
+def coco(
+    boxes_per_image: List[List[Tuple[int, int, int, int, int, int]]], names: List[str], width: int, height: int
+) -> dict:
     """COCO detection dict; bbox [x, y, w, h] in pixels with the top-left pixel corner at (0, 0)."""
     images, anns = [], []
     for i, (name, boxes) in enumerate(zip(names, boxes_per_image, strict=True)):
         images.append({"id": i, "file_name": name, "width": width, "height": height})
         for fid, x0, y0, x1, y1, npx in boxes:
-            anns.append({"id": len(anns) + 1, "image_id": i, "category_id": 1,
-                         "bbox": [x0, y0, x1 - x0 + 1, y1 - y0 + 1], "area": npx, "iscrowd": 0, "fruit_id": fid})
+            anns.append(
+                {
+                    "id": len(anns) + 1,
+                    "image_id": i,
+                    "category_id": 1,
+                    "bbox": [x0, y0, x1 - x0 + 1, y1 - y0 + 1],
+                    "area": npx,
+                    "iscrowd": 0,
+                    "fruit_id": fid,
+                }
+            )
     return {"images": images, "annotations": anns, "categories": [{"id": 1, "name": "fruit"}]}
 
 
@@ -112,20 +130,6 @@ def write_json(path: Path, data: object) -> None:
     path.write_text(json.dumps(data, indent=1) + "\n")
 
 
-@contextmanager
-def atomic_folder(out: Path) -> Iterator[Path]:
+def atomic_folder(out: Path) -> ContextManager[Path]:
     """Yield a temporary sibling folder; on success it replaces ``out`` (absent or empty), on failure it is removed."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.synth-tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    try:
-        yield tmp
-        if out.exists():
-            out.rmdir()  # validated empty before generation
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+    return atomic_output_dir(out, overwrite=False)
