@@ -8,8 +8,10 @@ run (resumable: finished runs are skipped), then ``results.md`` (table + summary
 from __future__ import annotations
 
 import math
+import os
 import platform
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -50,8 +52,6 @@ class BenchConfig:
 
 def device_name() -> str:
     """The accelerator, or the CPU model and core count."""
-    import os
-
     import torch
 
     if torch.cuda.is_available():
@@ -191,8 +191,6 @@ def main(config: BenchConfig) -> List[results.Row]:
             results.append_rows(csv_path, rows)
             progress.advance(task)
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in config.methods]
-    import sys
-
     write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
     CONSOLE.print(f"results: {csv_path}, {config.out / 'results.md'}, {config.out / 'tradeoff.png'}")
     return rows

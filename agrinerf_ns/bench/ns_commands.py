@@ -86,7 +86,7 @@ def _wait(proc: subprocess.Popen, timeout: Optional[float]) -> Tuple[int, resour
         time.sleep(0.2)
 
 
-def cpu_train_args(
+def headless_train_args(
     max_steps: int, rays_per_batch: int, output_dir: Path, experiment: str, steps_per_save: Optional[int] = None
 ) -> List[str]:
     """Common ``ns-train`` options for a headless run: device, steps, batch, where to write, no viewer, no
@@ -175,7 +175,7 @@ def ns_train(
         method,
         "--data",
         str(data),
-        *cpu_train_args(max_steps, rays_per_batch, output_dir, experiment, steps_per_save),
+        *headless_train_args(max_steps, rays_per_batch, output_dir, experiment, steps_per_save),
         *extra_args,
         *dataparser_args,
     ]
