@@ -27,6 +27,7 @@ SMALL = dict(
     num_thermal_components=2,
     thermal_appearance_dim=3,
     mlp_width=16,
+    thermal_mlp_width=8,
     occupancy_resolution=8,
 )
 
@@ -86,10 +87,10 @@ def test_adding_thermal_adds_exactly_the_thermal_volume_and_mlp() -> None:
     assert set(rgb) <= set(both)
     assert all(rgb[n] == both[n] for n in rgb)
     assert added and all(n.startswith("field.thermal_head.") for n in added)
-    # volume: 3 planes + 3 lines of 2 components at resolution 8; basis 6 -> 3; MLP_THERMAL: in -> 16 -> 1
+    # volume: 3 planes + 3 lines of 2 components at resolution 8; basis 6 -> 3; MLP_THERMAL: in -> 8 -> 1
     volume = 3 * 2 * 8 * 8 + 3 * 2 * 8
     in_dim = 3 + 3 * 2 * 2  # features + NeRFEncoding(2 frequencies, sin/cos) of them, no direction (view independent)
-    mlp = 6 * 3 + (in_dim * 16 + 16) + (16 * 1 + 1)
+    mlp = 6 * 3 + (in_dim * 8 + 8) + (8 * 1 + 1)
     assert sum(added.values()) == volume + mlp
     thermal_volume = {n for n in added if ".encoding." in n}
     assert thermal_volume == {"field.thermal_head.encoding.plane_coef", "field.thermal_head.encoding.line_coef"}

@@ -14,7 +14,7 @@ import torch.nn.functional as F
 from jaxtyping import Bool, Float
 from nerfstudio.cameras.rays import RaySamples
 from nerfstudio.data.scene_box import SceneBox
-from nerfstudio.field_components.encodings import NeRFEncoding, TensorVMEncoding
+from nerfstudio.field_components.encodings import NeRFEncoding
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.field_components.mlp import MLP
 from nerfstudio.field_components.spatial_distortions import SceneContraction
@@ -22,6 +22,7 @@ from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
 
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
+from agrinerf_ns.model.vm_encoding import BilinearVMEncoding, VMCorners, VMLookup, vm_corners
 
 
 class AppearanceHead(nn.Module):
@@ -34,6 +35,7 @@ class AppearanceHead(nn.Module):
         out_dim: output channels (3 for RGB, 1 for thermal).
         view_dependent: feed the encoded viewing direction to the MLP.
         mlp_width: hidden width of the MLP (Nerfstudio `MLP` with num_layers=2: one hidden layer, as tensorf's head).
+        lookup: how the appearance volume is sampled (`VMLookup`).
     """
 
     def __init__(
@@ -44,9 +46,10 @@ class AppearanceHead(nn.Module):
         out_dim: int,
         view_dependent: bool,
         mlp_width: int = 128,
+        lookup: VMLookup = "auto",
     ) -> None:
         super().__init__()
-        self.encoding = TensorVMEncoding(resolution=resolution, num_components=num_components)
+        self.encoding = BilinearVMEncoding(resolution=resolution, num_components=num_components, lookup=lookup)
         self.basis = nn.Linear(self.encoding.get_out_dim(), appearance_dim, bias=False)
         self.feature_encoding = NeRFEncoding(in_dim=appearance_dim, num_frequencies=2, min_freq_exp=0, max_freq_exp=2)
         self.direction_encoding: Optional[NeRFEncoding] = (
@@ -65,9 +68,14 @@ class AppearanceHead(nn.Module):
             implementation="torch",
         )
 
-    def forward(self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"]) -> Float[Tensor, "n out_dim"]:
-        """Value in [0, 1] at grid coordinates `coords` (in [-1, 1]) seen along unit `directions`."""
-        features = self.basis(self.encoding(coords))
+    def forward(
+        self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"], corners: Optional[VMCorners] = None
+    ) -> Float[Tensor, "n out_dim"]:
+        """Value in [0, 1] at grid coordinates `coords` (in [-1, 1]) seen along unit `directions`; `corners` (of
+        `coords`, at the volume's resolution) saves recomputing them."""
+        if corners is None:
+            corners = vm_corners(coords, self.encoding.resolution)
+        features = self.basis(self.encoding.features(corners))
         parts = [features, self.feature_encoding(features)]
         if self.direction_encoding is not None:
             parts.append(self.direction_encoding(directions))
@@ -91,9 +99,12 @@ class AgriNeRFField(Field):
         num_rgb_components, rgb_appearance_dim: RGB appearance volume and basis size.
         num_thermal_components, thermal_appearance_dim: thermal appearance volume and basis size.
         thermal_view_dependent: feed the viewing direction to MLP_THERMAL (default: no, thermal is Lambertian enough).
+        mlp_width: hidden width of MLP_RGB.
+        thermal_mlp_width: hidden width of MLP_THERMAL (one channel; defaults to `mlp_width`).
         density_shift: added before the softplus (TensoRF's `density_shift`).
         max_density: densities are clamped to this value so that alpha compositing never sees Inf.
         occupancy_resolution: cells per axis of the empty-space occupancy grid (0 disables it).
+        vm_lookup: how every volume is sampled (`VMLookup`: row sums on a CPU, `grid_sample` on a GPU by default).
     """
 
     occupancy: Bool[Tensor, "r r r"]
@@ -112,9 +123,11 @@ class AgriNeRFField(Field):
         thermal_appearance_dim: int = 12,
         thermal_view_dependent: bool = False,
         mlp_width: int = 128,
+        thermal_mlp_width: Optional[int] = None,
         density_shift: float = -4.0,
         max_density: float = 1.0e4,
         occupancy_resolution: int = 64,
+        vm_lookup: VMLookup = "auto",
     ) -> None:
         super().__init__()
         if not (with_rgb or with_thermal):
@@ -123,13 +136,23 @@ class AgriNeRFField(Field):
         self.spatial_distortion: Optional[SceneContraction] = (
             SceneContraction(order=float("inf")) if contraction else None
         )
-        self.density_encoding = TensorVMEncoding(resolution=resolution, num_components=num_density_components)
+        self.density_encoding = BilinearVMEncoding(
+            resolution=resolution, num_components=num_density_components, lookup=vm_lookup
+        )
         self.rgb_head: Optional[AppearanceHead] = (
-            AppearanceHead(resolution, num_rgb_components, rgb_appearance_dim, 3, True, mlp_width) if with_rgb else None
+            AppearanceHead(resolution, num_rgb_components, rgb_appearance_dim, 3, True, mlp_width, vm_lookup)
+            if with_rgb
+            else None
         )
         self.thermal_head: Optional[AppearanceHead] = (
             AppearanceHead(
-                resolution, num_thermal_components, thermal_appearance_dim, 1, thermal_view_dependent, mlp_width
+                resolution,
+                num_thermal_components,
+                thermal_appearance_dim,
+                1,
+                thermal_view_dependent,
+                mlp_width if thermal_mlp_width is None else thermal_mlp_width,
+                vm_lookup,
             )
             if with_thermal
             else None
@@ -146,7 +169,7 @@ class AgriNeRFField(Field):
         self.occupancy_all = bool(self.occupancy.all())
 
     # ---------------------------------------------------------------- geometry
-    def volumes(self) -> Dict[str, TensorVMEncoding]:
+    def volumes(self) -> Dict[str, BilinearVMEncoding]:
         """Every TensoRF volume of the field, by name (the ones the resolution schedule upsamples)."""
         vols = {"density": self.density_encoding}
         if self.rgb_head is not None:
@@ -173,20 +196,29 @@ class AgriNeRFField(Field):
         idx = ((coords + 1.0) * (res / 2.0)).long().clamp(0, res - 1)
         return self.occupancy[idx[:, 0], idx[:, 1], idx[:, 2]]
 
-    def density_at(self, coords: Float[Tensor, "*bs 3"], valid: Bool[Tensor, "*bs"]) -> Float[Tensor, "*bs 1"]:
+    def corners(self, coords: Float[Tensor, "n 3"]) -> VMCorners:
+        """Lookup corners of flat grid coordinates, shared by every volume (they all have one resolution)."""
+        return vm_corners(coords, self.density_encoding.resolution)
+
+    def density_at(
+        self, coords: Float[Tensor, "*bs 3"], valid: Bool[Tensor, "*bs"], corners: Optional[VMCorners] = None
+    ) -> Float[Tensor, "*bs 1"]:
         """Density (softplus of the summed VM features, clamped) at `coords`; zero where `valid` is False.
 
-        Only the valid, occupied points are looked up in the volume, so empty space costs nothing.
+        Only the valid, occupied points are looked up in the volume, so empty space costs nothing. `corners` (of the
+        flattened `coords`) saves recomputing them.
         """
         flat = coords.reshape(-1, 3)
         keep = valid.reshape(-1) & self.occupied(flat)
+        if corners is None:
+            corners = self.corners(flat)
         if bool(keep.all()):  # nothing to prune: no gather/scatter
-            raw = self.density_encoding(flat).sum(dim=-1, keepdim=True)
+            raw = self.density_encoding.features(corners).sum(dim=-1, keepdim=True)
             density = F.softplus(raw + self.density_shift).clamp(max=self.max_density)
             return density.reshape(*coords.shape[:-1], 1)
         density = flat.new_zeros(flat.shape[0], 1)
         if keep.any():
-            raw = self.density_encoding(flat[keep]).sum(dim=-1, keepdim=True)
+            raw = self.density_encoding.features(corners.select(keep)).sum(dim=-1, keepdim=True)
             density[keep] = F.softplus(raw + self.density_shift).clamp(max=self.max_density)
         return density.reshape(*coords.shape[:-1], 1)
 
@@ -197,16 +229,18 @@ class AgriNeRFField(Field):
 
     # -------------------------------------------------------------- appearance
     def appearance_at(
-        self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"]
+        self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"], corners: Optional[VMCorners] = None
     ) -> Dict[object, Float[Tensor, "n c"]]:
-        """Head outputs at flat grid coordinates (used by the model on the samples that matter only)."""
-        directions = torch.nan_to_num(directions.float())
-        directions = directions / directions.norm(dim=-1, keepdim=True).clamp(min=1e-8)
+        """Head outputs at flat grid coordinates (used by the model on the samples that matter only); both heads
+        share one set of lookup corners (`corners`, when given, must be those of `coords`)."""
+        directions = torch.nan_to_num(directions.float())  # unit vectors (Nerfstudio's rays are normalised)
+        if corners is None:
+            corners = self.corners(coords)
         out: Dict[object, Tensor] = {}
         if self.rgb_head is not None:
-            out[FieldHeadNames.RGB] = self.rgb_head(coords, directions)
+            out[FieldHeadNames.RGB] = self.rgb_head(coords, directions, corners)
         if self.thermal_head is not None:
-            out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head(coords, directions)
+            out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head(coords, directions, corners)
         return out
 
     def get_outputs(

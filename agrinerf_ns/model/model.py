@@ -29,6 +29,7 @@ from torch.nn import Parameter
 from agrinerf_ns.model import losses
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
+from agrinerf_ns.model.vm_encoding import VMLookup
 
 Modality = Literal["rgb", "thermal", "events"]
 ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
@@ -90,7 +91,9 @@ class AgriNeRFModelConfig(ModelConfig):
     thermal_view_dependent: bool = False
     """Feed the viewing direction to MLP_THERMAL."""
     mlp_width: int = 128
-    """Hidden width of MLP_RGB and MLP_THERMAL."""
+    """Hidden width of MLP_RGB (TensoRF's)."""
+    thermal_mlp_width: int = 64
+    """Hidden width of MLP_THERMAL (one view-independent channel: half of MLP_RGB's width costs half as much)."""
     density_shift: float = -4.0
     """Added to the summed density features before the softplus: zero features (where the L1 regulariser drives
     empty space) give softplus(-4) = 0.018, below `occupancy_density_threshold`, so empty cells can be pruned."""
@@ -113,6 +116,9 @@ class AgriNeRFModelConfig(ModelConfig):
     """Steps after which the occupancy grid is recomputed from the density volume."""
     occupancy_density_threshold: float = 0.1
     """A cell whose density (centre and a jittered point) stays below this is empty (then dilated by one cell)."""
+    vm_lookup: VMLookup = "auto"
+    """How the TensoRF volumes are sampled: "rows" (weighted row sums, cheaper to train on a CPU: docs/model.md),
+    "grid_sample" (Nerfstudio's lookup), "auto" (rows on a CPU, grid_sample on a GPU, where rows are unmeasured)."""
     loss_coefficients: Dict[str, float] = to_immutable_dict(
         {
             "rgb_loss": 1.0,
@@ -189,9 +195,11 @@ class AgriNeRFModel(Model):
             thermal_appearance_dim=cfg.thermal_appearance_dim,
             thermal_view_dependent=cfg.thermal_view_dependent,
             mlp_width=cfg.mlp_width,
+            thermal_mlp_width=cfg.thermal_mlp_width,
             density_shift=cfg.density_shift,
             max_density=cfg.max_density,
             occupancy_resolution=cfg.occupancy_resolution,
+            vm_lookup=cfg.vm_lookup,
         )
 
         # samplers
@@ -332,7 +340,9 @@ class AgriNeRFModel(Model):
             density_coarse, _ = self.field.get_density(samples_coarse)
             weights_coarse = torch.nan_to_num(samples_coarse.get_weights(density_coarse))
         samples = self.sampler_pdf(ray_bundle, samples_coarse, weights_coarse)
-        density, coords = self.field.get_density(samples)
+        coords, inside = self.field.to_grid(samples.frustums.get_positions())
+        corners = self.field.corners(coords.reshape(-1, 3))  # shared by the density and both appearance volumes
+        density = self.field.density_at(coords, inside, corners)
         weights = torch.nan_to_num(samples.get_weights(density))  # [rays, samples, 1]
         num_rays, num_samples = weights.shape[:2]
 
@@ -340,7 +350,9 @@ class AgriNeRFModel(Model):
         if self.config.background_color == "last_sample":
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
-        head_values = self.field.appearance_at(coords[selected], directions[selected])
+        head_values = self.field.appearance_at(
+            coords[selected], directions[selected], corners.select(selected.reshape(-1))
+        )
 
         accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
         outputs: Dict[str, Tensor] = {
