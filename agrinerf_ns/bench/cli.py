@@ -35,7 +35,8 @@ class BenchConfig:
     out: Path = Path("outputs/bench")
     """Folder for scenes, runs, results.csv, results.md and tradeoff.png."""
     profile: str = "quick"
-    """quick (CPU, < 30 min), full (GPU, paper settings: 30k steps) or tiny (tests)."""
+    """quick (CPU), full (GPU, paper settings: 30k steps), detect (CPU: the dark garden at 320x240 for
+    ``agrinerf-detect evaluate --bench``) or tiny (tests)."""
     methods: Tuple[str, ...] = tuple(METHODS)
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf)."""
     scenes: Optional[Tuple[str, ...]] = None
@@ -165,7 +166,9 @@ def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[
     devices = sorted({r["device"] for r in rows})
     text = (f"# agrinerf-bench results\n\nCommand: `{command}`\n\nMachine: {', '.join(devices)}\n\n"
             f"![quality against wall time](tradeoff.png)\n\n## Summary\n{summary(rows, target_psnr)}\n"
-            f"## All checkpoints\n{results.markdown_table(rows)}")  # fmt: skip
+            f"## All checkpoints\ns/step: steady state, wall time between a run's first and last checkpoint over the "
+            f"steps between them. Peak RSS: the `ns-train` process tree, sampled every 0.2 s.\n\n"
+            f"{results.markdown_table(rows)}")  # fmt: skip
     (out / "results.md").write_text(text)
     results.plot(rows, out / "tradeoff.png")
 

@@ -9,7 +9,6 @@ import dataclasses
 import json
 import os
 import re
-import resource
 import shutil
 import subprocess
 import sys
@@ -49,8 +48,9 @@ def run_ns(
 ) -> CommandResult:
     """Run ``ns-<name> args...``; raise :class:`NerfstudioCommandError` on failure.
 
-    Output goes to ``log_path`` (a temporary file if None). Peak memory is the child's ``ru_maxrss`` from ``wait4``:
-    the largest resident set of the command and of the worker processes it waited for.
+    Output goes to ``log_path`` (a temporary file if None). Peak memory: see :class:`TreeMemory` (not ``ru_maxrss``,
+    which on Linux starts from the parent's high-water mark: a child forked by a 3 GiB benchmark process reports at
+    least 3 GiB).
     """
     command = [_ns_executable(f"ns-{name}"), *map(str, args)]
     with tempfile.TemporaryDirectory() as tmp:
@@ -61,26 +61,72 @@ def run_ns(
             handle.write(" ".join(command) + "\n")
             handle.flush()
             proc = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-            status, usage = _wait(proc, timeout)
+            memory = TreeMemory(proc.pid)
+            status = _wait(proc, timeout, memory)
         wall = time.perf_counter() - start
         output = log.read_text(errors="replace")
     code = os.waitstatus_to_exitcode(status)
     if code != 0:
         raise NerfstudioCommandError(f"{' '.join(command)} exited {code}:\n{output[-4000:]}")
-    return CommandResult(output=output, wall_s=wall, peak_rss_mb=usage.ru_maxrss / 1024.0)
+    return CommandResult(output=output, wall_s=wall, peak_rss_mb=memory.peak_kib / 1024.0)
 
 
-def _wait(proc: subprocess.Popen, timeout: Optional[float]) -> Tuple[int, resource.struct_rusage]:
-    """Wait for ``proc`` with ``wait4`` (to get its own resource usage); kill it past ``timeout`` seconds."""
+def _proc_status_kib(pid: int, key: str) -> int:
+    """A ``VmRSS``/``VmHWM``-style field of ``/proc/PID/status`` in KiB (0 when the process is gone)."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
+def _children(pid: int) -> List[int]:
+    """Direct children of ``pid`` (from ``/proc/PID/task/*/children``)."""
+    kids: List[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*/children"):
+        try:
+            kids.extend(int(k) for k in task.read_text().split())
+        except (OSError, ValueError):
+            continue
+    return kids
+
+
+class TreeMemory:
+    """Peak resident memory of a process and its descendants, sampled from ``/proc`` while it runs.
+
+    The peak is the larger of (a) the largest sum of ``VmRSS`` over the process tree seen at any sample and (b) the
+    main process's own ``VmHWM`` (its exact high-water mark since ``exec``, read at every sample). Samples are
+    0.2 s apart; on a system without ``/proc`` the peak stays 0.
+    """
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.peak_kib = 0
+
+    def sample(self) -> None:
+        tree, todo = [], [self.pid]
+        while todo:
+            pid = todo.pop()
+            tree.append(pid)
+            todo.extend(_children(pid))
+        total = sum(_proc_status_kib(p, "VmRSS") for p in tree)
+        self.peak_kib = max(self.peak_kib, total, _proc_status_kib(self.pid, "VmHWM"))
+
+
+def _wait(proc: subprocess.Popen, timeout: Optional[float], memory: TreeMemory) -> int:
+    """Wait for ``proc``, sampling its memory; kill it past ``timeout`` seconds. Returns the wait status."""
     deadline = None if timeout is None else time.monotonic() + timeout
     while True:
-        pid, status, usage = os.wait4(proc.pid, os.WNOHANG if deadline is not None else 0)
+        memory.sample()  # before reaping: /proc/PID still exists (a zombie reads as 0 and changes nothing)
+        pid, status = os.waitpid(proc.pid, os.WNOHANG)
         if pid == proc.pid:
             proc.returncode = os.waitstatus_to_exitcode(status)
-            return status, usage
+            return status
         if deadline is not None and time.monotonic() > deadline:
             proc.kill()
-            _, status, usage = os.wait4(proc.pid, 0)
+            _, status = os.waitpid(proc.pid, 0)
             proc.returncode = os.waitstatus_to_exitcode(status)
             raise NerfstudioCommandError(f"{proc.args} timed out after {timeout} s")
         time.sleep(0.2)
@@ -129,7 +175,11 @@ class TrainRun:
     started_at: float
     """``time.time()`` when ``ns-train`` was launched (checkpoint mtimes minus this give time-to-checkpoint)."""
     s_per_step: float
-    """Mean seconds per training iteration, from Nerfstudio's own profiler (NaN if it printed none)."""
+    """Seconds per training step in steady state: wall time between the first and the last checkpoint over the steps
+    between them, which leaves out start-up and the first iterations (Nerfstudio's ``tensorf`` spends 10-20 s in its
+    first one on a CPU); Nerfstudio's profiler mean when the run saved fewer than two checkpoints."""
+    profiler_s_per_step: float = float("nan")
+    """Mean seconds per iteration from Nerfstudio's own profiler: every iteration, the first included (NaN if none)."""
 
     def save(self, path: Path) -> None:
         """Write this record as JSON (atomically)."""
@@ -148,6 +198,16 @@ class TrainRun:
         """(step, path) of every checkpoint, by step."""
         found = [(int(p.stem.split("-")[1]), p) for p in (self.config.parent / "nerfstudio_models").glob("step-*.ckpt")]
         return sorted(found)
+
+
+def steady_seconds_per_step(checkpoints: Sequence[Tuple[int, Path]]) -> Optional[float]:
+    """Seconds per step between the first and last of ``(step, path)`` checkpoints (by file mtime); None if < 2."""
+    if len(checkpoints) < 2:
+        return None
+    (first_step, first), (last_step, last) = checkpoints[0], checkpoints[-1]
+    if last_step <= first_step:
+        return None
+    return (last.stat().st_mtime - first.stat().st_mtime) / (last_step - first_step)
 
 
 def _mean_iteration_seconds(output: str) -> float:
@@ -184,7 +244,12 @@ def ns_train(
     config = output_dir / experiment / method / "run" / "config.yml"
     if not config.exists():
         raise NerfstudioCommandError(f"ns-train finished but wrote no {config}")
-    return TrainRun(config, result.wall_s, result.peak_rss_mb, started_at, _mean_iteration_seconds(result.output))
+    profiler = _mean_iteration_seconds(result.output)
+    run = TrainRun(config, result.wall_s, result.peak_rss_mb, started_at, profiler, profiler)
+    steady = steady_seconds_per_step(run.checkpoints())
+    if steady is not None:
+        run.s_per_step = steady
+    return run
 
 
 def ns_eval(config: Path, output_json: Path, timeout: Optional[float] = None) -> Dict[str, float]:

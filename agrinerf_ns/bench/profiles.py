@@ -41,6 +41,13 @@ PROFILES: Dict[str, BenchProfile] = {
                "tensorf": 30000},
         evaluations=6, rays_per_batch=1024,
     ),
+    # Downstream detection on a CPU (agrinerf-detect evaluate --bench): the dark garden at 320x240, so that fruits are
+    # about 10 px wide in RGB and 5 px in the 160x128 thermal frames; about 5-6 minutes of training per method.
+    "detect": BenchProfile(
+        views=24, width=320, height=240,
+        steps={"agrinerf-lite": 1500, "agrinerf": 400, "nerfacto": 150, "nerfacto-thermal": 110, "tensorf": 400},
+        evaluations=1, rays_per_batch=1024, scenes=("garden-dark",),
+    ),
     # The machinery end to end in a test: minutes on a CPU.
     "tiny": BenchProfile(
         views=8, width=64, height=48,
