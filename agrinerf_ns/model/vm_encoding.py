@@ -114,8 +114,10 @@ class _WeightedRows(torch.autograd.Function):
     def backward(ctx, grad_out: Tensor) -> Tuple[Tensor, None, None]:  # type: ignore[override]
         index, weight = ctx.saved_tensors
         grad_table = grad_out.new_zeros(ctx.table_shape)
+        scaled = torch.empty_like(grad_out)  # one buffer for every corner: no fresh (page-faulting) allocation each
         for k in range(index.shape[1]):
-            grad_table.index_add_(0, index[:, k], grad_out * weight[:, k : k + 1])
+            torch.mul(grad_out, weight[:, k : k + 1], out=scaled)
+            grad_table.index_add_(0, index[:, k], scaled)
         return grad_table, None, None
 
 
