@@ -28,9 +28,9 @@ class BenchProfile:
 
 PROFILES: Dict[str, BenchProfile] = {
     # CPU, 2 cores, both scenes in about 30 minutes (measured 31 min 41 s with ~25% of the CPU stolen by the host):
-    # about 2 minutes of training per method and scene (steady
-    # state on a quiet 2-core machine, dark orchard: agrinerf-lite 0.22, agrinerf 0.70, tensorf 0.58, nerfacto 2.4 s
-    # per step at 1024 rays; budgets of 1200/300/90/90/200 steps took 47 minutes for both scenes).
+    # about 2 minutes of training per method and scene (steady state on a quiet 2-core machine, dark orchard:
+    # agrinerf-lite 0.22, agrinerf 0.70, tensorf 0.58, nerfacto 2.4 s per step at 1024 rays; budgets of
+    # 1200/300/90/90/200 steps took 47 minutes for both scenes).
     "quick": BenchProfile(
         views=16, width=96, height=72,
         steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},

@@ -350,13 +350,9 @@ class AgriNeRFModel(Model):
         if self.config.background_color == "last_sample":
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
-        every = bool(selected.all())  # fine PDF samples sit where the weights are: usually all of them pass
-        if every:
-            head_values = self.field.appearance_at(coords.reshape(-1, 3), directions.reshape(-1, 3), corners)
-        else:
-            head_values = self.field.appearance_at(
-                coords[selected], directions[selected], corners.select(selected.reshape(-1))
-            )
+        head_values = self.field.appearance_at(
+            coords[selected], directions[selected], corners.select(selected.reshape(-1))
+        )
 
         accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
         outputs: Dict[str, Tensor] = {
@@ -365,11 +361,8 @@ class AgriNeRFModel(Model):
         }
         names = {FieldHeadNames.RGB: "rgb", AgriNeRFFieldHeadNames.THERMAL: "thermal"}
         for head, values in head_values.items():
-            if every:
-                dense = values.to(weights.dtype).view(num_rays, num_samples, values.shape[-1])
-            else:
-                dense = weights.new_zeros(num_rays, num_samples, values.shape[-1])
-                dense[selected] = values.to(dense.dtype)
+            dense = weights.new_zeros(num_rays, num_samples, values.shape[-1])
+            dense[selected] = values.to(dense.dtype)
             composite = (weights * dense).sum(dim=-2) + self._background(dense) * (1.0 - accumulation)
             if not self.training:
                 composite = composite.clamp(0.0, 1.0)
