@@ -222,3 +222,37 @@ def test_upsampling_callback_resizes_every_volume_and_repoints_the_optimizers() 
             assert optimizer.state[p]["exp_avg"].shape == p.shape  # Adam restarted at the new size (steps 4, 5)
     assert optimizers.optimizers["encodings"].state[now["encodings"][0]]["step"].item() == 1.0
     assert optimizers.optimizers["fields"].state[now["fields"][0]]["step"].item() == 5.0  # MLP moments kept
+
+
+def test_heads_on_every_sample_equal_heads_on_the_selected_ones(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The dense path (heads on all fine samples, unselected ones masked) renders and trains as the gathered one."""
+    import agrinerf_ns.model.model as model_module
+
+    model = _model(weight_threshold=0.02, background_color="black")
+    model.train()
+    rays, batch = _rays(64), _batch(64)
+    results, seen = {}, {}
+    appearance_at = model.field.appearance_at
+    for name, fraction in (("gathered", 2.0), ("dense", 0.0)):
+        monkeypatch.setattr(model_module, "DENSE_HEADS_FRACTION", fraction)
+
+        def counting(coords, directions, corners=None, name=name):
+            seen[name] = coords.shape[0]
+            return appearance_at(coords, directions, corners)
+
+        monkeypatch.setattr(model.field, "appearance_at", counting)
+        model.zero_grad()
+        torch.manual_seed(5)  # the same PDF jitter for both
+        outputs = model(rays)  # the collider sets near and far, then get_outputs
+        loss = sum(model.get_loss_dict(outputs, batch).values())
+        loss.backward()
+        grads = {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
+        results[name] = (outputs, grads)
+    (out_a, grad_a), (out_b, grad_b) = results["gathered"], results["dense"]
+    for key in ("rgb", "thermal", "accumulation", "depth"):
+        torch.testing.assert_close(out_b[key], out_a[key], rtol=1e-5, atol=1e-6)
+    assert grad_a.keys() == grad_b.keys() and any(n.startswith("field.thermal_head") for n in grad_a)
+    for name in grad_a:
+        torch.testing.assert_close(grad_b[name], grad_a[name], rtol=1e-4, atol=1e-6)
+    # the threshold really left samples out (else this would not test the masking): the gathered run got fewer
+    assert 0 < seen["gathered"] < seen["dense"] == 64 * SMALL["num_fine_samples"]

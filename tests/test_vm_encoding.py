@@ -6,7 +6,7 @@ import pytest
 import torch
 from nerfstudio.field_components.encodings import TensorVMEncoding
 
-from agrinerf_ns.model.vm_encoding import BilinearVMEncoding, vm_corners, weighted_rows
+from agrinerf_ns.model.vm_encoding import BilinearVMEncoding, scatter_matrix, vm_corners, vm_product
 
 
 def _pair(resolution: int, components: int, lookup: str = "rows"):
@@ -73,12 +73,37 @@ def test_upsampling_matches_nerfstudio_and_stays_channels_last() -> None:
         mine.features(vm_corners(pts, 8))
 
 
-def test_weighted_rows_gradient_is_exact() -> None:
+def test_scatter_matrix_adds_every_weighted_corner() -> None:
     gen = torch.Generator().manual_seed(2)
-    table = torch.randn(10, 4, dtype=torch.float64, generator=gen, requires_grad=True)
-    index = torch.randint(0, 10, (25, 3), generator=gen)  # repeated rows: gradients must add up
-    weight = torch.rand(25, 3, dtype=torch.float64, generator=gen)
-    assert torch.autograd.gradcheck(lambda t: weighted_rows(t, index, weight), (table,))
+    rows, offsets = 30, (0, 1, 5, 6)
+    base = torch.randint(0, rows - 6, (40,), generator=gen)  # repeated bases: their entries must all be there
+    weight = torch.rand(40, 4, generator=gen)
+    expected = torch.zeros(rows, 40)
+    for i in range(40):
+        for k, off in enumerate(offsets):
+            expected[base[i] + off, i] += weight[i, k]
+    matrix = scatter_matrix(base, offsets, weight, rows)
+    torch.testing.assert_close(matrix.to_dense(), expected)
+    assert bool((matrix.crow_indices().diff() >= 0).all()) and int(matrix.crow_indices()[-1]) == 160
+
+
+def test_vm_product_gradient_is_exact() -> None:
+    gen = torch.Generator().manual_seed(3)
+    res, comps = 5, 3
+    coords = torch.rand(30, 3, dtype=torch.float64, generator=gen) * 2 - 1
+    coords[:4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, -1.0, 0.3]])
+    corners = vm_corners(coords, res)
+    plane = torch.randn(3 * res * res, comps, dtype=torch.float64, generator=gen, requires_grad=True)
+    line = torch.randn(3 * res, comps, dtype=torch.float64, generator=gen, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda p, q: vm_product(p, q, corners), (plane, line))
+
+
+def test_no_points_give_zero_gradients() -> None:
+    _, mine = _pair(6, 2)
+    out = mine(torch.zeros(0, 3))
+    assert out.shape == (0, 6)
+    out.sum().backward()
+    assert bool((mine.plane_coef.grad == 0).all()) and bool((mine.line_coef.grad == 0).all())
 
 
 def test_unknown_lookup_and_tiny_resolution_are_refused() -> None:

@@ -17,10 +17,10 @@ from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.field_components.encodings import NeRFEncoding
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.field_components.mlp import MLP
-from nerfstudio.field_components.spatial_distortions import SceneContraction
 from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
 
+from agrinerf_ns.model.contraction import LinfContraction
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.vm_encoding import BilinearVMEncoding, VMCorners, VMLookup, vm_corners
 
@@ -91,7 +91,7 @@ class AgriNeRFField(Field):
 
     Args:
         aabb: scene box (2, 3); used when `contraction` is False (bounded scene).
-        contraction: contract the unbounded scene into the grid (Nerfstudio `SceneContraction`, L-inf: a cube) so that
+        contraction: contract the unbounded scene into the grid (`SceneContraction`, L-inf: a cube) so that
             sky and far trees of an orchard row land in the outer shell of the volumes.
         resolution: initial resolution of all volumes.
         num_density_components: VM components of the density volume.
@@ -133,9 +133,7 @@ class AgriNeRFField(Field):
         if not (with_rgb or with_thermal):
             raise ValueError("AgriNeRFField needs at least one of the RGB and thermal heads")
         self.register_buffer("aabb", aabb.detach().clone().float())
-        self.spatial_distortion: Optional[SceneContraction] = (
-            SceneContraction(order=float("inf")) if contraction else None
-        )
+        self.spatial_distortion: Optional[LinfContraction] = LinfContraction() if contraction else None
         self.density_encoding = BilinearVMEncoding(
             resolution=resolution, num_components=num_density_components, lookup=vm_lookup
         )

@@ -34,6 +34,11 @@ from agrinerf_ns.model.vm_encoding import VMLookup
 Modality = Literal["rgb", "thermal", "events"]
 ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
 
+DENSE_HEADS_FRACTION = 0.85
+"""When at least this fraction of the fine samples passes the weight threshold (usual: the PDF samples sit where the
+weights are), the heads run on every sample and the others are masked: gathering the selected ones would cost a copy of
+their lookup corners and a second transposed lookup for the backward pass, more than the few extra samples."""
+
 TABLE_IV_ABLATIONS: Dict[str, Tuple[Modality, ...]] = {
     "RGB": ("rgb",),
     "RGB+Events": ("rgb", "events"),
@@ -350,9 +355,13 @@ class AgriNeRFModel(Model):
         if self.config.background_color == "last_sample":
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
-        head_values = self.field.appearance_at(
-            coords[selected], directions[selected], corners.select(selected.reshape(-1))
-        )
+        every_sample = float(selected.float().mean()) >= DENSE_HEADS_FRACTION
+        if every_sample:  # heads on all samples, masked after: the volumes reuse the density's transposed lookups
+            flat_values = self.field.appearance_at(coords.reshape(-1, 3), directions.reshape(-1, 3), corners)
+        else:
+            flat_values = self.field.appearance_at(
+                coords[selected], directions[selected], corners.select(selected.reshape(-1))
+            )
 
         accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
         outputs: Dict[str, Tensor] = {
@@ -360,9 +369,13 @@ class AgriNeRFModel(Model):
             "depth": self.renderer_depth(weights, samples),
         }
         names = {FieldHeadNames.RGB: "rgb", AgriNeRFFieldHeadNames.THERMAL: "thermal"}
-        for head, values in head_values.items():
-            dense = weights.new_zeros(num_rays, num_samples, values.shape[-1])
-            dense[selected] = values.to(dense.dtype)
+        for head, values in flat_values.items():
+            if every_sample:
+                dense = values.to(weights.dtype).view(num_rays, num_samples, values.shape[-1])
+                dense = torch.where(selected[..., None], dense, 0.0)
+            else:
+                dense = weights.new_zeros(num_rays, num_samples, values.shape[-1])
+                dense[selected] = values.to(dense.dtype)
             composite = (weights * dense).sum(dim=-2) + self._background(dense) * (1.0 - accumulation)
             if not self.training:
                 composite = composite.clamp(0.0, 1.0)

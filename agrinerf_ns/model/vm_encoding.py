@@ -3,16 +3,17 @@
 `BilinearVMEncoding` is Nerfstudio's `TensorVMEncoding` (same parameters, same initialisation, same upsampling, same
 features for coordinates in [-1, 1]) with a different lookup: the planes are stored channels-last, so that a plane is
 a table of `3 * resolution**2` rows of `num_components` features, and a bilinear sample is a weighted sum of four rows
-(`F.embedding_bag`). Its backward pass adds rows of gradient instead of scattering single values into channel-major
-planes, which is where `grid_sample`'s backward spends its time on a CPU.
-The corner indices and weights (`VMCorners`) depend only on the coordinates and the resolution, so volumes of the same
-resolution can share them (the field computes them once for its RGB and thermal volumes).
+(`F.embedding_bag`). The backward pass is a sparse matrix product: the transpose of the lookup, built once from the
+corner indices, times the gradient rows (`scatter_matrix`), where `grid_sample`'s backward scatters single values into
+channel-major planes, and `index_add_` scatters element by element.
+The corners (`VMCorners`) depend only on the coordinates and the resolution, so volumes of the same resolution share
+them and their transposed lookups (the field computes them once for its density, RGB and thermal volumes).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal, Tuple
+import warnings
+from typing import Literal, Optional, Tuple
 
 import torch
 import torch.nn.functional as F
@@ -28,57 +29,105 @@ _LINE_AXES = (2, 1, 0)
 """Coordinate axis along each line (paired with the plane that lacks it)."""
 
 
-@dataclass
 class VMCorners:
     """Bilinear corners of `n` points in the three planes and linear corners in the three lines of a VM volume.
 
-    Rows are point-major: row `3 * i + p` is point `i` in plane (or line) `p`.
+    Rows are point-major: row `3 * i + p` is point `i` in plane (or line) `p`. Everything but the clamped points is
+    computed on first use and cached: the `grid_sample` lookup reads `coords` only, the row lookup reads the indices and
+    weights, and its backward pass the transposed lookups, which volumes that share the corners share too.
+
+    Args:
+        coords: the points, already clamped to [-1, 1] (build with `vm_corners`).
+        resolution: grid resolution the indices refer to.
     """
 
-    coords: Float[Tensor, "n 3"]
-    """The points, clamped to [-1, 1] (for the `grid_sample` lookup)."""
-    plane_index: Int[Tensor, "n3 4"]
-    """Row of each corner in the flattened planes (`3 * resolution**2` rows)."""
-    plane_weight: Float[Tensor, "n3 4"]
-    """Bilinear weight of each corner."""
-    line_index: Int[Tensor, "n3 2"]
-    """Row of each end in the flattened lines (`3 * resolution` rows)."""
-    line_weight: Float[Tensor, "n3 2"]
-    """Linear weight of each end."""
-    resolution: int
-    """Grid resolution the indices refer to."""
+    def __init__(self, coords: Float[Tensor, "n 3"], resolution: int) -> None:
+        self.coords = coords
+        self.resolution = resolution
+        self._rows: Optional[Tuple[Tensor, Tensor, Tensor, Tensor]] = None
+        self._plane_scatter: Optional[Tensor] = None
+        self._line_scatter: Optional[Tensor] = None
 
     @property
     def num_points(self) -> int:
-        return self.plane_index.shape[0] // 3
+        return self.coords.shape[0]
+
+    def _corner_rows(self) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
+        if self._rows is None:
+            self._rows = _corner_rows(self.coords, self.resolution)
+        return self._rows
+
+    @property
+    def plane_index(self) -> Int[Tensor, "n3 4"]:
+        """Row of each corner in the flattened planes (`3 * resolution**2` rows)."""
+        return self._corner_rows()[0]
+
+    @property
+    def plane_weight(self) -> Float[Tensor, "n3 4"]:
+        """Bilinear weight of each corner."""
+        return self._corner_rows()[1]
+
+    @property
+    def line_index(self) -> Int[Tensor, "n3 2"]:
+        """Row of each end in the flattened lines (`3 * resolution` rows)."""
+        return self._corner_rows()[2]
+
+    @property
+    def line_weight(self) -> Float[Tensor, "n3 2"]:
+        """Linear weight of each end."""
+        return self._corner_rows()[3]
+
+    def plane_scatter(self) -> Tensor:
+        """Sparse (`3 * resolution**2` x `3n`) transpose of the plane lookup (`scatter_matrix`), cached."""
+        if self._plane_scatter is None:
+            res = self.resolution
+            self._plane_scatter = scatter_matrix(
+                self.plane_index[:, 0], (0, 1, res, res + 1), self.plane_weight, 3 * res * res
+            )
+        return self._plane_scatter
+
+    def line_scatter(self) -> Tensor:
+        """Sparse (`3 * resolution` x `3n`) transpose of the line lookup (`scatter_matrix`), cached."""
+        if self._line_scatter is None:
+            self._line_scatter = scatter_matrix(self.line_index[:, 0], (0, 1), self.line_weight, 3 * self.resolution)
+        return self._line_scatter
 
     def select(self, mask: Bool[Tensor, "n"]) -> "VMCorners":
-        """The corners of the points where `mask` is True."""
+        """The corners of the points where `mask` is True (these corners themselves when it selects every point)."""
+        if bool(mask.all()):
+            return self
+        picked = VMCorners(self.coords[mask], self.resolution)
+        if self._rows is not None:  # computed already: select them rather than recompute
 
-        def pick(t: Tensor) -> Tensor:
-            return t.view(-1, 3, t.shape[-1])[mask].reshape(-1, t.shape[-1])
+            def pick(t: Tensor) -> Tensor:
+                return t.view(-1, 3, t.shape[-1])[mask].reshape(-1, t.shape[-1])
 
-        return VMCorners(
-            self.coords[mask], pick(self.plane_index), pick(self.plane_weight), pick(self.line_index),
-            pick(self.line_weight), self.resolution,
-        )  # fmt: skip
+            picked._rows = (pick(self._rows[0]), pick(self._rows[1]), pick(self._rows[2]), pick(self._rows[3]))
+        return picked
 
 
 def vm_corners(coords: Float[Tensor, "n 3"], resolution: int) -> VMCorners:
-    """Corner rows and weights of `coords` (in [-1, 1], `align_corners=True` convention) in a VM volume.
+    """Corners of `coords` (in [-1, 1], `align_corners=True` convention) in a VM volume of `resolution`.
 
     Coordinates outside [-1, 1] are clamped to the border and NaN is read as 0, so indices are always valid.
     """
     res = int(resolution)
     if res < 2:
         raise ValueError(f"A VM volume needs a resolution of at least 2, got {res}")
-    clamped = torch.nan_to_num(coords.detach().float()).clamp(-1.0, 1.0)
+    dtype = torch.promote_types(coords.dtype, torch.float32)  # float16 -> float32, float64 stays
+    return VMCorners(torch.nan_to_num(coords.detach().to(dtype)).clamp(-1.0, 1.0), res)
+
+
+def _corner_rows(
+    clamped: Float[Tensor, "n 3"], res: int
+) -> Tuple[Int[Tensor, "n3 4"], Float[Tensor, "n3 4"], Int[Tensor, "n3 2"], Float[Tensor, "n3 2"]]:
+    """Plane corner rows and bilinear weights, line end rows and linear weights of clamped points."""
     pos = (clamped + 1.0) * (0.5 * (res - 1))  # [n, 3]
     low = pos.floor().clamp(0, res - 2)
     frac = pos - low  # in [0, 1]
     low = low.long()
-    n = coords.shape[0]
-    device = coords.device
+    n = clamped.shape[0]
+    device = clamped.device
 
     w_axes = torch.tensor(_PLANE_AXES_W, device=device)
     h_axes = torch.tensor(_PLANE_AXES_H, device=device)
@@ -93,39 +142,88 @@ def vm_corners(coords: Float[Tensor, "n 3"], resolution: int) -> VMCorners:
     line_index = torch.stack((line_base, line_base + 1), dim=-1)  # [n, 3, 2]
     fl = frac[:, l_axes]
     line_weight = torch.stack((1 - fl, fl), dim=-1)
-
-    return VMCorners(
-        clamped, plane_index.reshape(3 * n, 4), plane_weight.reshape(3 * n, 4),
-        line_index.reshape(3 * n, 2), line_weight.reshape(3 * n, 2), res,
+    return (
+        plane_index.reshape(3 * n, 4), plane_weight.reshape(3 * n, 4),
+        line_index.reshape(3 * n, 2), line_weight.reshape(3 * n, 2),
     )  # fmt: skip
 
 
-class _WeightedRows(torch.autograd.Function):
-    """`out[i] = sum_k weight[i, k] * table[index[i, k]]`; the backward adds rows with one `index_add_` per corner
-    (on a CPU several times faster than `embedding_bag`'s backward, which sorts the indices first)."""
+def scatter_matrix(
+    base: Int[Tensor, "m"], offsets: Tuple[int, ...], weight: Float[Tensor, "m k"], rows: int
+) -> Tensor:
+    """Sparse CSR matrix `S` (rows x m) with `S[base[i] + offsets[k], i] = weight[i, k]`: `S @ g` adds row `i` of `g`,
+    weighted, into table rows `base[i] + offsets[k]` (the transpose of a `k`-corner lookup).
+
+    Built with one sort of `base` (`m` keys, not `m * k`) and counting placement of the `k` corners.
+    """
+    m, k = weight.shape
+    device = base.device
+    sorted_base, order = torch.sort(base)
+    count = torch.bincount(base, minlength=rows)  # [rows]: points whose first corner is that row
+    start = torch.cumsum(count, 0) - count  # exclusive prefix: first sorted position of each base row
+    rank = torch.arange(m, device=device) - start[sorted_base]  # position among the points of one base row
+    shifted = torch.zeros(k, rows, dtype=count.dtype, device=device)  # corner j's points per table row
+    for j, off in enumerate(offsets):
+        shifted[j, off:] = count[: rows - off]
+    per_row = shifted.sum(0)
+    crow = torch.zeros(rows + 1, dtype=torch.int64, device=device)
+    torch.cumsum(per_row, 0, out=crow[1:])
+    before = torch.cumsum(shifted, 0) - shifted  # entries of earlier corners in the same row
+    col = torch.empty(m * k, dtype=torch.int64, device=device)
+    val = torch.empty(m * k, dtype=weight.dtype, device=device)
+    sorted_weight = weight[order]
+    for j, off in enumerate(offsets):
+        row = sorted_base + off
+        pos = crow[row] + before[j, row] + rank
+        col[pos] = order
+        val[pos] = sorted_weight[:, j]
+    with warnings.catch_warnings():  # "Sparse CSR tensor support is in beta state": said once per process, not news
+        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta", category=UserWarning)
+        return torch.sparse_csr_tensor(crow, col, val, (rows, m), check_invariants=False)
+
+
+class _VMProduct(torch.autograd.Function):
+    """`plane_rows * line_rows` of a VM volume at precomputed corners, differentiable in both tables.
+
+    Forward: two `embedding_bag` weighted row sums. Backward: one sparse matrix product per table with the corners'
+    `scatter_matrix` (built once per `VMCorners` and shared by every volume that reads them); on a CPU this is several
+    times faster than adding gradient rows with `index_add_` per corner (which scatters element by element).
+    """
 
     @staticmethod
-    def forward(ctx, table: Tensor, index: Tensor, weight: Tensor) -> Tensor:  # type: ignore[override]
-        ctx.save_for_backward(index, weight)
-        ctx.table_shape = table.shape
-        return F.embedding_bag(index, table, per_sample_weights=weight, mode="sum")
+    def forward(ctx, plane_table: Tensor, line_table: Tensor, corners: "VMCorners") -> Tensor:  # type: ignore[override]
+        plane = F.embedding_bag(corners.plane_index, plane_table, per_sample_weights=corners.plane_weight, mode="sum")
+        line = F.embedding_bag(corners.line_index, line_table, per_sample_weights=corners.line_weight, mode="sum")
+        ctx.save_for_backward(plane, line)
+        ctx.corners = corners
+        return plane * line
 
     @staticmethod
-    def backward(ctx, grad_out: Tensor) -> Tuple[Tensor, None, None]:  # type: ignore[override]
-        index, weight = ctx.saved_tensors
-        grad_table = grad_out.new_zeros(ctx.table_shape)
-        scaled = torch.empty_like(grad_out)  # one buffer for every corner: no fresh (page-faulting) allocation each
-        for k in range(index.shape[1]):
-            torch.mul(grad_out, weight[:, k : k + 1], out=scaled)
-            grad_table.index_add_(0, index[:, k], scaled)
-        return grad_table, None, None
+    def backward(ctx, grad_out: Tensor) -> Tuple[Optional[Tensor], Optional[Tensor], None]:  # type: ignore[override]
+        plane, line = ctx.saved_tensors
+        corners: VMCorners = ctx.corners
+        grad_plane = grad_line = None
+        if ctx.needs_input_grad[0]:
+            grad_plane = _sparse_times(corners.plane_scatter(), grad_out * line)
+        if ctx.needs_input_grad[1]:
+            grad_line = _sparse_times(corners.line_scatter(), grad_out * plane)
+        return grad_plane, grad_line, None
 
 
-def weighted_rows(
-    table: Float[Tensor, "rows c"], index: Int[Tensor, "n k"], weight: Float[Tensor, "n k"]
-) -> Float[Tensor, "n c"]:
-    """Weighted sum of `k` rows of `table` per output row (differentiable in `table` only)."""
-    return _WeightedRows.apply(table, index, weight)
+def _sparse_times(matrix: Tensor, dense: Float[Tensor, "m c"]) -> Float[Tensor, "rows c"]:
+    """`matrix @ dense` into an uninitialised result (`beta=0`: never read). `matrix @ dense` would zero a result,
+    compute into a temporary and copy it over: at 300^3 that is two extra passes over a 52 MB gradient."""
+    if dense.shape[0] == 0:  # no points: nothing would be written into the result
+        return dense.new_zeros(matrix.shape[0], dense.shape[1])
+    out = dense.new_empty(matrix.shape[0], dense.shape[1])
+    return torch.addmm(out, matrix, dense, beta=0.0, out=out)
+
+
+def vm_product(
+    plane_table: Float[Tensor, "plane_rows c"], line_table: Float[Tensor, "line_rows c"], corners: "VMCorners"
+) -> Float[Tensor, "n3 c"]:
+    """Plane feature times line feature at every (point, plane) row of `corners` (differentiable in the tables)."""
+    return _VMProduct.apply(plane_table, line_table, corners)
 
 
 VMLookup = Literal["auto", "rows", "grid_sample"]
@@ -170,9 +268,7 @@ class BilinearVMEncoding(TensorVMEncoding):
         comps = self.num_components
         plane_table = self.plane_coef.permute(0, 2, 3, 1).reshape(-1, comps)  # [3 * res * res, comps]
         line_table = self.line_coef.permute(0, 2, 3, 1).reshape(-1, comps)  # [3 * res, comps]
-        plane = weighted_rows(plane_table, corners.plane_index, corners.plane_weight)
-        line = weighted_rows(line_table, corners.line_index, corners.line_weight)
-        return (plane * line).view(corners.num_points, 3 * comps)
+        return vm_product(plane_table, line_table, corners).view(corners.num_points, 3 * comps)
 
     def forward(self, in_tensor: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs out_dim"]:
         """Encoding of positions in [-1, 1] (clamped there), as `TensorVMEncoding.forward`."""
