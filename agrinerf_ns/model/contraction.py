@@ -1,8 +1,7 @@
 """L-inf scene contraction (mip-NeRF 360's, with the max norm) computed with `amax`.
 
-Nerfstudio's `SceneContraction(order=inf)` takes the norm with `torch.linalg.norm(ord=inf)`, which on a CPU costs about
-5x an `abs().amax()` over the same points (11.8 vs 2.5 ms for 1024 x 64 points on 2 cores); the field contracts every
-coarse and every fine sample, so this is paid twice per step.
+Nerfstudio's `SceneContraction(order=inf)` takes the norm with `torch.linalg.norm(ord=inf)`; the max of absolute
+values is the same number without the general p-norm code path; the field contracts every coarse and fine sample.
 """
 
 from __future__ import annotations
