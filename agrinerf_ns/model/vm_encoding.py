@@ -13,7 +13,8 @@ them and their transposed lookups (the field computes them once for its density,
 from __future__ import annotations
 
 import warnings
-from typing import Literal, Optional, Tuple
+from functools import cached_property
+from typing import Literal, NamedTuple, Optional, Tuple
 
 import torch
 import torch.nn.functional as F
@@ -29,81 +30,71 @@ _LINE_AXES = (2, 1, 0)
 """Coordinate axis along each line (paired with the plane that lacks it)."""
 
 
+class CornerRows(NamedTuple):
+    """Table rows and weights of a lookup; row `3 * i + p` is point `i` in plane (or line) `p`."""
+
+    plane_index: Int[Tensor, "n3 4"]
+    """Row of each corner in the flattened planes (`3 * resolution**2` rows)."""
+    plane_weight: Float[Tensor, "n3 4"]
+    """Bilinear weight of each corner."""
+    line_index: Int[Tensor, "n3 2"]
+    """Row of each end in the flattened lines (`3 * resolution` rows)."""
+    line_weight: Float[Tensor, "n3 2"]
+    """Linear weight of each end."""
+
+
 class VMCorners:
     """Bilinear corners of `n` points in the three planes and linear corners in the three lines of a VM volume.
 
-    Rows are point-major: row `3 * i + p` is point `i` in plane (or line) `p`. Everything but the clamped points is
-    computed on first use and cached: the `grid_sample` lookup reads `coords` only, the row lookup reads the indices and
-    weights, and its backward pass the transposed lookups, which volumes that share the corners share too.
+    Everything but the clamped points is computed on first use and cached: the `grid_sample` lookup reads `coords`
+    only, the row lookup reads `rows`, and its backward pass the transposed lookups, which volumes that share the
+    corners share too.
 
     Args:
         coords: the points, already clamped to [-1, 1] (build with `vm_corners`).
         resolution: grid resolution the indices refer to.
+        rows: their `CornerRows`, when already known (else computed on first use).
     """
 
-    def __init__(self, coords: Float[Tensor, "n 3"], resolution: int) -> None:
+    def __init__(self, coords: Float[Tensor, "n 3"], resolution: int, rows: Optional[CornerRows] = None) -> None:
         self.coords = coords
         self.resolution = resolution
-        self._rows: Optional[Tuple[Tensor, Tensor, Tensor, Tensor]] = None
-        self._plane_scatter: Optional[Tensor] = None
-        self._line_scatter: Optional[Tensor] = None
+        self._rows = rows
 
     @property
     def num_points(self) -> int:
         return self.coords.shape[0]
 
-    def _corner_rows(self) -> Tuple[Tensor, Tensor, Tensor, Tensor]:
+    @property
+    def rows(self) -> CornerRows:
+        """Corner rows and weights of the points (`_corner_rows`), cached."""
         if self._rows is None:
             self._rows = _corner_rows(self.coords, self.resolution)
         return self._rows
 
-    @property
-    def plane_index(self) -> Int[Tensor, "n3 4"]:
-        """Row of each corner in the flattened planes (`3 * resolution**2` rows)."""
-        return self._corner_rows()[0]
-
-    @property
-    def plane_weight(self) -> Float[Tensor, "n3 4"]:
-        """Bilinear weight of each corner."""
-        return self._corner_rows()[1]
-
-    @property
-    def line_index(self) -> Int[Tensor, "n3 2"]:
-        """Row of each end in the flattened lines (`3 * resolution` rows)."""
-        return self._corner_rows()[2]
-
-    @property
-    def line_weight(self) -> Float[Tensor, "n3 2"]:
-        """Linear weight of each end."""
-        return self._corner_rows()[3]
-
+    @cached_property
     def plane_scatter(self) -> Tensor:
-        """Sparse (`3 * resolution**2` x `3n`) transpose of the plane lookup (`scatter_matrix`), cached."""
-        if self._plane_scatter is None:
-            res = self.resolution
-            self._plane_scatter = scatter_matrix(
-                self.plane_index[:, 0], (0, 1, res, res + 1), self.plane_weight, 3 * res * res
-            )
-        return self._plane_scatter
+        """Sparse (`3 * resolution**2` x `3n`) transpose of the plane lookup (`scatter_matrix`)."""
+        res, rows = self.resolution, self.rows
+        return scatter_matrix(rows.plane_index[:, 0], (0, 1, res, res + 1), rows.plane_weight, 3 * res * res)
 
+    @cached_property
     def line_scatter(self) -> Tensor:
-        """Sparse (`3 * resolution` x `3n`) transpose of the line lookup (`scatter_matrix`), cached."""
-        if self._line_scatter is None:
-            self._line_scatter = scatter_matrix(self.line_index[:, 0], (0, 1), self.line_weight, 3 * self.resolution)
-        return self._line_scatter
+        """Sparse (`3 * resolution` x `3n`) transpose of the line lookup (`scatter_matrix`)."""
+        rows = self.rows
+        return scatter_matrix(rows.line_index[:, 0], (0, 1), rows.line_weight, 3 * self.resolution)
 
     def select(self, mask: Bool[Tensor, "n"]) -> "VMCorners":
         """The corners of the points where `mask` is True (these corners themselves when it selects every point)."""
         if bool(mask.all()):
             return self
-        picked = VMCorners(self.coords[mask], self.resolution)
-        if self._rows is not None:  # computed already: select them rather than recompute
+        if self._rows is None:
+            return VMCorners(self.coords[mask], self.resolution)
 
-            def pick(t: Tensor) -> Tensor:
-                return t.view(-1, 3, t.shape[-1])[mask].reshape(-1, t.shape[-1])
+        def pick(t: Tensor) -> Tensor:  # computed already: select them rather than recompute
+            return t.view(-1, 3, t.shape[-1])[mask].reshape(-1, t.shape[-1])
 
-            picked._rows = (pick(self._rows[0]), pick(self._rows[1]), pick(self._rows[2]), pick(self._rows[3]))
-        return picked
+        return VMCorners(self.coords[mask], self.resolution, CornerRows(*(pick(t) for t in self._rows)))
 
 
 def vm_corners(coords: Float[Tensor, "n 3"], resolution: int) -> VMCorners:
@@ -118,9 +109,7 @@ def vm_corners(coords: Float[Tensor, "n 3"], resolution: int) -> VMCorners:
     return VMCorners(torch.nan_to_num(coords.detach().to(dtype)).clamp(-1.0, 1.0), res)
 
 
-def _corner_rows(
-    clamped: Float[Tensor, "n 3"], res: int
-) -> Tuple[Int[Tensor, "n3 4"], Float[Tensor, "n3 4"], Int[Tensor, "n3 2"], Float[Tensor, "n3 2"]]:
+def _corner_rows(clamped: Float[Tensor, "n 3"], res: int) -> CornerRows:
     """Plane corner rows and bilinear weights, line end rows and linear weights of clamped points."""
     pos = (clamped + 1.0) * (0.5 * (res - 1))  # [n, 3]
     low = pos.floor().clamp(0, res - 2)
@@ -142,7 +131,7 @@ def _corner_rows(
     line_index = torch.stack((line_base, line_base + 1), dim=-1)  # [n, 3, 2]
     fl = frac[:, l_axes]
     line_weight = torch.stack((1 - fl, fl), dim=-1)
-    return (
+    return CornerRows(
         plane_index.reshape(3 * n, 4), plane_weight.reshape(3 * n, 4),
         line_index.reshape(3 * n, 2), line_weight.reshape(3 * n, 2),
     )  # fmt: skip
@@ -186,14 +175,15 @@ class _VMProduct(torch.autograd.Function):
     """`plane_rows * line_rows` of a VM volume at precomputed corners, differentiable in both tables.
 
     Forward: two `embedding_bag` weighted row sums. Backward: one sparse matrix product per table with the corners'
-    `scatter_matrix` (built once per `VMCorners` and shared by every volume that reads them); on a CPU this is several
-    times faster than adding gradient rows with `index_add_` per corner (which scatters element by element).
+    `scatter_matrix` (built once per `VMCorners` and shared by every volume that reads them), which gathers the gradient
+    rows of each table row where an `index_add_` per corner would scatter them element by element.
     """
 
     @staticmethod
     def forward(ctx, plane_table: Tensor, line_table: Tensor, corners: "VMCorners") -> Tensor:  # type: ignore[override]
-        plane = F.embedding_bag(corners.plane_index, plane_table, per_sample_weights=corners.plane_weight, mode="sum")
-        line = F.embedding_bag(corners.line_index, line_table, per_sample_weights=corners.line_weight, mode="sum")
+        rows = corners.rows
+        plane = F.embedding_bag(rows.plane_index, plane_table, per_sample_weights=rows.plane_weight, mode="sum")
+        line = F.embedding_bag(rows.line_index, line_table, per_sample_weights=rows.line_weight, mode="sum")
         ctx.save_for_backward(plane, line)
         ctx.corners = corners
         return plane * line
@@ -204,9 +194,9 @@ class _VMProduct(torch.autograd.Function):
         corners: VMCorners = ctx.corners
         grad_plane = grad_line = None
         if ctx.needs_input_grad[0]:
-            grad_plane = _sparse_times(corners.plane_scatter(), grad_out * line)
+            grad_plane = _sparse_times(corners.plane_scatter, grad_out * line)
         if ctx.needs_input_grad[1]:
-            grad_line = _sparse_times(corners.line_scatter(), grad_out * plane)
+            grad_line = _sparse_times(corners.line_scatter, grad_out * plane)
         return grad_plane, grad_line, None
 
 
