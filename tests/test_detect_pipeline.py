@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from agrinerf_ns.detect.boxes import MissingTruthError, list_images
+from agrinerf_ns.detect.boxes import MissingTruthError, SceneTruth, list_images
 from agrinerf_ns.detect.cli import entrypoint
 from agrinerf_ns.detect.detector import DetectorConfig
 from agrinerf_ns.detect.evaluate import EvalSettings, MethodSpec, SceneSpec, check_scene, evaluate_plan
@@ -80,7 +80,7 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
         render_pipeline_views(runs[config], "thermal", tmp_path / "nope", max_views=1)
     assert not (tmp_path / "nope").exists()
 
-    settings = EvalSettings(DetectorConfig(epochs=2, imgsz=64, batch=8), cross_spectral_fraction=0.25)
+    settings = EvalSettings(DetectorConfig(epochs=2, imgsz=64, batch=8), cross_spectral_fraction=0.25, min_box_pixels=4)
     out = tmp_path / "detect"
     written = evaluate_plan(scenes, out, settings, "III", "pytest", runs=runs)  # renders with the loaded run
     assert not runs, "loaded pipelines are released before the detectors train"
@@ -162,4 +162,51 @@ def test_render_frames_without_truth_are_named(scene, tmp_path: Path) -> None:
     renders.mkdir()
     shutil.copy(raw / "truth" / "rgb_clean" / "000000.png", renders / "view_9.png")
     with pytest.raises(MissingTruthError, match="view_9.png: no true boxes for frame 'view_9'"):
-        rendered_images(raw, renders)
+        rendered_images(SceneTruth(raw), renders)
+
+
+def test_small_fruit_are_ignored_and_thermal_labels_need_the_thermal_view(scene, tmp_path: Path) -> None:
+    import cv2
+    import numpy as np
+
+    from agrinerf_ns.detect.yolo_data import dataset_images
+
+    raw, dataset = scene
+    coco = json.loads((raw / "truth" / "boxes_coco.json").read_text())
+    areas = np.array([a["area"] for a in coco["annotations"]])
+    threshold = int(np.unique(areas)[len(np.unique(areas)) // 2])  # some boxes on each side
+    everything, split = SceneTruth(raw, 0), SceneTruth(raw, threshold)
+    counted = ignored = 0
+    for stem in everything.label_files:
+        whole = everything.frame(stem, raw / "rgb" / f"{stem}.png")
+        parts = split.frame(stem, raw / "rgb" / f"{stem}.png")
+        assert len(whole.ignored) == 0 and len(parts.counted) + len(parts.ignored) == len(whole.counted)
+        counted, ignored = counted + len(parts.counted), ignored + len(parts.ignored)
+    assert counted == int((areas >= threshold).sum()) and ignored == int((areas < threshold).sum()) > 0
+
+    # the two truth files disagree: named, not silently misaligned
+    broken = tmp_path / "broken"
+    shutil.copytree(raw, broken)
+    stem = next(s for s in everything.label_files if len(everything.frame(s, Path(s)).counted))
+    image_id = next(im["id"] for im in coco["images"] if Path(im["file_name"]).stem == stem)
+    coco["annotations"] = [a for a in coco["annotations"] if a["image_id"] != image_id]
+    (broken / "truth" / "boxes_coco.json").write_text(json.dumps(coco))
+    with pytest.raises(MissingTruthError, match="the two truth files disagree"):
+        SceneTruth(broken, 1).frame(stem, Path("view.png"))
+    (broken / "truth" / "boxes_coco.json").unlink()
+    with pytest.raises(MissingTruthError, match="min_box_pixels 0"):
+        SceneTruth(broken, 1)
+    assert SceneTruth(broken, 0).frame(stem, Path("view.png")).counted.shape[1] == 4
+
+    # thermal frames keep only the boxes the thermal camera saw (its mask); RGB frames keep all counted boxes
+    copy = tmp_path / "dataset"
+    shutil.copytree(dataset, copy)
+    frames = json.loads((copy / "transforms.json").read_text())["frames"]
+    blind = next(f for f in frames if len(everything.frame(Path(f["file_path"]).stem, Path("x")).counted))
+    mask = cv2.imread(str(copy / blind["thermal_mask_path"]), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(copy / blind["thermal_mask_path"]), np.zeros_like(mask))
+    thermal = {item.name: item for item in dataset_images(everything, copy, "thermal")}
+    rgb = {item.name: item for item in dataset_images(everything, copy, "rgb")}
+    stem = Path(blind["file_path"]).stem
+    assert len(thermal[f"thermal_{stem}"].boxes) == 0 < len(rgb[f"rgb_{stem}"].boxes)
+    assert sum(len(item.boxes) for item in thermal.values()) > 0

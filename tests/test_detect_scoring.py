@@ -9,6 +9,7 @@ from agrinerf_ns.detect.scoring import (
     ImageBoxes,
     average_precision,
     box_iou,
+    match_image,
     mean_average_precision,
     precision_recall_f1,
     score_detections,
@@ -124,3 +125,66 @@ def test_matches_torchmetrics_coco_map(seed: int):
     assert 0.0 < map50 < 1.0, "random case should be neither trivial nor empty"
     assert map50 == pytest.approx(float(reference["map_50"]), abs=1e-6)
     assert map50_95 == pytest.approx(float(reference["map"]), abs=1e-6)
+
+
+def test_ignored_boxes_are_neither_needed_nor_false_positives():
+    true = np.array([[0, 0, 10, 10]], float)
+    ignored = np.array([[40, 40, 44, 44], [60, 60, 64, 64]], float)
+    # a hit on the counted box, one on an ignored box, one in empty space
+    pred = np.array([[0, 0, 10, 10], [40, 40, 44, 44], [90, 90, 99, 99]], float)
+    image = ImageBoxes(pred, np.array([0.9, 0.8, 0.7]), true, ignored)
+    scores, is_tp = match_image(image, 0.5)
+    assert scores.tolist() == [0.9, 0.7] and is_tp.tolist() == [True, False]
+    assert precision_recall_f1([image], 0.0) == (0.5, 1.0, pytest.approx(2 / 3))
+    # without the ignore list the same detection is a false positive and the small fruit are missed
+    plain = ImageBoxes(pred, image.scores, np.concatenate([true, ignored]))
+    assert precision_recall_f1([plain], 0.0) == (pytest.approx(2 / 3), pytest.approx(2 / 3), pytest.approx(2 / 3))
+    # a detection overlapping a counted and an ignored box takes the counted one even at lower IoU
+    both = ImageBoxes(np.array([[0, 0, 10, 12]], float), np.array([0.9]), true, np.array([[0, 0, 10, 12]], float))
+    assert match_image(both, 0.5)[1].tolist() == [True]
+    # every true box ignored: AP undefined, as with no boxes
+    assert np.isnan(average_precision([ImageBoxes(pred, image.scores, np.zeros((0, 4)), ignored)], 0.5))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_ignored_boxes_match_cocoeval_area_range(seed: int):
+    """Ignored boxes are COCOeval's gts outside the area range: the same mAPs as pycocotools with ``areaRng``."""
+    pytest.importorskip("pycocotools")
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    min_area = 10.0
+    rng = np.random.default_rng(100 + seed)
+    images, gts, dts = [], [], []
+    for image_id in range(int(rng.integers(3, 9))):
+        true = _random_boxes(rng, int(rng.integers(1, 9)))
+        visible = rng.integers(1, 60, len(true)).astype(float)  # visible pixels: unrelated to the box's size
+        keep = true[rng.random(len(true)) < 0.8]
+        jitter = np.round(rng.normal(0, rng.uniform(0.5, 4), keep.shape) * 4) / 4
+        pred = np.concatenate([keep + jitter, _random_boxes(rng, int(rng.integers(0, 5)))])
+        pred[:, 2:] = np.maximum(pred[:, 2:], pred[:, :2] + 4)  # every detection's area >= 16 > min_area
+        scores = np.round(rng.uniform(0.05, 1.0, len(pred)), 6)
+        small = visible < min_area
+        images.append(ImageBoxes(pred, scores, true[~small], true[small]))
+        for box, area in zip(true, visible, strict=True):
+            gts.append({"id": len(gts) + 1, "image_id": image_id, "category_id": 1, "iscrowd": 0, "area": area,
+                        "bbox": [box[0], box[1], box[2] - box[0], box[3] - box[1]]})  # fmt: skip
+        for box, score in zip(pred, scores, strict=True):
+            dts.append({"image_id": image_id, "category_id": 1, "score": float(score),
+                        "bbox": [box[0], box[1], box[2] - box[0], box[3] - box[1]]})  # fmt: skip
+    if not any(len(im.true_boxes) for im in images):
+        pytest.skip("every box ignored in this draw")
+    coco = COCO()
+    coco.dataset = {"images": [{"id": i} for i in range(len(images))], "annotations": gts,
+                    "categories": [{"id": 1, "name": "fruit"}]}  # fmt: skip
+    coco.createIndex()
+    evaluation = COCOeval(coco, coco.loadRes(dts), "bbox")
+    evaluation.params.areaRng, evaluation.params.areaRngLbl, evaluation.params.maxDets = [[min_area, 1e10]], ["all"], [100]
+    evaluation.evaluate()
+    evaluation.accumulate()
+    precision = evaluation.eval["precision"][:, :, 0, 0, 0]  # (IoU thresholds, recall points)
+    reference = [float(np.mean(np.where(p > -1, p, 0.0))) for p in precision]
+    map50, map50_95 = mean_average_precision(images)
+    assert any(len(im.ignore_boxes) for im in images) and 0.0 < map50 < 1.0
+    assert map50 == pytest.approx(reference[0], abs=1e-6)
+    assert map50_95 == pytest.approx(float(np.mean(reference)), abs=1e-6)

@@ -7,6 +7,7 @@ run (resumable: finished runs are skipped), then ``results.md`` (table + summary
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import platform
@@ -14,7 +15,7 @@ import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Dict, List, Optional, Sequence, Tuple
 
 import tyro
 from rich.console import Console
@@ -24,6 +25,9 @@ from agrinerf_ns.bench import results
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
+
+if TYPE_CHECKING:
+    from agrinerf_ns.synth import SynthConfig
 
 CONSOLE = Console()
 
@@ -75,16 +79,36 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
 
     scene, _, lighting = name.partition("-")
     raw, data = root / name / "raw", root / name / "data"
-    if not (raw / "calib.yaml").exists():
+    config = SynthConfig(scene=scene, lighting=lighting, seed=seed, views=profile.views, width=profile.width,
+                         height=profile.height)  # fmt: skip
+    if not _same_capture(raw, config):
         if raw.exists():
             shutil.rmtree(raw)
-        config = SynthConfig(scene=scene, lighting=lighting, seed=seed, views=profile.views, width=profile.width,
-                             height=profile.height)  # fmt: skip
         generate_capture(config, raw)
-    if not (data / "transforms.json").exists():
+        if data.exists():
+            shutil.rmtree(data)
+    if not (data / "transforms.json").exists() or _plane_depth(data) != profile.plane_depth:
         # Poses from the capture's odometry: the benchmark compares reconstructions, not SfM.
-        process_capture(raw, data, ProcessConfig(poses="given", overwrite=True, show_progress=False))
+        config = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth)
+        process_capture(raw, data, config)
     return raw, data
+
+
+def _same_capture(raw: Path, config: "SynthConfig") -> bool:
+    """Whether ``raw`` is a finished capture written with ``config`` (its ``truth/scene.json``)."""
+    from dataclasses import asdict
+
+    scene_json = raw / "truth" / "scene.json"
+    if not (raw / "calib.yaml").exists() or not scene_json.exists():
+        return False
+    written = json.loads(scene_json.read_text()).get("config", {})
+    return all(written.get(key) == value for key, value in asdict(config).items() if key in written)
+
+
+def _plane_depth(data: Path) -> float:
+    """The warp plane depth a processed dataset was made with (``inf`` when not recorded)."""
+    meta = json.loads((data / "transforms.json").read_text()).get("agrinerf", {})
+    return float(meta.get("alignment", {}).get("plane_depth", "inf"))
 
 
 def run_method(

@@ -8,14 +8,16 @@ any image resolution of that camera (rendered views may be downscaled).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
-from typing import Dict, List
+from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
 from jaxtyping import Float
 
 TRUTH_BOXES_DIR = Path("truth") / "boxes_yolo"
 TRUTH_RGB_DIR = Path("truth") / "rgb_clean"
+TRUTH_COCO = Path("truth") / "boxes_coco.json"
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
@@ -88,6 +90,62 @@ def truth_labels_for(scene: Path, stem: str, label_files: Dict[str, Path], what:
             f"(frames there: {_sample(label_files)}). Image files must keep the frame's stem."
         )
     return read_yolo_labels(label_files[stem])
+
+
+class FrameTruth(NamedTuple):
+    """A frame's true boxes (normalised ``cx cy w h``), split by visible size."""
+
+    counted: Float[np.ndarray, "m 4"]
+    ignored: Float[np.ndarray, "k 4"]
+
+
+class SceneTruth:
+    """A scene's true boxes per frame, with the visible pixel count of each box when ``min_pixels`` > 0."""
+
+    def __init__(self, scene: Path, min_pixels: int = 0) -> None:
+        if min_pixels < 0:
+            raise ValueError(f"min_pixels must be >= 0, got {min_pixels}")
+        self.scene = Path(scene)
+        self.min_pixels = min_pixels
+        self.label_files = truth_label_files(self.scene)
+        self.visible: Optional[Dict[str, np.ndarray]] = visible_pixels(self.scene) if min_pixels > 0 else None
+
+    def frame(self, stem: str, what: Path) -> FrameTruth:
+        """Boxes of frame ``stem``; ``what`` (the image needing them) is named in errors."""
+        boxes = truth_labels_for(self.scene, stem, self.label_files, what)
+        if self.visible is None:
+            return FrameTruth(boxes, boxes[:0])
+        pixels = self.visible.get(stem, np.zeros(0))
+        if len(pixels) != len(boxes):
+            raise MissingTruthError(
+                f"{what}: frame '{stem}' has {len(boxes)} boxes in {self.label_files[stem]} but {len(pixels)} in "
+                f"{self.scene / TRUTH_COCO}: the two truth files disagree"
+            )
+        small = pixels < self.min_pixels
+        return FrameTruth(boxes[~small], boxes[small])
+
+
+def visible_pixels(scene: Path) -> Dict[str, np.ndarray]:
+    """Frame stem -> visible pixel count of each true box, in the order of the frame's YOLO label file.
+
+    Read from ``truth/boxes_coco.json`` (``area`` of each annotation, written by ``agrinerf-synth`` in label-file
+    order). Raises :class:`MissingTruthError` when the file is missing or lacks areas.
+    """
+    path = Path(scene) / TRUTH_COCO
+    if not path.is_file():
+        raise MissingTruthError(
+            f"{scene}: no visible pixel counts of the true boxes ({path} does not exist); give min_box_pixels 0 to "
+            "count every box"
+        )
+    try:
+        coco = json.loads(path.read_text())
+        stems = {image["id"]: Path(image["file_name"]).stem for image in coco["images"]}
+        counts: Dict[str, List[float]] = {stem: [] for stem in stems.values()}
+        for ann in sorted(coco["annotations"], key=lambda a: a["id"]):
+            counts[stems[ann["image_id"]]].append(float(ann["area"]))
+    except (json.JSONDecodeError, KeyError, TypeError) as err:
+        raise MissingTruthError(f"{path}: not a COCO box file with images and annotation areas ({err!r})") from err
+    return {stem: np.asarray(values, dtype=np.float64) for stem, values in counts.items()}
 
 
 def list_images(folder: Path) -> List[Path]:

@@ -46,6 +46,9 @@ class EvaluateCommand:
     """Cross-spectral renders of training views added to the thermal detector's set (fraction of its size)."""
     rgb_source: Literal["clean", "captured"] = "clean"
     """RGB detector training images: the clean truth views, or the captured (dataset) frames as the paper labels."""
+    min_box_pixels: int = 30
+    """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
+    are ignored in scoring and left out of detector training labels. 0: every box counts."""
     max_render_views: Optional[int] = None
     reuse: bool = True
     """Reuse renders and detector weights already in OUT/work."""
@@ -66,6 +69,7 @@ class EvaluateCommand:
             self.max_render_views,
             self.reuse,
             self.rgb_source,
+            self.min_box_pixels,
         )
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
         written = evaluate_plan(scenes, self.out, settings, self.table, command)
@@ -109,6 +113,9 @@ class TrainCommand:
     cross_spectral: List[Path] = field(default_factory=list)
     """Folders of cross-spectral renders of training views to add to the thermal set."""
     cross_spectral_fraction: float = 0.25
+    min_box_pixels: int = 30
+    """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
+    are ignored in scoring and left out of detector training labels. 0: every box counts."""
     detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
 
     def main(self) -> None:
@@ -119,7 +126,12 @@ class TrainCommand:
             raise ValueError("--modality thermal needs --dataset (the processed dataset with thermal frames)")
         exclude = sorted({p.stem for folder in self.exclude_renders for p in list_images(folder)})
         scene = SceneSpec("scene", "", self.raw, self.dataset, [MethodSpec("detector", detector=self.modality)])
-        settings = EvalSettings(self.detector, cross_spectral_fraction=self.cross_spectral_fraction, reuse=False)
+        settings = EvalSettings(
+            self.detector,
+            cross_spectral_fraction=self.cross_spectral_fraction,
+            reuse=False,
+            min_box_pixels=self.min_box_pixels,
+        )
         weights = train_scene_detector(scene, self.modality, exclude, self.cross_spectral, self.out, settings)
         print(f"weights: {weights}")
 
@@ -134,13 +146,16 @@ class ScoreCommand:
     imgsz: Optional[int] = None
     """Inference size; None: the size the detector was trained at."""
     conf_threshold: float = 0.25
+    min_box_pixels: int = 30
+    """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
+    are ignored in scoring and left out of detector training labels. 0: every box counts."""
     out: Optional[Path] = None
     """Also write the metrics JSON here."""
 
     def main(self) -> None:
         from agrinerf_ns.detect.evaluate import EvalSettings, score_render_folder
 
-        settings = EvalSettings(conf_threshold=self.conf_threshold)
+        settings = EvalSettings(conf_threshold=self.conf_threshold, min_box_pixels=self.min_box_pixels)
         metrics, _ = score_render_folder(self.raw, self.renders, self.weights, settings, imgsz=self.imgsz)
         text = json.dumps(metrics.as_dict(), indent=2)
         print(text)

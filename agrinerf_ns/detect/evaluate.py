@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Tuple
 
-from agrinerf_ns.detect.boxes import list_images, truth_label_files, truth_labels_for, yolo_to_xyxy
+from agrinerf_ns.detect.boxes import SceneTruth, list_images, yolo_to_xyxy
 from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
 from agrinerf_ns.detect.render import LoadedRun, MissingOutputError, Output, load_run, render_pipeline_views
@@ -80,6 +80,11 @@ class EvalSettings:
     rgb_source: Literal["clean", "captured"] = "clean"
     """RGB detector training images: ``truth/rgb_clean`` (noise-free, well exposed) or the dataset's captured frames
     (the paper labels "the original dataset images")."""
+    min_box_pixels: int = 30
+    """A fruit counts when at least this many of its pixels are visible in the truth view (``area`` in
+    ``truth/boxes_coco.json``; about a third of a whole fruit in the 320x240 detect profile). Smaller ones, mostly
+    fruit behind leaves, are ignored in scoring (COCO ignore regions) and left out of the detectors' training labels.
+    0 counts every box (and needs no ``boxes_coco.json``)."""
 
 
 @dataclass
@@ -157,9 +162,9 @@ def _has_checkpoint(config: Path) -> bool:
     return any((config.parent / "nerfstudio_models").glob("step-*.ckpt"))
 
 
-def check_scene(scene: SceneSpec) -> None:
+def check_scene(scene: SceneSpec, min_box_pixels: int = 0) -> None:
     """Fail early, naming the problem, before anything is trained or rendered."""
-    truth_label_files(scene.raw)  # raises MissingTruthError for a scene without truth boxes
+    SceneTruth(scene.raw, min_box_pixels)  # raises MissingTruthError for a scene without truth boxes
     if not scene.methods:
         raise ValueError(f"scene {scene.name}: no methods to evaluate")
     for m in scene.methods:
@@ -219,22 +224,27 @@ def train_scene_detector(
     (recorded in ``detector_<modality>/agrinerf_detect.json``).
     """
     run_dir = work / f"detector_{modality}"
+    truth = SceneTruth(scene.raw, settings.min_box_pixels)
     if modality == "rgb" and settings.rgb_source == "clean":
-        items: List[LabelledImage] = rgb_truth_images(scene.raw, exclude)
+        items: List[LabelledImage] = rgb_truth_images(truth, exclude)
     elif modality == "rgb":
         if scene.dataset is None:
             raise ValueError(f"scene {scene.name}: rgb_source 'captured' needs the scene's processed dataset")
-        items = dataset_images(scene.raw, scene.dataset, "rgb", exclude)
+        items = dataset_images(truth, scene.dataset, "rgb", exclude)
     else:
         assert scene.dataset is not None
-        items = dataset_images(scene.raw, scene.dataset, "thermal", exclude)
+        items = dataset_images(truth, scene.dataset, "thermal", exclude)
         extra: List[LabelledImage] = []
         for folder in cross_spectral:
-            renders = rendered_images(scene.raw, folder, f"xspec_{folder.name}")
+            renders = rendered_images(truth, folder, f"xspec_{folder.name}")
             extra += [item for item in renders if item.image.stem not in set(exclude)]
         count = settings.cross_spectral_fraction * len(items) / max(1, len(extra))
         items += subsample(extra, min(1.0, count), settings.detector.seed)
-    record = {"detector": asdict(settings.detector), "images": [str(item.image) for item in items]}
+    record = {
+        "detector": asdict(settings.detector),
+        "min_box_pixels": settings.min_box_pixels,
+        "images": [str(item.image) for item in items],
+    }
     record_path = run_dir / "agrinerf_detect.json"
     if settings.reuse and record_path.is_file() and json.loads(record_path.read_text()) == record:
         for name in ("best.pt", "last.pt"):
@@ -250,14 +260,15 @@ def score_render_folder(
     raw: Path, renders: Path, weights: Path, settings: EvalSettings, imgsz: Optional[int] = None
 ) -> Tuple[DetectionMetrics, Dict[str, PanelBoxes]]:
     """Detect on every rendered view (at ``imgsz``, default the detector's training size) and score against the
-    scene's true boxes."""
-    labels = truth_label_files(raw)
+    scene's true boxes (those under ``settings.min_box_pixels`` visible pixels ignored)."""
+    truth = SceneTruth(raw, settings.min_box_pixels)
     detections = predict_folder(weights, renders, imgsz=imgsz, device=settings.detector.device)
     images, panels = [], {}
     for path in list_images(renders):
         boxes, scores, (width, height) = detections[path.stem]
-        true = yolo_to_xyxy(truth_labels_for(raw, path.stem, labels, path), width, height)
-        images.append(ImageBoxes(boxes, scores, true))
+        frame = truth.frame(path.stem, path)
+        true = yolo_to_xyxy(frame.counted, width, height)
+        images.append(ImageBoxes(boxes, scores, true, yolo_to_xyxy(frame.ignored, width, height)))
         panels[path.stem] = PanelBoxes(path, true, boxes, scores)
     return score_detections(images, conf_threshold=settings.conf_threshold), panels
 
@@ -270,7 +281,7 @@ def evaluate_scene(
     ``runs``: runs already loaded (:func:`~agrinerf_ns.detect.render.load_run`) by config path; others are loaded
     here. All are released before the detectors train.
     """
-    check_scene(scene)
+    check_scene(scene, settings.min_box_pixels)
     work = Path(work) / _slug(scene.name)
     renders: Dict[str, Path] = {}
     runs = {} if runs is None else runs
@@ -331,7 +342,7 @@ def evaluate_plan(
     ``runs``: already loaded runs by config path (optional; see :func:`evaluate_scene`).
     """
     for scene in scenes:
-        check_scene(scene)
+        check_scene(scene, settings.min_box_pixels)
     out = Path(out)
     results = [evaluate_scene(scene, out / "work", settings, runs) for scene in scenes]
     rows = [row for r in results for row in r.rows]

@@ -1,10 +1,13 @@
 """Detection scoring: box IoU, per-image matching, AP, mAP50, mAP50-95, precision/recall/F1.
 
 Single class (fruit), boxes in pixel ``x1 y1 x2 y2``. The matching and the average precision follow the COCO
-evaluation (pycocotools ``COCOeval``, area range "all", no crowd boxes):
+evaluation (pycocotools ``COCOeval``, no crowd boxes), with optional *ignored* true boxes (COCO's boxes outside the
+area range; here: fruit with too few visible pixels):
 
 - per image, detections are taken in descending score (at most ``max_dets``, default 100) and each is matched to the
-  unmatched true box of highest IoU, provided that IoU >= the threshold;
+  unmatched counted true box of highest IoU, provided that IoU >= the threshold; a detection that matches no counted
+  box but an unmatched ignored one (IoU >= the threshold) takes that box and is left out (neither true nor false
+  positive); ignored boxes do not count towards recall;
 - AP is **COCO-style 101-point interpolation**: precision is made monotone (the running maximum from high recall
   down) and averaged at recall 0, 0.01, ..., 1 (0 where that recall is never reached). ``interpolation="all_point"``
   gives the VOC 2010+ area under the same monotone curve instead;
@@ -16,7 +19,7 @@ against torchmetrics' ``MeanAveragePrecision`` in the tests.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Literal, Sequence, Tuple
 
 import numpy as np
@@ -41,19 +44,23 @@ class ImageBoxes:
     """Confidence of each predicted box."""
     true_boxes: Float[np.ndarray, "m 4"]
     """True boxes, pixel x1 y1 x2 y2."""
+    ignore_boxes: Float[np.ndarray, "k 4"] = field(default_factory=lambda: np.zeros((0, 4)))
+    """True boxes that neither count towards recall nor make a detection on them a false positive."""
 
     def __post_init__(self) -> None:
         pred = np.asarray(self.pred_boxes, dtype=np.float64).reshape(-1, 4)
         scores = np.asarray(self.scores, dtype=np.float64).reshape(-1)
         true = np.asarray(self.true_boxes, dtype=np.float64).reshape(-1, 4)
+        ignore = np.asarray(self.ignore_boxes, dtype=np.float64).reshape(-1, 4)
         if len(pred) != len(scores):
             raise ValueError(f"{len(pred)} predicted boxes but {len(scores)} scores")
-        for name, arr in (("pred_boxes", pred), ("scores", scores), ("true_boxes", true)):
+        for name, arr in (("pred_boxes", pred), ("scores", scores), ("true_boxes", true), ("ignore_boxes", ignore)):
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"{name} contains NaN or Inf")
         object.__setattr__(self, "pred_boxes", pred)
         object.__setattr__(self, "scores", scores)
         object.__setattr__(self, "true_boxes", true)
+        object.__setattr__(self, "ignore_boxes", ignore)
 
 
 @dataclass(frozen=True)
@@ -92,27 +99,32 @@ def match_image(
 ) -> Tuple[Float[np.ndarray, " k"], Bool[np.ndarray, " k"]]:
     """Greedy COCO matching in one image.
 
-    Returns the scores of the kept detections (descending; those >= ``conf_threshold``, at most ``max_dets``) and
-    whether each is a true positive. Each true box is matched at most once.
+    Returns the scores of the kept detections (descending; those >= ``conf_threshold``, at most ``max_dets``, minus
+    those matched to an ignored box) and whether each is a true positive. Each true box is matched at most once.
     """
     keep = np.flatnonzero(image.scores >= conf_threshold)
     order = keep[np.argsort(-image.scores[keep], kind="mergesort")][:max_dets]
     scores = image.scores[order]
     is_tp = np.zeros(len(order), dtype=bool)
-    if len(order) == 0 or len(image.true_boxes) == 0:
+    counted = len(image.true_boxes)
+    if len(order) == 0 or counted + len(image.ignore_boxes) == 0:
         return scores, is_tp
-    ious = box_iou(image.pred_boxes[order], image.true_boxes)
-    matched = np.zeros(len(image.true_boxes), dtype=bool)
+    ious = box_iou(image.pred_boxes[order], np.concatenate([image.true_boxes, image.ignore_boxes]))
+    matched = np.zeros(ious.shape[1], dtype=bool)
+    dropped = np.zeros(len(order), dtype=bool)
     for d in range(len(order)):
-        best, best_iou = -1, min(iou_threshold, 1 - 1e-10)
-        for g in range(len(image.true_boxes)):
-            if matched[g] or ious[d, g] < best_iou:
-                continue
-            best, best_iou = g, ious[d, g]
-        if best >= 0:
-            matched[best] = True
-            is_tp[d] = True
-    return scores, is_tp
+        for candidates in (range(counted), range(counted, ious.shape[1])):  # counted boxes first, as COCOeval
+            best, best_iou = -1, min(iou_threshold, 1 - 1e-10)
+            for g in candidates:
+                if matched[g] or ious[d, g] < best_iou:
+                    continue
+                best, best_iou = g, ious[d, g]
+            if best >= 0:
+                matched[best] = True
+                is_tp[d] = best < counted
+                dropped[d] = best >= counted
+                break
+    return scores[~dropped], is_tp[~dropped]
 
 
 def average_precision(

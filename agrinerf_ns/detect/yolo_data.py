@@ -9,16 +9,9 @@ from pathlib import Path
 from typing import Iterable, List, Literal, Optional, Sequence
 
 import numpy as np
-from jaxtyping import Float
+from jaxtyping import Bool, Float
 
-from agrinerf_ns.detect.boxes import (
-    TRUTH_RGB_DIR,
-    MissingTruthError,
-    list_images,
-    truth_label_files,
-    truth_labels_for,
-    write_yolo_labels,
-)
+from agrinerf_ns.detect.boxes import TRUTH_RGB_DIR, MissingTruthError, SceneTruth, list_images, write_yolo_labels
 
 CLASS_NAMES = ("fruit",)
 
@@ -29,33 +22,33 @@ class LabelledImage:
 
     image: Path
     boxes: Float[np.ndarray, "m 4"]
-    """Normalised ``cx cy w h``."""
+    """Normalised ``cx cy w h`` (boxes with fewer visible pixels than the truth's ``min_pixels`` left out)."""
     name: str
     """Unique file stem in the written dataset (``<source>_<frame>``)."""
 
 
-def rgb_truth_images(scene: Path, exclude: Iterable[str] = ()) -> List[LabelledImage]:
+def rgb_truth_images(truth: SceneTruth, exclude: Iterable[str] = ()) -> List[LabelledImage]:
     """Clean RGB truth views (``truth/rgb_clean``) with their boxes; frames in ``exclude`` (stems) are left out."""
-    labels = truth_label_files(scene)
-    folder = Path(scene) / TRUTH_RGB_DIR
+    folder = truth.scene / TRUTH_RGB_DIR
     if not folder.is_dir() or not list_images(folder):
-        raise MissingTruthError(f"{scene}: no clean RGB truth images in {folder}")
+        raise MissingTruthError(f"{truth.scene}: no clean RGB truth images in {folder}")
     skip = set(exclude)
     return [
-        LabelledImage(p, truth_labels_for(scene, p.stem, labels, p), f"rgb_{p.stem}")
+        LabelledImage(p, truth.frame(p.stem, p).counted, f"rgb_{p.stem}")
         for p in list_images(folder)
         if p.stem not in skip
     ]
 
 
 def dataset_images(
-    scene: Path, dataset: Path, modality: Literal["rgb", "thermal"], exclude: Iterable[str] = ()
+    truth: SceneTruth, dataset: Path, modality: Literal["rgb", "thermal"], exclude: Iterable[str] = ()
 ) -> List[LabelledImage]:
     """Frames of a processed dataset: its RGB images (``file_path``) or its thermal frames (``thermal_file_path``,
     warped into the RGB camera, so the RGB truth boxes apply).
 
     Frames are read from ``dataset/transforms.json``; each is paired with the truth boxes of its RGB frame by the stem
-    of ``file_path``.
+    of ``file_path``. A thermal frame keeps only the boxes whose centre its ``thermal_mask_path`` marks as seen by the
+    thermal camera (the rest of a warped frame is black fill, where no detector can find fruit).
     """
     transforms = Path(dataset) / "transforms.json"
     if not transforms.is_file():
@@ -64,7 +57,6 @@ def dataset_images(
     frames = [f for f in json.loads(transforms.read_text()).get("frames", []) if key in f]
     if not frames:
         raise ValueError(f"{transforms}: no frame has a {key}, so a {modality} detector cannot be trained from it")
-    labels = truth_label_files(scene)
     skip = set(exclude)
     items = []
     for frame in frames:
@@ -74,17 +66,32 @@ def dataset_images(
         image = Path(dataset) / frame[key]
         if not image.is_file():
             raise FileNotFoundError(f"{transforms}: {modality} image {image} of frame {frame['file_path']} is missing")
-        items.append(LabelledImage(image, truth_labels_for(scene, stem, labels, image), f"{modality}_{stem}"))
+        boxes = truth.frame(stem, image).counted
+        if modality == "thermal" and "thermal_mask_path" in frame:
+            boxes = boxes[centres_in_mask(boxes, Path(dataset) / frame["thermal_mask_path"])]
+        items.append(LabelledImage(image, boxes, f"{modality}_{stem}"))
     return items
 
 
-def rendered_images(scene: Path, render_dir: Path, prefix: str = "render") -> List[LabelledImage]:
+def centres_in_mask(boxes: Float[np.ndarray, "m 4"], mask_path: Path) -> Bool[np.ndarray, " m"]:
+    """Whether each normalised box's centre pixel is non-zero in the mask image (any resolution)."""
+    import cv2
+
+    mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise FileNotFoundError(f"{mask_path}: thermal mask missing or unreadable")
+    height, width = mask.shape
+    cols = np.clip((boxes[:, 0] * width).astype(int), 0, width - 1)
+    rows = np.clip((boxes[:, 1] * height).astype(int), 0, height - 1)
+    return mask[rows, cols] > 0
+
+
+def rendered_images(truth: SceneTruth, render_dir: Path, prefix: str = "render") -> List[LabelledImage]:
     """Rendered views (``<frame>.png``) with the truth boxes of their frames."""
     images = list_images(render_dir)
     if not images:
         raise FileNotFoundError(f"{render_dir}: empty render folder (no .png/.jpg images)")
-    labels = truth_label_files(scene)
-    return [LabelledImage(p, truth_labels_for(scene, p.stem, labels, p), f"{prefix}_{p.stem}") for p in images]
+    return [LabelledImage(p, truth.frame(p.stem, p).counted, f"{prefix}_{p.stem}") for p in images]
 
 
 def subsample(items: Sequence[LabelledImage], fraction: float, seed: int) -> List[LabelledImage]:
