@@ -7,6 +7,7 @@ import csv
 import json
 import math
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -103,6 +104,9 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
         assert trained and all(name.startswith(f"{modality}_") for name in trained)
         assert not {name.split("_", 1)[1] for name in trained} & set(test_stems)
         assert (out / "work" / "orchard" / f"detector_{modality}" / "weights").is_dir()
+    # the thermal detector started from the RGB one (thermal_init "rgb", the default)
+    record = json.loads((out / "work" / "orchard" / "detector_thermal" / "agrinerf_detect.json").read_text())
+    assert Path(record["init"]["path"]).parent == (out / "work" / "orchard" / "detector_rgb" / "weights").resolve()
 
 
 def test_scene_without_truth_boxes(scene, tmp_path: Path, capsys) -> None:
@@ -210,3 +214,30 @@ def test_small_fruit_are_ignored_and_thermal_labels_need_the_thermal_view(scene,
     stem = Path(blind["file_path"]).stem
     assert len(thermal[f"thermal_{stem}"].boxes) == 0 < len(rgb[f"rgb_{stem}"].boxes)
     assert sum(len(item.boxes) for item in thermal.values()) > 0
+
+
+@pytest.mark.slow
+def test_detector_starts_from_given_weights(scene, tmp_path: Path) -> None:
+    """``init`` weights are the starting point (Ultralytics drops them when told pretrained=False): with a zero
+    learning rate the trained convolutions equal the start's; from scratch they do not."""
+    pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
+    import torch
+
+    from agrinerf_ns.detect.detector import train_detector
+    from agrinerf_ns.detect.yolo_data import rgb_truth_images, write_yolo_dataset
+
+    raw, _ = scene
+    data_yaml = write_yolo_dataset(tmp_path / "yolo", rgb_truth_images(SceneTruth(raw))[:4])
+    config = DetectorConfig(epochs=1, imgsz=64, batch=4)
+    start = train_detector(data_yaml, tmp_path / "start", config)
+    frozen = train_detector(data_yaml, tmp_path / "frozen", replace(config, lr0=0.0), init=start)
+    fresh = train_detector(data_yaml, tmp_path / "fresh", replace(config, lr0=0.0, seed=1))
+
+    def convs(weights: Path) -> list:
+        model = torch.load(weights, map_location="cpu", weights_only=False)["model"]
+        return [m.weight.detach().float() for m in model.modules() if isinstance(m, torch.nn.Conv2d)]
+
+    assert all(torch.equal(a, b) for a, b in zip(convs(start), convs(frozen), strict=True))
+    assert not all(torch.equal(a, b) for a, b in zip(convs(start), convs(fresh), strict=True))
+    with pytest.raises(FileNotFoundError, match="do not exist"):
+        train_detector(data_yaml, tmp_path / "none", config, init=tmp_path / "missing.pt")

@@ -46,6 +46,8 @@ class EvaluateCommand:
     """Cross-spectral renders of training views added to the thermal detector's set (fraction of its size)."""
     rgb_source: Literal["clean", "captured"] = "clean"
     """RGB detector training images: the clean truth views, or the captured (dataset) frames as the paper labels."""
+    thermal_init: Literal["rgb", "scratch"] = "rgb"
+    """Start the thermal detector from the scene's RGB detector (trained here from scratch) or from random weights."""
     min_box_pixels: int = 30
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
@@ -69,6 +71,7 @@ class EvaluateCommand:
             self.max_render_views,
             self.reuse,
             self.rgb_source,
+            self.thermal_init,
             self.min_box_pixels,
         )
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
@@ -113,6 +116,8 @@ class TrainCommand:
     cross_spectral: List[Path] = field(default_factory=list)
     """Folders of cross-spectral renders of training views to add to the thermal set."""
     cross_spectral_fraction: float = 0.25
+    init: Optional[Path] = None
+    """Detector weights to start from (e.g. the scene's RGB detector for a thermal one); None: from scratch."""
     min_box_pixels: int = 30
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
@@ -132,7 +137,9 @@ class TrainCommand:
             reuse=False,
             min_box_pixels=self.min_box_pixels,
         )
-        weights = train_scene_detector(scene, self.modality, exclude, self.cross_spectral, self.out, settings)
+        weights = train_scene_detector(
+            scene, self.modality, exclude, self.cross_spectral, self.out, settings, self.init
+        )
         print(f"weights: {weights}")
 
 

@@ -74,13 +74,21 @@ def configure_offline(config_dir: Path | None = None) -> None:
         settings.update(off)
 
 
-def train_detector(data_yaml: Path, out_dir: Path, config: DetectorConfig = DetectorConfig()) -> Path:
-    """Train YOLOv8 from scratch on a YOLO dataset (``data.yaml``); returns the trained weights file."""
+def train_detector(
+    data_yaml: Path, out_dir: Path, config: DetectorConfig = DetectorConfig(), init: Optional[Path] = None
+) -> Path:
+    """Train YOLOv8 on a YOLO dataset (``data.yaml``); returns the trained weights file.
+
+    From scratch (``config.model``, random weights) unless ``init`` names weights trained here before (e.g. the
+    scene's RGB detector, to start the thermal one from): nothing is ever downloaded.
+    """
     configure_offline()
     from ultralytics import YOLO
 
     out_dir = Path(out_dir).resolve()
-    model = YOLO(config.model)
+    if init is not None and not Path(init).is_file():
+        raise FileNotFoundError(f"{init}: detector weights to start from do not exist")
+    model = YOLO(str(init) if init is not None else config.model)
     model.train(
         data=str(Path(data_yaml).resolve()),
         epochs=config.epochs,
@@ -90,7 +98,7 @@ def train_detector(data_yaml: Path, out_dir: Path, config: DetectorConfig = Dete
         deterministic=True,
         device=config.device,
         workers=0,
-        pretrained=False,
+        pretrained=init is not None,  # False would drop the init weights (ultralytics Model.train)
         amp=False,
         plots=False,
         patience=config.patience if config.patience > 0 else config.epochs + 1,
