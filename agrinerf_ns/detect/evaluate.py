@@ -83,8 +83,8 @@ class EvalSettings:
     (the paper labels "the original dataset images")."""
     thermal_init: Literal["rgb", "scratch"] = "rgb"
     """Start the thermal detector from the scene's RGB detector (trained here, from scratch, on the clean RGB truth
-    without the held-out frames) or from random weights. From scratch it learnt nothing on 21-60 thermal frames in 120
-    CPU epochs; from the RGB weights it reached Ultralytics validation mAP50 0.49 in 30 (docs/detect.md)."""
+    without the held-out frames) or from random weights (docs/detect.md: from scratch it learnt nothing from the dark
+    garden's 21 thermal frames in 120 CPU epochs)."""
     min_box_pixels: int = 30
     """A fruit counts when at least this many of its pixels are visible in the truth view (``area`` in
     ``truth/boxes_coco.json``; about a third of a whole fruit in the 320x240 detect profile). Smaller ones, mostly
