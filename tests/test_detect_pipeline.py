@@ -86,7 +86,7 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
     written = evaluate_plan(scenes, out, settings, "III", "pytest", runs=runs)  # renders with the loaded run
     assert not runs, "loaded pipelines are released before the detectors train"
 
-    renders = out / "work" / "orchard" / "renders" / "nerfacto__rgb"
+    renders = out / "work" / "orchard_dark" / "renders" / "nerfacto__rgb"
     assert sorted(p.stem for p in list_images(renders)) == sorted(test_stems)
     rows = list(csv.DictReader(written["csv"].open()))
     assert [r["method"] for r in rows] == ["Nerfacto (RGB)", "Captured thermal"]
@@ -100,13 +100,13 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
     assert written["figure"].stat().st_size > 1000
     # detectors never saw the held-out frames; the thermal one trained on thermal frames
     for modality in ("rgb", "thermal"):
-        trained = [p.stem for p in list_images(out / "work" / "orchard" / f"yolo_{modality}" / "images" / "train")]
+        trained = [p.stem for p in list_images(out / "work" / "orchard_dark" / f"yolo_{modality}" / "images" / "train")]
         assert trained and all(name.startswith(f"{modality}_") for name in trained)
         assert not {name.split("_", 1)[1] for name in trained} & set(test_stems)
-        assert (out / "work" / "orchard" / f"detector_{modality}" / "weights").is_dir()
+        assert (out / "work" / "orchard_dark" / f"detector_{modality}" / "weights").is_dir()
     # the thermal detector started from the RGB one (thermal_init "rgb", the default)
-    record = json.loads((out / "work" / "orchard" / "detector_thermal" / "agrinerf_detect.json").read_text())
-    assert Path(record["init"]["path"]).parent == (out / "work" / "orchard" / "detector_rgb" / "weights").resolve()
+    record = json.loads((out / "work" / "orchard_dark" / "detector_thermal" / "agrinerf_detect.json").read_text())
+    assert Path(record["init"]["path"]).parent == (out / "work" / "orchard_dark" / "detector_rgb" / "weights").resolve()
 
 
 def test_scene_without_truth_boxes(scene, tmp_path: Path, capsys) -> None:

@@ -48,6 +48,8 @@ class EvaluateCommand:
     """RGB detector training images: the clean truth views, or the captured (dataset) frames as the paper labels."""
     thermal_init: Literal["rgb", "scratch"] = "rgb"
     """Start the thermal detector from the scene's RGB detector (trained here from scratch) or from random weights."""
+    thermal_init_lr0: float = 0.002
+    """Learning rate of the thermal detector started from the RGB one (the RGB one uses --detector.lr0)."""
     min_box_pixels: int = 30
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
@@ -65,14 +67,15 @@ class EvaluateCommand:
         scenes = load_plan(self.plan) if self.plan is not None else plan_from_bench(self.bench)  # type: ignore[arg-type]
 
         settings = EvalSettings(
-            self.detector,
-            self.conf_threshold,
-            self.cross_spectral_fraction,
-            self.max_render_views,
-            self.reuse,
-            self.rgb_source,
-            self.thermal_init,
-            self.min_box_pixels,
+            detector=self.detector,
+            conf_threshold=self.conf_threshold,
+            cross_spectral_fraction=self.cross_spectral_fraction,
+            max_render_views=self.max_render_views,
+            reuse=self.reuse,
+            rgb_source=self.rgb_source,
+            thermal_init=self.thermal_init,
+            thermal_init_lr0=self.thermal_init_lr0,
+            min_box_pixels=self.min_box_pixels,
         )
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
         written = evaluate_plan(scenes, self.out, settings, self.table, command)

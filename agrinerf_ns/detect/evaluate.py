@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import platform
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Set, Tuple
 
@@ -85,6 +85,9 @@ class EvalSettings:
     """Start the thermal detector from the scene's RGB detector (trained here, from scratch, on the clean RGB truth
     without the held-out frames) or from random weights (docs/detect.md: from scratch it learnt nothing from the dark
     garden's 21 thermal frames in 120 CPU epochs)."""
+    thermal_init_lr0: float = 0.002
+    """AdamW learning rate of the thermal detector when it starts from the RGB detector (a fine-tune; the RGB one
+    from scratch uses ``detector.lr0``)."""
     min_box_pixels: int = 30
     """A fruit counts when at least this many of its pixels are visible in the truth view (``area`` in
     ``truth/boxes_coco.json``; about a third of a whole fruit in the 320x240 detect profile). Smaller ones, mostly
@@ -205,7 +208,8 @@ def _slug(text: str) -> str:
 def _render(method: MethodSpec, out: Path, split: str, settings: EvalSettings, runs: Dict[Path, LoadedRun]) -> Path:
     """Render (or reuse) a method's views of ``split``; ``runs`` caches loaded runs by config path."""
     if settings.reuse and (out / "renders.json").is_file() and list_images(out):
-        if json.loads((out / "renders.json").read_text()).get("output") == method.output:
+        manifest = json.loads((out / "renders.json").read_text())
+        if (manifest.get("output"), manifest.get("config")) == (method.output, str(method.config)):
             return out
     assert method.config is not None
     if method.config not in runs:
@@ -278,8 +282,13 @@ def train_scene_detectors(
     if "rgb" in modalities or ("thermal" in modalities and settings.thermal_init == "rgb"):
         weights["rgb"] = train_scene_detector(scene, "rgb", exclude, cross_spectral, work, settings)
     if "thermal" in modalities:
-        init = weights["rgb"] if settings.thermal_init == "rgb" else None
-        weights["thermal"] = train_scene_detector(scene, "thermal", exclude, cross_spectral, work, settings, init)
+        init, thermal_settings = None, settings
+        if settings.thermal_init == "rgb":
+            init = weights["rgb"]
+            thermal_settings = replace(settings, detector=replace(settings.detector, lr0=settings.thermal_init_lr0))
+        weights["thermal"] = train_scene_detector(
+            scene, "thermal", exclude, cross_spectral, work, thermal_settings, init
+        )
     return weights
 
 
@@ -313,7 +322,7 @@ def evaluate_scene(
     here. All are released before the detectors train.
     """
     check_scene(scene, settings.min_box_pixels)
-    work = Path(work) / _slug(scene.name)
+    work = Path(work) / _slug(f"{scene.name}_{scene.lighting}")
     renders: Dict[str, Path] = {}
     runs = {} if runs is None else runs
     for m in scene.methods:
