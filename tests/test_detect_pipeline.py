@@ -80,6 +80,10 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
     with pytest.raises(MissingOutputError, match="no 'thermal' output"):
         render_pipeline_views(runs[config], "thermal", tmp_path / "nope", max_views=1)
     assert not (tmp_path / "nope").exists()
+    # a few training views, evenly spaced: the first and the last
+    train_stems = [Path(n).stem for n in json.loads((dataset / "transforms.json").read_text())["train_filenames"]]
+    two = render_pipeline_views(runs[config], "rgb", tmp_path / "two", "train", max_views=2)
+    assert [p.stem for p in two] == [train_stems[0], train_stems[-1]]
 
     settings = EvalSettings(DetectorConfig(epochs=2, imgsz=64, batch=8), cross_spectral_fraction=0.25, min_box_pixels=4)
     out = tmp_path / "detect"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import platform
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -205,8 +206,20 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in text).strip("_").lower()
 
 
-def _render(method: MethodSpec, out: Path, split: str, settings: EvalSettings, runs: Dict[Path, LoadedRun]) -> Path:
-    """Render (or reuse) a method's views of ``split``; ``runs`` caches loaded runs by config path."""
+def _render(
+    method: MethodSpec,
+    out: Path,
+    split: str,
+    settings: EvalSettings,
+    runs: Dict[Path, LoadedRun],
+    share: float = 1.0,
+) -> Path:
+    """Render (or reuse) a method's views of ``split``; ``runs`` caches loaded runs by config path.
+
+    Held-out views: all (or ``settings.max_render_views``). Training views (cross-spectral renders for the thermal
+    detector): only as many as it takes, ``cross_spectral_fraction`` of the training frames times ``share`` (this
+    method's share of the cross-spectral methods), evenly spaced.
+    """
     if settings.reuse and (out / "renders.json").is_file() and list_images(out):
         manifest = json.loads((out / "renders.json").read_text())
         if (manifest.get("output"), manifest.get("config")) == (method.output, str(method.config)):
@@ -214,7 +227,11 @@ def _render(method: MethodSpec, out: Path, split: str, settings: EvalSettings, r
     assert method.config is not None
     if method.config not in runs:
         runs[method.config] = load_run(method.config)
-    max_views = settings.max_render_views if split == "eval" else None
+    if split == "eval":
+        max_views = settings.max_render_views
+    else:
+        frames = len(runs[method.config].pipeline.datamanager.train_dataset)
+        max_views = math.ceil(settings.cross_spectral_fraction * frames * share)
     render_pipeline_views(runs[method.config], method.output, out, split, max_views)  # type: ignore[arg-type]
     return out
 
@@ -328,10 +345,10 @@ def evaluate_scene(
     for m in scene.methods:
         renders[m.label] = m.renders or _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
     held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
+    rendering = [m for m in scene.methods if m.output == "thermal" and m.config is not None]
     cross_spectral = [
-        _render(m, work / "train_renders" / _slug(m.label), "train", settings, runs)
-        for m in scene.methods
-        if m.output == "thermal" and m.config is not None
+        _render(m, work / "train_renders" / _slug(m.label), "train", settings, runs, 1 / len(rendering))
+        for m in rendering
     ]
     runs.clear()  # free the pipelines before training detectors
     modalities = {m.detector_modality() for m in scene.methods}

@@ -63,7 +63,8 @@ def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -
 def render_pipeline_views(
     run: LoadedRun, output: Output, out_dir: Path, split: Split = "eval", max_views: Optional[int] = None
 ) -> List[Path]:
-    """Render ``output`` at every camera of ``split``; writes ``out_dir/<frame>.png`` and ``out_dir/renders.json``.
+    """Render ``output`` at every camera of ``split`` (or ``max_views`` of them, evenly spaced); writes
+    ``out_dir/<frame>.png`` and ``out_dir/renders.json``.
 
     Raises :class:`MissingOutputError` when the method has no such output (checked on the first view, before
     anything is written).
@@ -79,12 +80,13 @@ def render_pipeline_views(
             f"{run.config_path}: the run's {split} split has no cameras to render (with Nerfstudio's default "
             "train_split_fraction 0.9, a dataset needs at least 11 frames for one eval view)"
         )
-    count = len(dataset) if max_views is None else min(max_views, len(dataset))
+    count = len(dataset) if max_views is None else max(1, min(max_views, len(dataset)))
+    indices = sorted({int(round(i)) for i in np.linspace(0, len(dataset) - 1, count)})
     out_dir = Path(out_dir)
     written: List[Path] = []
     with Progress(transient=True) as progress:
-        task = progress.add_task(f"rendering {output} ({run.method}, {split})", total=count)
-        for index in range(count):
+        task = progress.add_task(f"rendering {output} ({run.method}, {split})", total=len(indices))
+        for index in indices:
             camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
             with torch.no_grad():
                 outputs = run.pipeline.model.get_outputs_for_camera(camera)
