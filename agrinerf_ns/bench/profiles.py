@@ -48,7 +48,8 @@ PROFILES: Dict[str, BenchProfile] = {
         evaluations=6, rays_per_batch=1024,
     ),
     # Downstream detection on a CPU (agrinerf-detect evaluate --bench): the dark garden at 320x240, so that fruits are
-    # about 10 px wide in RGB and 5 px in the 160x128 thermal frames; about 5-6 minutes of training per method.
+    # about 10 px wide in RGB and 5 px in the 160x128 thermal frames; 5-13 minutes of training per method on the 2-core
+    # CPU (docs/detect_results/garden_60views/bench_results.md).
     # 60 views: the thermal detector trains from scratch on the training views' thermal frames, and 21 were too few
     # for it to learn anything (docs/detect_results/garden_dark_plane1.57). Thermal frames are warped at 1.57 m, the
     # median true depth at the fruit boxes of this scene's views: at infinity the thermal camera's 7 cm baseline
