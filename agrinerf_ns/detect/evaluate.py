@@ -336,21 +336,23 @@ def evaluate_scene(
     """Render, train detectors, detect and score every method of one scene.
 
     ``runs``: runs already loaded (:func:`~agrinerf_ns.detect.render.load_run`) by config path; others are loaded
-    here. All are released before the detectors train.
+    here. Each is released once its views are rendered (one pipeline in memory at a time).
     """
     check_scene(scene, settings.min_box_pixels)
     work = Path(work) / _slug(f"{scene.name}_{scene.lighting}")
-    renders: Dict[str, Path] = {}
+    renders: Dict[str, Path] = {m.label: m.renders for m in scene.methods if m.renders is not None}
     runs = {} if runs is None else runs
-    for m in scene.methods:
-        renders[m.label] = m.renders or _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
-    held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
     rendering = [m for m in scene.methods if m.output == "thermal" and m.config is not None]
-    cross_spectral = [
-        _render(m, work / "train_renders" / _slug(m.label), "train", settings, runs, 1 / len(rendering))
-        for m in rendering
-    ]
-    runs.clear()  # free the pipelines before training detectors
+    cross_spectral: List[Path] = []
+    for config in dict.fromkeys(m.config for m in scene.methods if m.config is not None):
+        for m in (m for m in scene.methods if m.config == config):
+            renders[m.label] = _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
+            if m in rendering:
+                out = work / "train_renders" / _slug(m.label)
+                cross_spectral.append(_render(m, out, "train", settings, runs, 1 / len(rendering)))
+        runs.pop(config, None)  # free the pipeline before loading the next one
+    runs.clear()
+    held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
     modalities = {m.detector_modality() for m in scene.methods}
     weights = train_scene_detectors(scene, modalities, held_out, cross_spectral, work, settings)
     rows, panels = [], {}
