@@ -13,7 +13,7 @@ import os
 import platform
 import shutil
 import sys
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Dict, List, Optional, Sequence, Tuple
 
@@ -75,6 +75,7 @@ def device_name() -> str:
 def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tuple[Path, Path]:
     """Synthesise and process one scene (cached under ``root``); returns (raw capture, dataset)."""
     from agrinerf_ns.process import ProcessConfig, process_capture
+    from agrinerf_ns.process.pipeline import recorded_plane_depth
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
     scene, _, lighting = name.partition("-")
@@ -87,28 +88,21 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
         generate_capture(config, raw)
         if data.exists():
             shutil.rmtree(data)
-    if not (data / "transforms.json").exists() or _plane_depth(data) != profile.plane_depth:
+    if not (data / "transforms.json").exists() or recorded_plane_depth(data) != profile.plane_depth:
         # Poses from the capture's odometry: the benchmark compares reconstructions, not SfM.
-        config = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth)
-        process_capture(raw, data, config)
+        process = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth)
+        process_capture(raw, data, process)
     return raw, data
 
 
 def _same_capture(raw: Path, config: "SynthConfig") -> bool:
     """Whether ``raw`` is a finished capture written with ``config`` (its ``truth/scene.json``)."""
-    from dataclasses import asdict
-
     scene_json = raw / "truth" / "scene.json"
     if not (raw / "calib.yaml").exists() or not scene_json.exists():
         return False
     written = json.loads(scene_json.read_text()).get("config", {})
     return all(written.get(key) == value for key, value in asdict(config).items() if key in written)
 
-
-def _plane_depth(data: Path) -> float:
-    """The warp plane depth a processed dataset was made with (``inf`` when not recorded)."""
-    meta = json.loads((data / "transforms.json").read_text()).get("agrinerf", {})
-    return float(meta.get("alignment", {}).get("plane_depth", "inf"))
 
 
 def run_method(

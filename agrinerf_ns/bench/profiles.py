@@ -50,10 +50,10 @@ PROFILES: Dict[str, BenchProfile] = {
     # Downstream detection on a CPU (agrinerf-detect evaluate --bench): the dark garden at 320x240, so that fruits are
     # about 10 px wide in RGB and 5 px in the 160x128 thermal frames; 5-13 minutes of training per method on the 2-core
     # CPU (docs/detect_results/garden_60views/bench_results.md).
-    # 60 views: the thermal detector trains from scratch on the training views' thermal frames, and 21 were too few
-    # for it to learn anything (docs/detect_results/garden_dark_plane1.57). Thermal frames are warped at 1.57 m, the
-    # median true depth at the fruit boxes of this scene's views: at infinity the thermal camera's 7 cm baseline
-    # (f = 246 px) put fruit 11 px beside their boxes.
+    # 60 views: 24 (21 training frames) left the thermal detector too few images to learn from
+    # (docs/detect_results/garden_dark_plane1.57); it now also starts from the RGB detector. Thermal frames are warped
+    # at 1.57 m, the median true depth at the fruit boxes of this scene's views: at infinity the thermal camera's 7 cm
+    # baseline (f = 246 px) put fruit 11 px beside their boxes.
     "detect": BenchProfile(
         views=60, width=320, height=240,
         steps={"agrinerf-lite": 1500, "agrinerf": 500, "nerfacto": 150, "nerfacto-thermal": 110, "tensorf": 400},

@@ -18,6 +18,9 @@ from jaxtyping import Float
 TRUTH_BOXES_DIR = Path("truth") / "boxes_yolo"
 TRUTH_RGB_DIR = Path("truth") / "rgb_clean"
 TRUTH_COCO = Path("truth") / "boxes_coco.json"
+MIN_BOX_PIXELS = 30
+"""Default visible-pixel count below which a true fruit is an ignore region (about a third of a whole fruit at
+320x240)."""
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 

@@ -17,6 +17,7 @@ from typing import List, Literal, Optional
 import tyro
 from typing_extensions import Annotated
 
+from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS
 from agrinerf_ns.detect.detector import DetectorConfig
 
 
@@ -50,7 +51,7 @@ class EvaluateCommand:
     """Start the thermal detector from the scene's RGB detector (trained here from scratch) or from random weights."""
     thermal_init_lr0: float = 0.002
     """Learning rate of the thermal detector started from the RGB one (the RGB one uses --detector.lr0)."""
-    min_box_pixels: int = 30
+    min_box_pixels: int = MIN_BOX_PIXELS
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
     max_render_views: Optional[int] = None
@@ -121,7 +122,7 @@ class TrainCommand:
     cross_spectral_fraction: float = 0.25
     init: Optional[Path] = None
     """Detector weights to start from (e.g. the scene's RGB detector for a thermal one); None: from scratch."""
-    min_box_pixels: int = 30
+    min_box_pixels: int = MIN_BOX_PIXELS
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
     detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
@@ -156,7 +157,7 @@ class ScoreCommand:
     imgsz: Optional[int] = None
     """Inference size; None: the size the detector was trained at."""
     conf_threshold: float = 0.25
-    min_box_pixels: int = 30
+    min_box_pixels: int = MIN_BOX_PIXELS
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
     out: Optional[Path] = None

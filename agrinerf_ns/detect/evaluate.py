@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Set, Tuple
 
-from agrinerf_ns.detect.boxes import SceneTruth, list_images, yolo_to_xyxy
+from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS, SceneTruth, list_images, yolo_to_xyxy
 from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
 from agrinerf_ns.detect.render import LoadedRun, MissingOutputError, Output, load_run, render_pipeline_views
@@ -89,7 +89,7 @@ class EvalSettings:
     thermal_init_lr0: float = 0.002
     """AdamW learning rate of the thermal detector when it starts from the RGB detector (a fine-tune; the RGB one
     from scratch uses ``detector.lr0``)."""
-    min_box_pixels: int = 30
+    min_box_pixels: int = MIN_BOX_PIXELS
     """A fruit counts when at least this many of its pixels are visible in the truth view (``area`` in
     ``truth/boxes_coco.json``; about a third of a whole fruit in the 320x240 detect profile). Smaller ones, mostly
     fruit behind leaves, are ignored in scoring (COCO ignore regions) and left out of the detectors' training labels.
@@ -347,7 +347,7 @@ def evaluate_scene(
     for config in dict.fromkeys(m.config for m in scene.methods if m.config is not None):
         for m in (m for m in scene.methods if m.config == config):
             renders[m.label] = _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
-            if m in rendering:
+            if m.output == "thermal":
                 out = work / "train_renders" / _slug(m.label)
                 cross_spectral.append(_render(m, out, "train", settings, runs, 1 / len(rendering)))
         runs.pop(config, None)  # free the pipeline before loading the next one

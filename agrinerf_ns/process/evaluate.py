@@ -19,6 +19,7 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.process import align, readers
+from agrinerf_ns.process.pipeline import recorded_plane_depth
 from agrinerf_ns.process.poses import match_times, opencv_to_opengl, pose_errors
 
 
@@ -79,10 +80,8 @@ class EvaluateArgs:
 
 def main(args: EvaluateArgs) -> Dict:
     meta = json.loads((args.dataset / "transforms.json").read_text())
-    depth = meta["agrinerf"]["alignment"]["plane_depth"]
-    depth = float("inf") if depth == "inf" else float(depth)
     result = {
-        "alignment": alignment_report(args.raw, depth),
+        "alignment": alignment_report(args.raw, recorded_plane_depth(args.dataset)),
         "poses": {**pose_report(args.raw, args.dataset), "source": meta["agrinerf"]["poses"]["source"]},
         "frames_kept": len(meta["frames"]),
         "frames_dropped": len(meta["agrinerf"]["poses"].get("dropped_frames", [])),

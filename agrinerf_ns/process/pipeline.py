@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,6 +101,12 @@ def inspect_capture(raw: Path) -> _Capture:
 
 def _interval(times: np.ndarray) -> float:
     return float(np.median(np.diff(times))) if len(times) > 1 else 0.0
+
+
+def recorded_plane_depth(dataset: Path) -> float:
+    """The warp plane depth (m) a dataset was processed with (``inf`` also when the dataset does not record one)."""
+    meta = json.loads((Path(dataset) / "transforms.json").read_text()).get("agrinerf", {})
+    return float(meta.get("alignment", {}).get("plane_depth", "inf"))
 
 
 def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
