@@ -10,6 +10,7 @@ import torch
 
 from agrinerf_ns.bench import image_metrics, results
 from agrinerf_ns.bench.cli import BenchConfig, main
+from agrinerf_ns.views import evenly_spaced
 
 
 def test_pareto_front_keeps_only_undominated_points() -> None:
@@ -49,6 +50,15 @@ def test_exposure_alignment_scores_structure_not_exposure() -> None:
     assert image_metrics.psnr(image_metrics.exposure_align(noisy, truth), truth) < 30, "noise is still penalised"
 
 
+def test_evenly_spaced_views_span_the_capture() -> None:
+    assert evenly_spaced(8, 3) == [0, 4, 7]  # 3.5 rounds to even
+    assert evenly_spaced(60, 3) == [0, 30, 59]  # 29.5 rounds to even
+    assert evenly_spaced(5, None) == [0, 1, 2, 3, 4]
+    assert evenly_spaced(5, 99) == [0, 1, 2, 3, 4]
+    assert evenly_spaced(5, 0) == [0], "at least one view"
+    assert evenly_spaced(0, 3) == []
+
+
 @pytest.mark.slow
 def test_bench_end_to_end_tiny(tmp_path: Path) -> None:
     config = BenchConfig(out=tmp_path / "bench", profile="tiny", methods=("agrinerf-lite", "nerfacto-thermal"))
@@ -59,6 +69,7 @@ def test_bench_end_to_end_tiny(tmp_path: Path) -> None:
     for row in rows:
         for key in ("wall_s", "s_per_step", "peak_rss_mb", "thermal_psnr", "thermal_ssim"):
             assert math.isfinite(results.as_float(row, key)), (row["method"], key)
+        assert row["eval_views"] == "1", "the tiny profile evaluates all of its one held-out view"
         if row["method"] == "agrinerf-lite":
             for key in ("psnr", "ssim", "psnr_clean", "ssim_clean"):
                 assert math.isfinite(results.as_float(row, key)), key

@@ -130,7 +130,7 @@ def run_method(
     truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
     rows = []
     for step, checkpoint in run.checkpoints():
-        metrics = evaluate_checkpoint(run.config, step, method, truth)
+        metrics = evaluate_checkpoint(run.config, step, method, truth, max_views=profile.eval_views)
         rows.append({
             "scene": scene, "method": method_key, "label": method.label, "step": step + 1,
             "wall_s": checkpoint.stat().st_mtime - run.started_at, "s_per_step": run.s_per_step,

@@ -17,6 +17,7 @@ from PIL import Image
 
 from agrinerf_ns.bench import image_metrics
 from agrinerf_ns.bench.methods import BenchMethod
+from agrinerf_ns.views import evenly_spaced
 
 
 class TruthImages:
@@ -58,11 +59,16 @@ def _load_at_step(step: int) -> Callable:
 
 
 def evaluate_checkpoint(
-    config_path: Path, step: int, method: BenchMethod, truth: Optional[TruthImages], rays_per_chunk: int = 1 << 14
+    config_path: Path,
+    step: int,
+    method: BenchMethod,
+    truth: Optional[TruthImages],
+    rays_per_chunk: int = 1 << 14,
+    max_views: Optional[int] = None,
 ) -> Dict[str, float]:
-    """Mean metrics over the eval split at one checkpoint.
+    """Mean metrics over the eval split (or ``max_views`` of its views, evenly spaced) at one checkpoint.
 
-    Keys: ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when LPIPS is unavailable), ``psnr_clean``,
+    Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when LPIPS is unavailable), ``psnr_clean``,
     ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the rescaled thermal frames).
     """
     from nerfstudio.utils.eval_utils import eval_setup
@@ -75,8 +81,11 @@ def evaluate_checkpoint(
     )
     datamanager = pipeline.datamanager
     names = [Path(p).name for p in datamanager.eval_dataset._dataparser_outputs.image_filenames]
+    chosen = set(evenly_spaced(len(names), max_views))
     per_image: List[Dict[str, float]] = []
     for camera, batch in datamanager.fixed_indices_eval_dataloader:
+        if int(batch["image_idx"]) not in chosen:
+            continue
         with torch.no_grad():
             outputs = pipeline.model.get_outputs_for_camera(camera=camera)
         metrics, _ = pipeline.model.get_image_metrics_and_images(outputs, batch)
@@ -92,7 +101,8 @@ def evaluate_checkpoint(
             row["ssim_clean"] = image_metrics.ssim(aligned, target)
         per_image.append(row)
     keys = sorted({k for row in per_image for k in row})
-    return {k: _nanmean([row.get(k, math.nan) for row in per_image]) for k in keys}
+    means = {k: _nanmean([row.get(k, math.nan) for row in per_image]) for k in keys}
+    return {**means, "eval_views": len(per_image)}
 
 
 def _nanmean(values: List[float]) -> float:

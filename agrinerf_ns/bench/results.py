@@ -10,7 +10,7 @@ from typing import Dict, Iterable, List, Sequence, Set, Tuple
 
 COLUMNS = (
     "scene", "method", "label", "step", "wall_s", "s_per_step", "peak_rss_mb", "device",
-    "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim",
+    "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim", "eval_views",
 )  # fmt: skip
 """One row per evaluated checkpoint."""
 
@@ -92,7 +92,7 @@ def time_to_quality(rows: Sequence[Row], method: str, scene: str, target: float,
 def markdown_table(rows: Sequence[Row]) -> str:
     """One line per evaluated checkpoint, grouped by scene and method."""
     header = ("| scene | method | step | wall s | s/step | peak RSS MiB | PSNR | SSIM | LPIPS | PSNR clean | "
-              "SSIM clean | thermal PSNR | thermal SSIM |")  # fmt: skip
+              "SSIM clean | thermal PSNR | thermal SSIM | views |")  # fmt: skip
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     for r in sorted(rows, key=lambda r: (r["scene"], r["method"], int(r["step"]))):
         cells = [r["scene"], r["label"], r["step"]]
@@ -101,6 +101,7 @@ def markdown_table(rows: Sequence[Row]) -> str:
                             ("thermal_ssim", 3)):  # fmt: skip
             value = as_float(r, key)
             cells.append("-" if not math.isfinite(value) else f"{value:.{digits}f}")
+        cells.append(r.get("eval_views") or "-")  # results written before the column: all held-out views
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -17,6 +17,8 @@ from typing import Any, List, Literal, Optional
 import numpy as np
 from jaxtyping import Float, UInt8
 
+from agrinerf_ns.views import evenly_spaced
+
 Output = Literal["rgb", "thermal"]
 Split = Literal["eval", "train"]
 
@@ -80,8 +82,7 @@ def render_pipeline_views(
             f"{run.config_path}: the run's {split} split has no cameras to render (with Nerfstudio's default "
             "train_split_fraction 0.9, a dataset needs at least 11 frames for one eval view)"
         )
-    count = len(dataset) if max_views is None else max(1, min(max_views, len(dataset)))
-    indices = sorted({int(round(i)) for i in np.linspace(0, len(dataset) - 1, count)})
+    indices = evenly_spaced(len(dataset), max_views)
     out_dir = Path(out_dir)
     written: List[Path] = []
     with Progress(transient=True) as progress:

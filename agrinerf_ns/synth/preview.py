@@ -10,6 +10,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from agrinerf_ns.synth.sensors import event_frame
+from agrinerf_ns.views import evenly_spaced
 
 
 def _read_times(path: Path) -> List[float]:
@@ -29,7 +30,7 @@ def contact_sheet(raw: Union[str, Path], out_png: Union[str, Path], rows: int = 
     if not names:
         raise FileNotFoundError(f"no RGB frames in {raw / 'rgb'}")
     times = _read_times(raw / "rgb" / "timestamps.txt")
-    pick = np.unique(np.linspace(0, len(names) - 1, min(rows, len(names))).round().astype(int))
+    pick = evenly_spaced(len(names), rows)
     thermal = [np.asarray(Image.open(raw / "thermal" / names[i])).astype(np.float64) for i in pick]
     lo, hi = np.percentile(np.concatenate([t.ravel() for t in thermal]), [1, 99])
     with h5py.File(raw / "events" / "events.h5", "r") as f:
