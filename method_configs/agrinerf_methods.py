@@ -8,7 +8,7 @@ Presets:
 - `agrinerf-lite`: fast on a CPU (smaller grids and MLPs, 32 + 32 samples, 2k steps).
 
 Table IV ablations of the paper are `--pipeline.model.modalities` values of either preset
-(see `agrinerf_ns.model.model.TABLE_IV_ABLATIONS`): RGB `rgb`; RGB+Events `rgb events`; RGB+Thermal `rgb thermal`;
+(see `agrinerf_ns.modalities.TABLE_IV_ABLATIONS`): RGB `rgb`; RGB+Events `rgb events`; RGB+Thermal `rgb thermal`;
 Thermal `thermal`; Thermal+Events `thermal events`; All `rgb thermal events` (the default).
 """
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from agrinerf_ns.bench import image_metrics, results
 from agrinerf_ns.bench.cli import BenchConfig, main
@@ -80,3 +81,16 @@ def test_bench_end_to_end_tiny(tmp_path: Path) -> None:
     again = main(config)
     assert len(again) == len(rows)
     assert len(results.read_rows(tmp_path / "bench" / "results.csv")) == len(rows)
+
+
+@pytest.mark.slow
+def test_bench_trains_a_table_iv_ablation(tmp_path: Path) -> None:
+    """A Table IV row without an RGB head: trained with its modalities, scored on thermal only."""
+    rows = main(BenchConfig(out=tmp_path / "bench", profile="tiny", methods=("lite-ablation-thermal",)))
+    assert [r["label"] for r in rows] == ["AgriNeRF-lite (Thermal)"] * 2
+    for row in rows:
+        assert math.isfinite(results.as_float(row, "thermal_psnr"))
+        assert math.isnan(results.as_float(row, "psnr")) and math.isnan(results.as_float(row, "psnr_clean"))
+    (config,) = (tmp_path / "bench" / "runs").glob("*/lite-ablation-thermal/agrinerf-lite/run/config.yml")
+    loaded = yaml.load(config.read_text(), Loader=yaml.Loader)
+    assert tuple(loaded.pipeline.model.modalities) == ("thermal",)

@@ -11,7 +11,8 @@ from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
 from agrinerf_ns import compat
-from agrinerf_ns.model.model import TABLE_IV_ABLATIONS, AgriNeRFModel, AgriNeRFModelConfig
+from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
+from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
 
 compat.activate()  # as every ns-* command does through the entry points (offline LPIPS)
 

@@ -118,13 +118,14 @@ def run_method(
     """Train one method on one scene and evaluate its checkpoints; returns the result rows."""
     from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
 
-    steps = profile.steps[method_key]
+    steps = profile.steps.get(method_key, profile.steps[method.ns_method])  # an ablation: its method's budget
     save_every = max(1, steps // profile.evaluations)
     record = runs / scene / method_key / "train_run.json"
     run = TrainRun.load(record) if record.exists() else None
     if run is None or not run.checkpoints():
         run = ns_train(method.ns_method, data / method.data_file, runs / scene, method_key, max_steps=steps,
-                       rays_per_batch=profile.rays_per_batch, extra_args=profile.extra_args.get(method_key, ()),
+                       rays_per_batch=profile.rays_per_batch,
+                       extra_args=(*method.train_args, *profile.extra_args.get(method_key, ())),
                        dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
         run.save(record)  # an interrupted evaluation resumes without retraining
     truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None

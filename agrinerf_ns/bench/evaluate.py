@@ -92,9 +92,9 @@ def evaluate_checkpoint(
         row = {
             k: float(v) for k, v in metrics.items() if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim")
         }
-        if method.supervision == "thermal":  # a thermal-only method's psnr/ssim are thermal figures
+        if method.supervision == "thermal" and "psnr" in row:  # Nerfacto on thermal frames: its psnr is thermal
             row = {"thermal_psnr": row["psnr"], "thermal_ssim": row["ssim"]}
-        elif truth is not None:
+        elif truth is not None and "rgb" in outputs:
             target = truth.get(names[int(batch["image_idx"])])
             aligned = image_metrics.exposure_align(outputs["rgb"].detach().cpu().float(), target)
             row["psnr_clean"] = image_metrics.psnr(aligned, target)

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Dict, Literal, Tuple
 
+from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
+
 
 @dataclass(frozen=True)
 class BenchMethod:
@@ -20,6 +22,8 @@ class BenchMethod:
     """What its main ``psnr`` metric compares against: the RGB or the thermal frames."""
     dataparser_args: Tuple[str, ...] = ()
     """Dataparser subcommand and options after the method options (e.g. Nerfstudio's for ``tensorf``)."""
+    train_args: Tuple[str, ...] = ()
+    """Method options for ``ns-train`` (e.g. the modalities of a Table IV ablation)."""
 
 
 METHODS: Dict[str, BenchMethod] = {
@@ -33,3 +37,22 @@ METHODS: Dict[str, BenchMethod] = {
     )
 }
 """Keyed by the name used on the ``agrinerf-bench --methods`` command line."""
+
+ABLATION_PREFIX = "lite-ablation-"
+ABLATIONS: Dict[str, str] = {
+    ABLATION_PREFIX + name.lower().replace("+", "-"): name for name in TABLE_IV_ABLATIONS if name != "All"
+}
+"""Bench key -> Table IV row: AgriNeRF-lite trained on the modalities of one row of the paper's Table IV. The "All" row
+is ``agrinerf-lite`` itself (it models every modality the dataset has)."""
+METHODS.update(
+    {
+        key: BenchMethod(
+            f"AgriNeRF-lite ({name})",
+            "agrinerf-lite",
+            "transforms.json",
+            "rgb" if "rgb" in TABLE_IV_ABLATIONS[name] else "thermal",
+            train_args=("--pipeline.model.modalities", *TABLE_IV_ABLATIONS[name]),
+        )
+        for key, name in ABLATIONS.items()
+    }
+)

@@ -55,6 +55,10 @@ class EvaluateCommand:
     """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
     are ignored in scoring and left out of detector training labels. 0: every box counts."""
     max_render_views: Optional[int] = None
+    """Render at most this many held-out views per method, evenly spaced (default: all)."""
+    detectors_from: Optional[Path] = None
+    """An earlier evaluate --out folder whose detectors of the same scenes to use instead of training new ones (e.g.
+    Table IV scored with Table III's detectors); refused if they trained on a held-out view."""
     reuse: bool = True
     """Reuse renders and detector weights already in OUT/work."""
 
@@ -65,7 +69,7 @@ class EvaluateCommand:
 
         if (self.plan is None) == (self.bench is None):
             raise ValueError("give exactly one of --plan PLAN.json or --bench AGRINERF_BENCH_OUT")
-        scenes = load_plan(self.plan) if self.plan is not None else plan_from_bench(self.bench)  # type: ignore[arg-type]
+        scenes = load_plan(self.plan) if self.plan is not None else plan_from_bench(self.bench, self.table)  # type: ignore[arg-type]
 
         settings = EvalSettings(
             detector=self.detector,
@@ -77,6 +81,7 @@ class EvaluateCommand:
             thermal_init=self.thermal_init,
             thermal_init_lr0=self.thermal_init_lr0,
             min_box_pixels=self.min_box_pixels,
+            detectors_from=self.detectors_from,
         )
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
         written = evaluate_plan(scenes, self.out, settings, self.table, command)
@@ -140,6 +145,7 @@ class TrainCommand:
             cross_spectral_fraction=self.cross_spectral_fraction,
             reuse=False,
             min_box_pixels=self.min_box_pixels,
+            detectors_from=self.detectors_from,
         )
         weights = train_scene_detector(
             scene, self.modality, exclude, self.cross_spectral, self.out, settings, self.init

@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Set, Tuple
 
+from agrinerf_ns.bench.methods import ABLATIONS
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS, SceneTruth, list_images, yolo_to_xyxy
 from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
@@ -30,6 +31,7 @@ from agrinerf_ns.detect.yolo_data import (
     subsample,
     write_yolo_dataset,
 )
+from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
 Modality = Literal["rgb", "thermal"]
 
@@ -94,6 +96,10 @@ class EvalSettings:
     ``truth/boxes_coco.json``; about a third of a whole fruit in the 320x240 detect profile). Smaller ones, mostly
     fruit behind leaves, are ignored in scoring (COCO ignore regions) and left out of the detectors' training labels.
     0 counts every box (and needs no ``boxes_coco.json``)."""
+    detectors_from: Optional[Path] = None
+    """An earlier evaluation's output folder whose detectors (``work/<scene>_<lighting>/detector_<modality>``) score
+    this one's renders instead of detectors trained here: e.g. Table IV's ablations scored with the detectors of the
+    same scene's Table III. Refused when they trained on a held-out view or with another ``min_box_pixels``."""
 
 
 @dataclass
@@ -141,11 +147,22 @@ BENCH_METHODS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
 }
 """agrinerf-bench method key -> the detection rows it gives (label, rendered output, detector)."""
 
+BENCH_ABLATIONS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
+    **{
+        key: [(f"Ours ({name})", "thermal" if "thermal" in TABLE_IV_ABLATIONS[name] else "rgb", None)]
+        for key, name in ABLATIONS.items()
+    },
+    "agrinerf-lite": [("Ours (All)", "thermal", None)],
+}
+"""Table IV from agrinerf-bench's AgriNeRF-lite ablations: the cross-spectral rendering where the ablation learns from
+thermal frames, else the RGB one (RGB, RGB+Events)."""
 
-def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
+
+def plan_from_bench(bench_out: Path, table: str = "III") -> List[SceneSpec]:
     """The plan for an ``agrinerf-bench`` output folder: OUT/scenes/<scene>-<lighting>/{raw,data} and
     OUT/runs/<scene>-<lighting>/<method key>/<ns method>/run/config.yml: every run of a known method with a
-    checkpoint."""
+    checkpoint. Table "IV": the scenes with modality ablations (``lite-ablation-*`` runs), one row per ablation."""
+    known = BENCH_ABLATIONS if table == "IV" else BENCH_METHODS
     bench_out = Path(bench_out)
     runs_root = bench_out / "runs"
     if not runs_root.is_dir():
@@ -153,8 +170,10 @@ def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
     scenes = []
     for scene_dir in sorted(p for p in runs_root.iterdir() if p.is_dir()):
         name, _, lighting = scene_dir.name.partition("-")
+        if table == "IV" and not any((scene_dir / key).is_dir() for key in ABLATIONS):
+            continue
         methods = []
-        for key, rows in BENCH_METHODS.items():
+        for key, rows in known.items():
             configs = [c for c in sorted((scene_dir / key).glob("*/run/config.yml")) if _has_checkpoint(c)]
             if configs:
                 methods += [MethodSpec(label, output, config=configs[0], detector=det) for label, output, det in rows]
@@ -163,7 +182,7 @@ def plan_from_bench(bench_out: Path) -> List[SceneSpec]:
             raw = bench_out / "scenes" / scene_dir.name / "raw"
             scenes.append(SceneSpec(name, lighting or "-", raw, data if data.is_dir() else None, methods))
     if not scenes:
-        raise FileNotFoundError(f"{runs_root}: no finished run of {', '.join(BENCH_METHODS)}")
+        raise FileNotFoundError(f"{runs_root}: no finished run of {', '.join(known)}")
     return scenes
 
 
@@ -309,6 +328,32 @@ def train_scene_detectors(
     return weights
 
 
+def trained_scene_detectors(
+    folder: Path, modalities: Set[Modality], held_out: List[str], min_box_pixels: int
+) -> Dict[Modality, Path]:
+    """The detectors an earlier evaluation trained for a scene (``folder`` = its ``work/<scene>_<lighting>``), checked
+    against their records: none may have trained on a held-out view, and their labels must have left out the same
+    small fruit the scoring ignores."""
+    weights: Dict[Modality, Path] = {}
+    for modality in sorted(modalities):
+        run_dir = Path(folder) / f"detector_{modality}"
+        record_path = run_dir / "agrinerf_detect.json"
+        found = [run_dir / "weights" / n for n in ("best.pt", "last.pt") if (run_dir / "weights" / n).is_file()]
+        if not record_path.is_file() or not found:
+            raise FileNotFoundError(f"{run_dir}: no trained {modality} detector there (weights/best.pt and "
+                                    "agrinerf_detect.json, as agrinerf-detect evaluate writes them)")  # fmt: skip
+        record = json.loads(record_path.read_text())
+        leaked = sorted({Path(image).stem for image in record["images"]} & set(held_out))
+        if leaked:
+            raise ValueError(f"{record_path}: the {modality} detector trained on held-out views {leaked}; it cannot "
+                             "score them")  # fmt: skip
+        if record.get("min_box_pixels") != min_box_pixels:
+            raise ValueError(f"{record_path}: trained with min_box_pixels {record.get('min_box_pixels')}, this "
+                             f"evaluation ignores fruit under {min_box_pixels}")  # fmt: skip
+        weights[modality] = found[0]
+    return weights
+
+
 def _sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
@@ -342,19 +387,24 @@ def evaluate_scene(
     work = Path(work) / _slug(f"{scene.name}_{scene.lighting}")
     renders: Dict[str, Path] = {m.label: m.renders for m in scene.methods if m.renders is not None}
     runs = {} if runs is None else runs
-    rendering = [m for m in scene.methods if m.output == "thermal" and m.config is not None]
+    trained = settings.detectors_from is not None
+    rendering = [m for m in scene.methods if m.output == "thermal" and m.config is not None and not trained]
     cross_spectral: List[Path] = []
     for config in dict.fromkeys(m.config for m in scene.methods if m.config is not None):
         for m in (m for m in scene.methods if m.config == config):
             renders[m.label] = _render(m, work / "renders" / _slug(m.label), "eval", settings, runs)
-            if m.output == "thermal":
+            if m in rendering:
                 out = work / "train_renders" / _slug(m.label)
                 cross_spectral.append(_render(m, out, "train", settings, runs, 1 / len(rendering)))
         runs.pop(config, None)  # free the pipeline before loading the next one
     runs.clear()
     held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
     modalities = {m.detector_modality() for m in scene.methods}
-    weights = train_scene_detectors(scene, modalities, held_out, cross_spectral, work, settings)
+    if settings.detectors_from is not None:
+        earlier = Path(settings.detectors_from) / "work" / work.name
+        weights = trained_scene_detectors(earlier, modalities, held_out, settings.min_box_pixels)
+    else:
+        weights = train_scene_detectors(scene, modalities, held_out, cross_spectral, work, settings)
     rows, panels = [], {}
     for m in scene.methods:
         metrics, method_panels = score_render_folder(

@@ -26,38 +26,16 @@ from nerfstudio.utils import colormaps
 from torch import Tensor
 from torch.nn import Parameter
 
+from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
 from agrinerf_ns.model import losses
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.vm_encoding import VMLookup
 
-Modality = Literal["rgb", "thermal", "events"]
-ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
-
 DENSE_HEADS_FRACTION = 0.85
 """When at least this fraction of the fine samples passes the weight threshold (usual: the PDF samples sit where the
 weights are), the heads run on every sample and the others are masked: gathering the selected ones would cost a copy of
 their lookup corners and a second transposed lookup for the backward pass, more than the few extra samples."""
-
-TABLE_IV_ABLATIONS: Dict[str, Tuple[Modality, ...]] = {
-    "RGB": ("rgb",),
-    "RGB+Events": ("rgb", "events"),
-    "RGB+Thermal": ("rgb", "thermal"),
-    "Thermal": ("thermal",),
-    "Thermal+Events": ("thermal", "events"),
-    "All": ("rgb", "thermal", "events"),
-}
-"""The paper's Table IV rows as `--pipeline.model.modalities` values."""
-
-
-def normalise_modalities(names) -> Tuple[str, ...]:
-    """Canonical modality names ("event" is accepted for "events"), in ALL_MODALITIES order."""
-    canon = {"event" if n == "events" else n for n in names}
-    canon = {"events" if n == "event" else n for n in canon}
-    unknown = canon - set(ALL_MODALITIES)
-    if unknown:
-        raise ValueError(f"Unknown modalities {sorted(unknown)}; expected a subset of {ALL_MODALITIES}")
-    return tuple(m for m in ALL_MODALITIES if m in canon)
 
 
 @dataclass
