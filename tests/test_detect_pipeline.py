@@ -111,6 +111,10 @@ def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
     # the thermal detector started from the RGB one (thermal_init "rgb", the default)
     record = json.loads((out / "work" / "orchard_dark" / "detector_thermal" / "agrinerf_detect.json").read_text())
     assert Path(record["init"]["path"]).parent == (out / "work" / "orchard_dark" / "detector_rgb" / "weights").resolve()
+    # scored again with those detectors (--detectors-from): nothing trained, the same figures
+    again = evaluate_plan(scenes, tmp_path / "again", replace(settings, detectors_from=out), "III", "pytest")
+    assert not list((tmp_path / "again" / "work" / "orchard_dark").glob("detector_*"))
+    assert list(csv.DictReader(again["csv"].open())) == rows
 
 
 def test_scene_without_truth_boxes(scene, tmp_path: Path, capsys) -> None:
