@@ -4,10 +4,12 @@ and stock `ns-train nerfacto` on the thermal transforms file."""
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from agrinerf_ns.process import ProcessConfig, align, process_capture, readers  # noqa: F401
-from agrinerf_ns.process.evaluate import alignment_report, pose_report
+from agrinerf_ns.process.evaluate import alignment_report, pose_report, visible_fruit_depth
+from agrinerf_ns.process.poses import match_times
 from agrinerf_ns.synth import SynthConfig, generate_capture
 
 
@@ -53,3 +55,25 @@ def test_ns_train_nerfacto_on_thermal_transforms(tiny, tmp_path: Path):
                    rays_per_batch=128)
     ckpts = list((run.config.parent / "nerfstudio_models").glob("*.ckpt"))
     assert ckpts, "ns-train wrote a checkpoint"
+
+
+def test_visible_fruit_depth_agrees_with_the_fruit_centres(tiny):
+    raw, _ = tiny
+    coco = json.loads((raw / "truth" / "boxes_coco.json").read_text())
+    fruits = {f["id"]: f for f in json.loads((raw / "truth" / "fruits.json").read_text())}
+    depth = visible_fruit_depth(raw, min_pixels=3)
+    counted = [a for a in coco["annotations"] if a["area"] >= 3]
+    assert depth["count"] == len(counted) > 5
+    assert depth["p25"] <= depth["median"] <= depth["p75"]
+    # independently: each counted fruit's centre in its frame's camera, minus its radius (the visible near side)
+    times = readers.read_timestamps(raw / "rgb").times
+    t, c2w = readers.read_tum(raw / "truth" / "poses.txt")
+    frame_pose = {i: c2w[j] for i, j in enumerate(match_times(times, t, 1e-3))}
+    near_side = []
+    for a in counted:
+        fruit = fruits[a["fruit_id"]]
+        w2c = np.linalg.inv(frame_pose[a["image_id"]])
+        centre = w2c[:3, :3] @ np.asarray(fruit["center"]) + w2c[:3, 3]
+        near_side.append(centre[2] - min(fruit["radii"]))
+    assert abs(depth["median"] - float(np.median(near_side))) < 0.05, (depth, np.median(near_side))
+    assert visible_fruit_depth(raw, min_pixels=10**9)["count"] == 0

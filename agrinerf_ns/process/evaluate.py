@@ -2,6 +2,7 @@
 
 - alignment: for every fruit centre of ``truth/fruits.json`` in view, the distance in the aligned frame between its
   RGB pixel and where the aligned thermal (event) frame shows it, through the warp maps the dataset was made with;
+- visible fruit depth: where the fruit the RGB views show sit (the plane to warp thermal frames at for detection);
 - poses: rotation and translation error of the dataset's poses against ``truth/poses.txt`` after a similarity
   (Umeyama) alignment of the camera centres.
 
@@ -55,6 +56,30 @@ def alignment_report(raw: Path, plane_depth: float = float("inf")) -> Dict[str, 
     return report
 
 
+def visible_fruit_depth(raw: Path, min_pixels: int = 30) -> Dict[str, float]:
+    """Depth (m, RGB camera) of the fruit the RGB views show: per true box of ``truth/boxes_coco.json`` with at least
+    ``min_pixels`` visible pixels, the median ``truth/depth`` over that fruit's pixels (``truth/fruit_ids``). The
+    plane to warp the thermal frames at for detection; ``alignment_report``'s depth counts every fruit centre in
+    front of the camera, hidden ones too."""
+    from PIL import Image
+
+    truth = raw / "truth"
+    coco = json.loads((truth / "boxes_coco.json").read_text())
+    names = {image["id"]: Path(image["file_name"]).stem for image in coco["images"]}
+    depths = []
+    for image_id, stem in names.items():
+        boxes = [a for a in coco["annotations"] if a["image_id"] == image_id and a["area"] >= min_pixels]
+        if not boxes:
+            continue
+        depth = np.load(truth / "depth" / f"{stem}.npy")
+        ids = np.asarray(Image.open(truth / "fruit_ids" / f"{stem}.png")).astype(np.int64) - 1  # 0: no fruit
+        depths += [float(np.median(depth[ids == box["fruit_id"]])) for box in boxes]
+    if not depths:
+        return {"median": float("nan"), "p25": float("nan"), "p75": float("nan"), "count": 0}
+    p25, median, p75 = np.percentile(depths, [25, 50, 75])
+    return {"median": float(median), "p25": float(p25), "p75": float(p75), "count": len(depths)}
+
+
 def pose_report(raw: Path, dataset: Path) -> Dict[str, float]:
     """Pose error of ``dataset/transforms.json`` against ``raw/truth/poses.txt`` (matched by frame timestamp)."""
     meta = json.loads((dataset / "transforms.json").read_text())
@@ -82,6 +107,7 @@ def main(args: EvaluateArgs) -> Dict:
     meta = json.loads((args.dataset / "transforms.json").read_text())
     result = {
         "alignment": alignment_report(args.raw, recorded_plane_depth(args.dataset)),
+        "visible_fruit_depth_m": visible_fruit_depth(args.raw),
         "poses": {**pose_report(args.raw, args.dataset), "source": meta["agrinerf"]["poses"]["source"]},
         "frames_kept": len(meta["frames"]),
         "frames_dropped": len(meta["agrinerf"]["poses"].get("dropped_frames", [])),
