@@ -20,6 +20,14 @@ from typing_extensions import Annotated
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS
 from agrinerf_ns.detect.detector import DetectorConfig
 
+MinBoxPixels = Annotated[
+    int,
+    tyro.conf.arg(
+        help="A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller "
+        "ones are ignored in scoring and left out of detector training labels. 0: every box counts."
+    ),
+]
+
 
 @dataclass
 class EvaluateCommand:
@@ -51,9 +59,7 @@ class EvaluateCommand:
     """Start the thermal detector from the scene's RGB detector (trained here from scratch) or from random weights."""
     thermal_init_lr0: float = 0.002
     """Learning rate of the thermal detector started from the RGB one (the RGB one uses --detector.lr0)."""
-    min_box_pixels: int = MIN_BOX_PIXELS
-    """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
-    are ignored in scoring and left out of detector training labels. 0: every box counts."""
+    min_box_pixels: MinBoxPixels = MIN_BOX_PIXELS
     max_render_views: Optional[int] = None
     """Render at most this many held-out views per method, evenly spaced (default: all)."""
     detectors_from: Optional[Path] = None
@@ -127,9 +133,7 @@ class TrainCommand:
     cross_spectral_fraction: float = 0.25
     init: Optional[Path] = None
     """Detector weights to start from (e.g. the scene's RGB detector for a thermal one); None: from scratch."""
-    min_box_pixels: int = MIN_BOX_PIXELS
-    """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
-    are ignored in scoring and left out of detector training labels. 0: every box counts."""
+    min_box_pixels: MinBoxPixels = MIN_BOX_PIXELS
     detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
 
     def main(self) -> None:
@@ -145,7 +149,6 @@ class TrainCommand:
             cross_spectral_fraction=self.cross_spectral_fraction,
             reuse=False,
             min_box_pixels=self.min_box_pixels,
-            detectors_from=self.detectors_from,
         )
         weights = train_scene_detector(
             scene, self.modality, exclude, self.cross_spectral, self.out, settings, self.init
@@ -163,9 +166,7 @@ class ScoreCommand:
     imgsz: Optional[int] = None
     """Inference size; None: the size the detector was trained at."""
     conf_threshold: float = 0.25
-    min_box_pixels: int = MIN_BOX_PIXELS
-    """A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller ones
-    are ignored in scoring and left out of detector training labels. 0: every box counts."""
+    min_box_pixels: MinBoxPixels = MIN_BOX_PIXELS
     out: Optional[Path] = None
     """Also write the metrics JSON here."""
 
