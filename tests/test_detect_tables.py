@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
+from agrinerf_ns.detect.evaluate import merge_evaluations
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
 from agrinerf_ns.detect.scoring import ImageBoxes, score_detections
 from agrinerf_ns.detect.tables import ResultRow, table_iv_markdown, write_tables
@@ -62,3 +64,35 @@ def test_detection_figure(tmp_path: Path) -> None:
     assert Image.open(out).size[0] > 300
     with pytest.raises(ValueError, match="share no rendered view"):
         detection_figure({"RGB": {"000000": panel}, "Cross": {"000001": panel}}, tmp_path / "fig2.png")
+
+
+def _evaluation(path: Path, lighting: str, shift: float, epochs: int = 60) -> Path:
+    """A metrics.json as agrinerf-detect evaluate writes it."""
+    settings = {"detector": {"epochs": epochs}, "min_box_pixels": 30, "reuse": True, "detectors_from": None}
+    results = [
+        {"scene": "garden", "lighting": lighting, "method": m, "step": 99, **_metrics(s).as_dict()}
+        for m, s in (("Nerfacto (RGB)", 4.0), ("Ours (Cross-Spectral)", shift))
+    ]
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "metrics.json").write_text(json.dumps({"command": f"evaluate {lighting}", "settings": settings,
+                                                   "results": results}))  # fmt: skip
+    return path / "metrics.json"
+
+
+def test_evaluations_merge_into_one_table(tmp_path: Path) -> None:
+    dark = _evaluation(tmp_path / "dark", "dark", 0.0)
+    dusk = _evaluation(tmp_path / "dusk", "dusk", 2.0)
+    md, csv_path = merge_evaluations([dark, dusk], tmp_path / "merged", "III", "agrinerf-detect table")
+    rows = list(csv.DictReader(csv_path.open()))
+    assert [(r["lighting"], r["method"]) for r in rows] == [
+        ("dark", "Nerfacto (RGB)"), ("dark", "Ours (Cross-Spectral)"),
+        ("dusk", "Nerfacto (RGB)"), ("dusk", "Ours (Cross-Spectral)"),
+    ]  # fmt: skip
+    assert float(rows[1]["map50"]) == _metrics(0.0).map50 and float(rows[3]["map50"]) == _metrics(2.0).map50
+    text = md.read_text()
+    assert "| dark |" in text and "| dusk |" in text and "`evaluate dark`; `evaluate dusk`" in text
+    with pytest.raises(ValueError, match=r"more than once: \[\('garden', 'dark', 'Nerfacto \(RGB\)'\)"):
+        merge_evaluations([dark, dark], tmp_path / "twice", "III", "x")
+    other = _evaluation(tmp_path / "other", "shadowed", 0.0, epochs=10)
+    with pytest.raises(ValueError, match=r"other settings .*\(detector\)"):
+        merge_evaluations([dark, other], tmp_path / "mixed", "III", "x")

@@ -181,7 +181,32 @@ class ScoreCommand:
             self.out.write_text(text)
 
 
-COMMANDS = {"evaluate": EvaluateCommand, "render": RenderCommand, "train": TrainCommand, "score": ScoreCommand}
+@dataclass
+class TableCommand:
+    """One table from several evaluations (e.g. one per lighting): their metrics.json files, scored alike."""
+
+    metrics: List[Path]
+    """metrics.json files written by agrinerf-detect evaluate."""
+    out: Path
+    """Output folder for table_<iii|iv>.md/.csv."""
+    table: Literal["III", "IV"] = "III"
+
+    def main(self) -> None:
+        from agrinerf_ns.detect.evaluate import merge_evaluations
+
+        command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+        md, csv_path = merge_evaluations(self.metrics, self.out, self.table, command)
+        print(md.read_text())
+        print(f"wrote {md} and {csv_path}")
+
+
+COMMANDS = {
+    "evaluate": EvaluateCommand,
+    "render": RenderCommand,
+    "train": TrainCommand,
+    "score": ScoreCommand,
+    "table": TableCommand,
+}
 
 
 def entrypoint(args: Optional[List[str]] = None) -> None:

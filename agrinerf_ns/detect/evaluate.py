@@ -481,3 +481,36 @@ def evaluate_plan(
         )
     )
     return {"markdown": md, "csv": csv_path, "figure": figure, "metrics": metrics_json}
+
+
+MERGE_FREE_SETTINGS = ("reuse", "detectors_from")
+"""Settings that may differ between evaluations merged into one table (they change where results come from, not
+how they are scored)."""
+
+
+def merge_evaluations(metrics_files: List[Path], out: Path, table: str, command: str) -> Tuple[Path, Path]:
+    """One Table III (or IV) from several evaluations' ``metrics.json`` (e.g. one per lighting, run at different
+    times): refused when they were scored with different settings or give the same (scene, lighting, method) twice.
+    The footer lists each evaluation's command."""
+    rows: List[ResultRow] = []
+    reference: Optional[Dict[str, object]] = None
+    commands = []
+    for path in metrics_files:
+        data = json.loads(Path(path).read_text())
+        settings = {k: v for k, v in data["settings"].items() if k not in MERGE_FREE_SETTINGS}
+        if reference is None:
+            reference = settings
+        elif settings != reference:
+            changed = sorted(k for k in set(settings) | set(reference) if settings.get(k) != reference.get(k))
+            raise ValueError(f"{path}: scored with other settings than {metrics_files[0]} ({', '.join(changed)})")
+        commands.append(f"`{data['command']}`")
+        for r in data["results"]:
+            fields = {k: r[k] for k in DetectionMetrics.__dataclass_fields__}
+            rows.append(ResultRow(r["scene"], r["lighting"], r["method"], DetectionMetrics(**fields), r.get("step")))
+    keys = [(r.scene, r.lighting, r.method) for r in rows]
+    repeated = sorted({k for k in keys if keys.count(k) > 1})
+    if repeated:
+        raise ValueError(f"the evaluations give these rows more than once: {repeated}")
+    footer = machine_note(command) + "  \nMerged from: " + "; ".join(commands) + "."
+    return write_tables(rows, out, table, f"table_{table.lower()}", footer=footer)
+
