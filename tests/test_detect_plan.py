@@ -45,6 +45,13 @@ def test_load_plan_resolves_relative_paths_and_reports_missing_keys(tmp_path: Pa
         load_plan(plan)
 
 
+def _finished_run(root: Path, scene: str, key: str, method: str) -> None:
+    run = root / "runs" / scene / key / method / "run"
+    (run / "nerfstudio_models").mkdir(parents=True)
+    (run / "config.yml").write_text("")
+    (run / "nerfstudio_models" / "step-000000009.ckpt").write_bytes(b"")
+
+
 def test_plan_from_bench_layout(tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="not an agrinerf-bench output folder"):
         plan_from_bench(tmp_path)
@@ -56,11 +63,7 @@ def test_plan_from_bench_layout(tmp_path: Path) -> None:
             ("nerfacto-thermal", "nerfacto"),
             ("agrinerf-lite", "agrinerf-lite"),
         ):
-            run = tmp_path / "runs" / scene / key / method / "run"
-            run.mkdir(parents=True)
-            (run / "config.yml").write_text("")
-            (run / "nerfstudio_models").mkdir()
-            (run / "nerfstudio_models" / "step-000000009.ckpt").write_bytes(b"")
+            _finished_run(tmp_path, scene, key, method)
     # a run still training (no checkpoint yet) is left out
     (
         tmp_path
@@ -81,13 +84,6 @@ def test_plan_from_bench_layout(tmp_path: Path) -> None:
         ("Ours-lite (Cross-Spectral)", "thermal", "thermal"),
     ]
     assert [m.label for m in orchard.methods] == ["Nerfacto (RGB)", "Nerfacto (Thermal)"]
-
-
-def _finished_run(root: Path, scene: str, key: str, method: str) -> None:
-    run = root / "runs" / scene / key / method / "run"
-    (run / "nerfstudio_models").mkdir(parents=True)
-    (run / "config.yml").write_text("")
-    (run / "nerfstudio_models" / "step-000000009.ckpt").write_bytes(b"")
 
 
 def test_plan_from_bench_table_iv_takes_the_ablations(tmp_path: Path) -> None:

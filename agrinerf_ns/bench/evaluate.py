@@ -68,8 +68,9 @@ def evaluate_checkpoint(
 ) -> Dict[str, float]:
     """Mean metrics over the eval split (or ``max_views`` of its views, evenly spaced) at one checkpoint.
 
-    Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when LPIPS is unavailable), ``psnr_clean``,
-    ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the rescaled thermal frames).
+    Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
+    LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the
+    rescaled thermal frames).
     """
     from nerfstudio.utils.eval_utils import eval_setup
 

@@ -56,8 +56,8 @@ PROFILES: Dict[str, BenchProfile] = {
     # (docs/detect_results/garden_dark_plane1.57); it now also starts from the RGB detector. Thermal frames are warped
     # at 1.57 m, near the fruit the views show: `python -m agrinerf_ns.process.evaluate` gives visible_fruit_depth_m
     # median 1.48 m (quartiles 1.36-1.56, 804 boxes of >= 30 pixels; 0.7 px of parallax from 1.57 m). At infinity the
-    # thermal camera's 7 cm baseline (f = 246 px) put fruit 11 px beside their boxes. Three held-out views per checkpoint: the detection
-    # evaluation renders its own views, and Nerfacto takes 2-3.5 min a 320x240 view on this CPU.
+    # thermal camera's 7 cm baseline (f = 246 px) put fruit 11 px beside their boxes. Three held-out views per
+    # checkpoint: the detection evaluation renders its own views, and Nerfacto takes 2-3.5 min a 320x240 view here.
     "detect": BenchProfile(
         views=60, width=320, height=240,
         steps={"agrinerf-lite": 1500, "agrinerf": 500, "nerfacto": 150, "nerfacto-thermal": 110, "tensorf": 400},

@@ -75,7 +75,10 @@ class EvaluateCommand:
 
         if (self.plan is None) == (self.bench is None):
             raise ValueError("give exactly one of --plan PLAN.json or --bench AGRINERF_BENCH_OUT")
-        scenes = load_plan(self.plan) if self.plan is not None else plan_from_bench(self.bench, self.table)  # type: ignore[arg-type]
+        if self.plan is not None:
+            scenes = load_plan(self.plan)
+        else:
+            scenes = plan_from_bench(self.bench, self.table)  # type: ignore[arg-type]
 
         settings = EvalSettings(
             detector=self.detector,

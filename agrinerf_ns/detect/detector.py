@@ -110,11 +110,19 @@ def train_detector(
         exist_ok=True,
         verbose=False,
     )
+    weights = trained_weights(out_dir)
+    if weights is not None:
+        return weights
+    raise RuntimeError(f"{out_dir}: Ultralytics training finished without writing weights/best.pt or last.pt")
+
+
+def trained_weights(run_dir: Path) -> Optional[Path]:
+    """A detector run's ``weights/best.pt``, else ``weights/last.pt``, else None."""
     for name in ("best.pt", "last.pt"):
-        weights = out_dir / "weights" / name
+        weights = Path(run_dir) / "weights" / name
         if weights.is_file():
             return weights
-    raise RuntimeError(f"{out_dir}: Ultralytics training finished without writing weights/best.pt or last.pt")
+    return None
 
 
 def predict_folder(

@@ -18,7 +18,7 @@ from typing import Dict, List, Literal, Optional, Set, Tuple
 
 from agrinerf_ns.bench.methods import ABLATIONS
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS, SceneTruth, list_images, yolo_to_xyxy
-from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector
+from agrinerf_ns.detect.detector import DetectorConfig, predict_folder, train_detector, trained_weights
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
 from agrinerf_ns.detect.render import LoadedRun, MissingOutputError, Output, load_run, render_pipeline_views
 from agrinerf_ns.detect.scoring import DetectionMetrics, ImageBoxes, score_detections
@@ -295,9 +295,9 @@ def train_scene_detector(
     }
     record_path = run_dir / "agrinerf_detect.json"
     if settings.reuse and record_path.is_file() and json.loads(record_path.read_text()) == record:
-        for name in ("best.pt", "last.pt"):
-            if (run_dir / "weights" / name).is_file():
-                return run_dir / "weights" / name
+        reused = trained_weights(run_dir)
+        if reused is not None:
+            return reused
     data_yaml = write_yolo_dataset(work / f"yolo_{modality}", items)
     weights = train_detector(data_yaml, run_dir, settings.detector, init)
     record_path.write_text(json.dumps(record, indent=1))
@@ -338,8 +338,8 @@ def trained_scene_detectors(
     for modality in sorted(modalities):
         run_dir = Path(folder) / f"detector_{modality}"
         record_path = run_dir / "agrinerf_detect.json"
-        found = [run_dir / "weights" / n for n in ("best.pt", "last.pt") if (run_dir / "weights" / n).is_file()]
-        if not record_path.is_file() or not found:
+        found = trained_weights(run_dir)
+        if not record_path.is_file() or found is None:
             raise FileNotFoundError(f"{run_dir}: no trained {modality} detector there (weights/best.pt and "
                                     "agrinerf_detect.json, as agrinerf-detect evaluate writes them)")  # fmt: skip
         record = json.loads(record_path.read_text())
@@ -350,7 +350,7 @@ def trained_scene_detectors(
         if record.get("min_box_pixels") != min_box_pixels:
             raise ValueError(f"{record_path}: trained with min_box_pixels {record.get('min_box_pixels')}, this "
                              f"evaluation ignores fruit under {min_box_pixels}")  # fmt: skip
-        weights[modality] = found[0]
+        weights[modality] = found
     return weights
 
 
@@ -387,8 +387,8 @@ def evaluate_scene(
     work = Path(work) / _slug(f"{scene.name}_{scene.lighting}")
     renders: Dict[str, Path] = {m.label: m.renders for m in scene.methods if m.renders is not None}
     runs = {} if runs is None else runs
-    trained = settings.detectors_from is not None
-    rendering = [m for m in scene.methods if m.output == "thermal" and m.config is not None and not trained]
+    reuse_detectors = settings.detectors_from is not None  # then no training views are rendered for them
+    rendering = [m for m in scene.methods if m.output == "thermal" and m.config is not None and not reuse_detectors]
     cross_spectral: List[Path] = []
     for config in dict.fromkeys(m.config for m in scene.methods if m.config is not None):
         for m in (m for m in scene.methods if m.config == config):
@@ -400,8 +400,8 @@ def evaluate_scene(
     runs.clear()
     held_out = sorted({p.stem for folder in renders.values() for p in list_images(folder)})
     modalities = {m.detector_modality() for m in scene.methods}
-    if settings.detectors_from is not None:
-        earlier = Path(settings.detectors_from) / "work" / work.name
+    if reuse_detectors:
+        earlier = Path(settings.detectors_from) / "work" / work.name  # type: ignore[arg-type]
         weights = trained_scene_detectors(earlier, modalities, held_out, settings.min_box_pixels)
     else:
         weights = train_scene_detectors(scene, modalities, held_out, cross_spectral, work, settings)
