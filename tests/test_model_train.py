@@ -4,12 +4,16 @@ an upsampling step continues at the upsampled grid size."""
 
 from __future__ import annotations
 
+import csv
+import importlib.util
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 from typing import Dict
 
+import numpy as np
 import pytest
 import torch
 from model_scene import tiny_trainer_config, write_model_scene
@@ -118,3 +122,25 @@ def test_ns_eval_and_ns_render_load_the_checkpoint(trained: Dict, tmp_path: Path
     thermal = sorted(p for p in renders.rglob("*") if p.is_file() and "thermal" in str(p.relative_to(renders)))
     rgb = sorted(p for p in renders.rglob("*") if p.is_file() and "rgb" in str(p.relative_to(renders)))
     assert thermal and rgb and len(thermal) == len(rgb)
+
+
+def test_render_chunk_benchmark_renders_the_same_image_at_every_chunk_size(trained: Dict, tmp_path: Path) -> None:
+    """benchmarks/bench_render_chunks.py: one process per chunk size, the renders agree, the table is written."""
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_render_chunks.py"
+    spec = importlib.util.spec_from_file_location("bench_render_chunks", script)
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = bench
+    spec.loader.exec_module(bench)
+    config_path = trained["config"].get_base_dir() / "config.yml"
+    args = bench.Args(config=config_path, out=tmp_path / "out", chunks=(4096, 100), views=1, rounds=1)
+    bench.main(args)
+    with open(tmp_path / "out" / "render_chunks.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["chunk"]) for r in rows] == [4096, 100]
+    assert all(float(r["seconds"]) > 0 and float(r["peak_mib"]) >= float(r["loaded_mib"]) > 0 for r in rows)
+    assert all(int(r["pixels"]) == 64 * 48 for r in rows)
+    assert all(float(r["max_abs_diff"]) < 1e-4 for r in rows), rows  # 100 does not divide 3072: a ragged last chunk
+    with np.load(rows[1]["npz"]) as renders:
+        assert {"0_rgb", "0_thermal"} <= set(renders.files)
+    table = (tmp_path / "out" / "render_chunks.md").read_text()
+    assert "| 4096 |" in table and "| 100 |" in table and "| 1.000 |" in table
