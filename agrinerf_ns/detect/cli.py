@@ -27,6 +27,13 @@ MinBoxPixels = Annotated[
         "ones are ignored in scoring and left out of detector training labels. 0: every box counts."
     ),
 ]
+RaysPerChunk = Annotated[
+    Optional[int],
+    tyro.conf.arg(
+        help="Rays rendered at once (eval_num_rays_per_chunk; default: the run config's, Nerfacto 32768, AgriNeRF "
+        "8192). Memory grows with it, the image does not change (benchmarks/bench_render_chunks.py)."
+    ),
+]
 
 
 @dataclass
@@ -62,6 +69,7 @@ class EvaluateCommand:
     min_box_pixels: MinBoxPixels = MIN_BOX_PIXELS
     max_render_views: Optional[int] = None
     """Render at most this many held-out views per method, evenly spaced (default: all)."""
+    rays_per_chunk: RaysPerChunk = None
     detectors_from: Optional[Path] = None
     """An earlier evaluate --out folder whose detectors of the same scenes to use instead of training new ones (e.g.
     Table IV scored with Table III's detectors); refused if they trained on a held-out view."""
@@ -85,6 +93,7 @@ class EvaluateCommand:
             conf_threshold=self.conf_threshold,
             cross_spectral_fraction=self.cross_spectral_fraction,
             max_render_views=self.max_render_views,
+            rays_per_chunk=self.rays_per_chunk,
             reuse=self.reuse,
             rgb_source=self.rgb_source,
             thermal_init=self.thermal_init,
@@ -111,11 +120,12 @@ class RenderCommand:
     """"thermal" is AgriNeRF's cross-spectral rendering."""
     split: Literal["eval", "train"] = "eval"
     max_views: Optional[int] = None
+    rays_per_chunk: RaysPerChunk = None
 
     def main(self) -> None:
         from agrinerf_ns.detect.render import render_views
 
-        written = render_views(self.config, self.output, self.out, self.split, self.max_views)
+        written = render_views(self.config, self.output, self.out, self.split, self.max_views, self.rays_per_chunk)
         print(f"wrote {len(written)} views to {self.out}")
 
 

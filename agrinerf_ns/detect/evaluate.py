@@ -79,6 +79,9 @@ class EvalSettings:
     """Cross-spectral training-view renders added to the thermal detector's set, as a fraction of its thermal frames."""
     max_render_views: Optional[int] = None
     """Render at most this many held-out views per method (None: all)."""
+    rays_per_chunk: Optional[int] = None
+    """Rays rendered at once (``eval_num_rays_per_chunk``; None: the run config's, Nerfacto 32768, AgriNeRF 8192).
+    Memory grows with it; the image does not change (``benchmarks/bench_render_chunks.py`` measures both)."""
     reuse: bool = True
     """Reuse renders and detector weights already in the work folder."""
     rgb_source: Literal["clean", "captured"] = "clean"
@@ -245,7 +248,7 @@ def _render(
             return out
     assert method.config is not None
     if method.config not in runs:
-        runs[method.config] = load_run(method.config)
+        runs[method.config] = load_run(method.config, settings.rays_per_chunk)
     if split == "eval":
         max_views = settings.max_render_views
     else:
@@ -483,9 +486,9 @@ def evaluate_plan(
     return {"markdown": md, "csv": csv_path, "figure": figure, "metrics": metrics_json}
 
 
-MERGE_FREE_SETTINGS = ("reuse", "detectors_from")
-"""Settings that may differ between evaluations merged into one table (they change where results come from, not
-how they are scored)."""
+MERGE_FREE_SETTINGS = ("reuse", "detectors_from", "rays_per_chunk")
+"""Settings that may differ between evaluations merged into one table (they change where results come from or how
+fast, not how they are scored)."""
 
 
 def merge_evaluations(metrics_files: List[Path], out: Path, table: str, command: str) -> Tuple[Path, Path]:
