@@ -1,10 +1,27 @@
-"""Choosing a subset of a capture's views."""
+"""Choosing a subset of a capture's views, and how many of a view's rays to render at once."""
 
 from __future__ import annotations
 
 from typing import List, Optional
 
 import numpy as np
+
+CPU_RAYS_PER_CHUNK = 1024
+"""Rays rendered at once when a whole view is rendered for evaluation on a CPU (``eval_num_rays_per_chunk``; the image
+does not depend on it). 2-core CPU, one 320x240 view (``python benchmarks/bench_render_chunks.py``,
+results/render-chunks/README.md, paired ratios): Nerfacto 0.72-0.77x the time of 4096, which takes 0.49x that of its
+config's 32768, peak RSS 1.8 GB instead of 3.0 and 11.8; AgriNeRF 0.80x the time of 4096, which takes 1.18x that of
+its config's 8192."""
+
+
+def rays_per_chunk(requested: Optional[int] = None) -> Optional[int]:
+    """``requested`` if given; else :data:`CPU_RAYS_PER_CHUNK` without a GPU, and None (the run config's, sized for
+    a GPU) with one."""
+    if requested is not None:
+        return requested
+    import torch
+
+    return None if torch.cuda.is_available() else CPU_RAYS_PER_CHUNK
 
 
 def evenly_spaced(total: int, count: Optional[int]) -> List[int]:

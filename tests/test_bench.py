@@ -11,7 +11,7 @@ import yaml
 
 from agrinerf_ns.bench import image_metrics, results
 from agrinerf_ns.bench.cli import BenchConfig, main
-from agrinerf_ns.views import evenly_spaced
+from agrinerf_ns.views import CPU_RAYS_PER_CHUNK, evenly_spaced, rays_per_chunk
 
 
 def test_pareto_front_keeps_only_undominated_points() -> None:
@@ -58,6 +58,14 @@ def test_evenly_spaced_views_span_the_capture() -> None:
     assert evenly_spaced(5, 99) == [0, 1, 2, 3, 4]
     assert evenly_spaced(5, 0) == [0], "at least one view"
     assert evenly_spaced(0, 3) == []
+
+
+def test_render_chunk_is_small_on_a_cpu_and_the_configs_on_a_gpu(monkeypatch) -> None:
+    assert rays_per_chunk(123) == 123
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert rays_per_chunk() == CPU_RAYS_PER_CHUNK == 1024
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert rays_per_chunk() is None and rays_per_chunk(8192) == 8192
 
 
 @pytest.mark.slow

@@ -17,7 +17,7 @@ from PIL import Image
 
 from agrinerf_ns.bench import image_metrics
 from agrinerf_ns.bench.methods import BenchMethod
-from agrinerf_ns.views import evenly_spaced
+from agrinerf_ns.views import evenly_spaced, rays_per_chunk
 
 
 class TruthImages:
@@ -63,10 +63,11 @@ def evaluate_checkpoint(
     step: int,
     method: BenchMethod,
     truth: Optional[TruthImages],
-    rays_per_chunk: int = 1 << 14,
+    chunk: Optional[int] = None,
     max_views: Optional[int] = None,
 ) -> Dict[str, float]:
-    """Mean metrics over the eval split (or ``max_views`` of its views, evenly spaced) at one checkpoint.
+    """Mean metrics over the eval split (or ``max_views`` of its views, evenly spaced) at one checkpoint, rendered
+    ``chunk`` rays at a time (None: :func:`agrinerf_ns.views.rays_per_chunk`).
 
     Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
     LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the
@@ -76,7 +77,7 @@ def evaluate_checkpoint(
 
     _, pipeline, _, _ = eval_setup(
         config_path,
-        eval_num_rays_per_chunk=rays_per_chunk,
+        eval_num_rays_per_chunk=rays_per_chunk(chunk),
         test_mode="test",
         update_config_callback=_load_at_step(step),
     )

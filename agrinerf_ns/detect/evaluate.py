@@ -80,8 +80,8 @@ class EvalSettings:
     max_render_views: Optional[int] = None
     """Render at most this many held-out views per method (None: all)."""
     rays_per_chunk: Optional[int] = None
-    """Rays rendered at once (``eval_num_rays_per_chunk``; None: the run config's, Nerfacto 32768, AgriNeRF 8192).
-    Memory grows with it; the image does not change (``benchmarks/bench_render_chunks.py`` measures both)."""
+    """Rays rendered at once (``eval_num_rays_per_chunk``; None: 1024 on a CPU, the run config's on a GPU). The image
+    does not depend on it; time and memory do (:data:`agrinerf_ns.views.CPU_RAYS_PER_CHUNK`)."""
     reuse: bool = True
     """Reuse renders and detector weights already in the work folder."""
     rgb_source: Literal["clean", "captured"] = "clean"

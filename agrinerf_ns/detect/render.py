@@ -17,7 +17,7 @@ from typing import Any, List, Literal, Optional
 import numpy as np
 from jaxtyping import Float, UInt8
 
-from agrinerf_ns.views import evenly_spaced
+from agrinerf_ns.views import evenly_spaced, rays_per_chunk
 
 Output = Literal["rgb", "thermal"]
 Split = Literal["eval", "train"]
@@ -45,7 +45,8 @@ def to_uint8(image: Float[np.ndarray, "h w c"]) -> UInt8[np.ndarray, "h w c"]:
 
 
 def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -> LoadedRun:
-    """Load a saved Nerfstudio run (config.yml + latest checkpoint) with its train and eval datasets."""
+    """Load a saved Nerfstudio run (config.yml + latest checkpoint) with its train and eval datasets, rendering
+    ``eval_num_rays_per_chunk`` rays at once (None: :func:`agrinerf_ns.views.rays_per_chunk`)."""
     from agrinerf_ns import compat
 
     compat.activate()
@@ -57,7 +58,7 @@ def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -
             f"{config_path}: no such Nerfstudio run config (outputs/<name>/<method>/<time>/config.yml)"
         )
     config, pipeline, checkpoint, step = eval_setup(
-        config_path, eval_num_rays_per_chunk=eval_num_rays_per_chunk, test_mode="test"
+        config_path, eval_num_rays_per_chunk=rays_per_chunk(eval_num_rays_per_chunk), test_mode="test"
     )
     return LoadedRun(config_path, config.method_name, pipeline, Path(checkpoint), int(step))
 
