@@ -148,7 +148,7 @@ def test_cli_reports_bad_input_and_exits_2(tmp_path: Path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(ProcessArgs(raw=tmp_path / "missing", out=tmp_path / "ds", config=_config()))
     assert exc.value.code == 2
-    assert "missing: raw capture folder does not exist" in capsys.readouterr().err.replace("\n", "")
+    assert f"{tmp_path / 'missing'}: raw capture folder does not exist\n" in capsys.readouterr().err  # one line
 
 
 def test_rgb_and_events_without_thermal(tmp_path: Path):

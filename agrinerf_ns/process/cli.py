@@ -29,7 +29,7 @@ def main(args: ProcessArgs) -> Path:
     try:
         return process_capture(args.raw, args.out, args.config)
     except (RawInputError, FileExistsError, ValueError) as err:
-        CONSOLE.print(f"[bold red]Error:[/bold red] {err}")
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)  # never break a path across lines
         sys.exit(2)
 
 
