@@ -75,12 +75,20 @@ def render_in_process(config: Path, chunk: int, views: int, out: Path) -> Dict[s
 
 
 def max_difference(a: Path, b: Path) -> float:
-    """Largest absolute difference over the outputs both render files hold (NaN-safe: NaN vs NaN is equal)."""
+    """Largest absolute difference over the outputs both render files hold; equal values (NaN and NaN, inf and inf)
+    differ by 0, a NaN against anything else by inf."""
     with np.load(a) as x, np.load(b) as y:
         common = sorted(set(x.files) & set(y.files))
         if not common:
             raise ValueError(f"{a} and {b} share no rendered output")
-        return max(float(np.nan_to_num(np.abs(x[k] - y[k]), nan=0.0).max()) for k in common)
+        return max(_difference(x[k], y[k]) for k in common)
+
+
+def _difference(a: np.ndarray, b: np.ndarray) -> float:
+    with np.errstate(invalid="ignore"):
+        diff = np.abs(a - b)
+    diff[(a == b) | (np.isnan(a) & np.isnan(b))] = 0.0
+    return float(np.nan_to_num(diff, nan=np.inf).max())
 
 
 def _run_child(args: Args, chunk: int, round_index: int) -> Dict[str, object]:
