@@ -49,9 +49,7 @@ class Args:
 def render_in_process(config: Path, chunk: int, views: int, out: Path) -> Dict[str, float]:
     """Load the run with ``chunk`` rays per chunk, render ``views`` held-out views (all outputs), save them to ``out``
     (``.npz``); returns seconds spent rendering and peak RSS (MiB) after loading and after rendering."""
-    import torch
-
-    from agrinerf_ns.detect.render import load_run
+    from agrinerf_ns.detect.render import load_run, render_camera
     from agrinerf_ns.views import evenly_spaced
 
     run = load_run(config, eval_num_rays_per_chunk=chunk)
@@ -61,12 +59,9 @@ def render_in_process(config: Path, chunk: int, views: int, out: Path) -> Dict[s
     pixels = 0
     start = time.perf_counter()
     for index in evenly_spaced(len(dataset), views):
-        camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
-        pixels += int(camera.height.item()) * int(camera.width.item())
-        with torch.no_grad():
-            outputs = run.pipeline.model.get_outputs_for_camera(camera)
-        for name, value in outputs.items():
+        for name, value in render_camera(run, dataset, index).items():
             arrays[f"{index}_{name}"] = value.detach().float().cpu().numpy()
+        pixels += int(dataset.cameras.height[index]) * int(dataset.cameras.width[index])
     seconds = time.perf_counter() - start
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     out.parent.mkdir(parents=True, exist_ok=True)

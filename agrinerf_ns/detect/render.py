@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, List, Literal, Optional
+from typing import Any, Dict, List, Literal, Optional
 
 import numpy as np
 from jaxtyping import Float, UInt8
@@ -63,6 +63,15 @@ def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -
     return LoadedRun(config_path, config.method_name, pipeline, Path(checkpoint), int(step))
 
 
+def render_camera(run: LoadedRun, dataset: Any, index: int) -> Dict[str, Any]:
+    """Every output of the run's model (tensors of shape (H, W, C)) at camera ``index`` of ``dataset``, no gradients."""
+    import torch
+
+    camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
+    with torch.no_grad():
+        return run.pipeline.model.get_outputs_for_camera(camera)
+
+
 def render_pipeline_views(
     run: LoadedRun, output: Output, out_dir: Path, split: Split = "eval", max_views: Optional[int] = None
 ) -> List[Path]:
@@ -72,7 +81,6 @@ def render_pipeline_views(
     Raises :class:`MissingOutputError` when the method has no such output (checked on the first view, before
     anything is written).
     """
-    import torch
     from PIL import Image
     from rich.progress import Progress
 
@@ -89,9 +97,7 @@ def render_pipeline_views(
     with Progress(transient=True) as progress:
         task = progress.add_task(f"rendering {output} ({run.method}, {split})", total=len(indices))
         for index in indices:
-            camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
-            with torch.no_grad():
-                outputs = run.pipeline.model.get_outputs_for_camera(camera)
+            outputs = render_camera(run, dataset, index)
             if output not in outputs:
                 raise MissingOutputError(
                     f"{run.config_path}: method '{run.method}' has no '{output}' output (it renders: "
