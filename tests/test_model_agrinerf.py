@@ -88,10 +88,11 @@ def test_adding_thermal_adds_exactly_the_thermal_volume_and_mlp() -> None:
     assert set(rgb) <= set(both)
     assert all(rgb[n] == both[n] for n in rgb)
     assert added and all(n.startswith("field.thermal_head.") for n in added)
-    # volume: 3 planes + 3 lines of 2 components at resolution 8; basis 6 -> 3; MLP_THERMAL: in -> 8 -> 1
+    # volume: 3 planes + 3 lines of 2 components at resolution 8; basis 6 -> 3; MLP_THERMAL: in -> 8 -> 2
+    # (the cross-spectral `thermal` and the `thermal_camera` channel)
     volume = 3 * 2 * 8 * 8 + 3 * 2 * 8
     in_dim = 3 + 3 * 2 * 2  # features + NeRFEncoding(2 frequencies, sin/cos) of them, no direction (view independent)
-    mlp = 6 * 3 + (in_dim * 8 + 8) + (8 * 1 + 1)
+    mlp = 6 * 3 + (in_dim * 8 + 8) + (8 * 2 + 2)
     assert sum(added.values()) == volume + mlp
     thermal_volume = {n for n in added if ".encoding." in n}
     assert thermal_volume == {"field.thermal_head.encoding.plane_coef", "field.thermal_head.encoding.line_coef"}
@@ -124,7 +125,7 @@ def test_table_iv_ablations_build_and_give_the_right_loss_terms(name: str) -> No
     if "rgb" in modalities:
         expected.add("rgb_loss")
     if "thermal" in modalities:
-        expected.add("thermal_loss")
+        expected.update({"thermal_loss", "thermal_camera_loss"})
     if "rgb" in modalities and {"thermal", "events"} & set(modalities):
         expected.add("reg_rgb_loss")
     if "events" in modalities:

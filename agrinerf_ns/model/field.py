@@ -99,6 +99,7 @@ class AgriNeRFField(Field):
         num_rgb_components, rgb_appearance_dim: RGB appearance volume and basis size.
         num_thermal_components, thermal_appearance_dim: thermal appearance volume and basis size.
         thermal_view_dependent: feed the viewing direction to MLP_THERMAL (default: no, thermal is Lambertian enough).
+        thermal_channels: outputs of MLP_THERMAL (1: the cross-spectral value; 2: also the thermal camera's value).
         mlp_width: hidden width of MLP_RGB.
         thermal_mlp_width: hidden width of MLP_THERMAL (one channel; defaults to `mlp_width`).
         density_shift: added before the softplus (TensoRF's `density_shift`).
@@ -122,6 +123,7 @@ class AgriNeRFField(Field):
         num_thermal_components: int = 16,
         thermal_appearance_dim: int = 12,
         thermal_view_dependent: bool = False,
+        thermal_channels: int = 1,
         mlp_width: int = 128,
         thermal_mlp_width: Optional[int] = None,
         density_shift: float = -4.0,
@@ -147,7 +149,7 @@ class AgriNeRFField(Field):
                 resolution,
                 num_thermal_components,
                 thermal_appearance_dim,
-                1,
+                thermal_channels,
                 thermal_view_dependent,
                 mlp_width if thermal_mlp_width is None else thermal_mlp_width,
                 vm_lookup,

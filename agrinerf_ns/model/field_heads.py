@@ -7,4 +7,5 @@ class AgriNeRFFieldHeadNames(Enum):
     """Extra outputs of the AgriNeRF field (Nerfstudio's own heads stay in `FieldHeadNames`)."""
 
     THERMAL = "thermal"
-    """Single-channel cross-spectral (thermal) value in [0, 1] per sample."""
+    """Thermal head values in [0, 1] per sample: channel 0 the cross-spectral value, channel 1 (when built) the thermal
+    camera's value."""

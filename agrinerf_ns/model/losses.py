@@ -88,6 +88,20 @@ def cross_spectral_loss(
     return total
 
 
+def scale_gradient(values: Tensor, scale: float) -> Tensor:
+    """`values` unchanged in the forward pass, with the gradient flowing back through them multiplied by `scale`.
+
+    The model composites a head's samples with `scale_gradient(weights, s)` to choose how strongly a loss term may move
+    the density (the rendering weights) without changing what the term sees: 1 is the plain path, 0 a detach.
+    """
+    if scale == 1.0:
+        return values
+    if scale == 0.0:
+        return values.detach()
+    frozen = values.detach()
+    return frozen + scale * (values - frozen)
+
+
 def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
     """TensoRF L1 sparsity loss: mean |w| over all given factor tensors (TensoRF `density_L1`,
     https://github.com/apchenstu/TensoRF/blob/main/models/tensoRF.py, `TensorVMSplit.density_L1`)."""

@@ -7,7 +7,7 @@ Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Loss
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Tuple, Type
+from typing import Any, Dict, List, Literal, Tuple, Type
 
 import numpy as np
 import torch
@@ -29,8 +29,19 @@ from torch.nn import Parameter
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
 from agrinerf_ns.model import losses
 from agrinerf_ns.model.field import AgriNeRFField
-from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.vm_encoding import VMLookup
+
+TERM_OUTPUTS: Dict[str, str] = {
+    "rgb_loss": "rgb",
+    "thermal_loss": "thermal",
+    "reg_rgb_loss": "thermal",
+    "reg_event_loss": "thermal",
+    "thermal_camera_loss": "thermal_camera",
+}
+"""Each data loss term and the output it compares with its target."""
+
+PAPER_DENSITY_GRADIENT_SCALES: Dict[str, float] = {term: 1.0 for term in TERM_OUTPUTS}
+"""Every term moves the shared density at full strength: the paper's loss as written, with one thermal output."""
 
 DENSE_HEADS_FRACTION = 0.85
 """When at least this fraction of the fine samples passes the weight threshold (usual: the PDF samples sit where the
@@ -73,6 +84,25 @@ class AgriNeRFModelConfig(ModelConfig):
     """Feature size fed to MLP_THERMAL."""
     thermal_view_dependent: bool = False
     """Feed the viewing direction to MLP_THERMAL."""
+    thermal_camera_output: bool = True
+    """Give MLP_THERMAL a second channel, the output `thermal_camera`, fit to the thermal frames alone by
+    `thermal_camera_loss` (built only when the scene has thermal frames). The cross-spectral `thermal` output cannot
+    match thermal frames, RGB luma and event frames at once, so its residual never falls; this channel's target can be
+    met, so it is the thermal term that carries geometry (`density_gradient_scales`; docs/model.md, Loss routing)."""
+    density_gradient_scales: Dict[str, float] = to_immutable_dict(
+        {
+            "rgb_loss": 1.0,
+            "thermal_loss": 0.0,
+            "reg_rgb_loss": 0.0,
+            "reg_event_loss": 0.0,
+            "thermal_camera_loss": 1.0,
+        }
+    )
+    """How strongly each data term's gradient reaches the shared density through the rendering weights (1: fully,
+    0: not at all; the term still trains its head's appearance volume and MLP either way). Default: the RGB and the
+    thermal-camera terms shape the geometry, and the cross-spectral terms (L_th and L_reg on `thermal`) only the
+    thermal appearance. All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of
+    the dict counts as 1."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB (TensoRF's)."""
     thermal_mlp_width: int = 64
@@ -108,12 +138,14 @@ class AgriNeRFModelConfig(ModelConfig):
             "thermal_loss": 1.0,
             "reg_rgb_loss": 1.0,
             "reg_event_loss": 1.0,
+            "thermal_camera_loss": 1.0,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
         }
     )
-    """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus TensoRF L1/TV; 0 disables a term."""
+    """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus the thermal-camera term and TensoRF
+    L1/TV; 0 disables a term."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
     """Camera pose refinement (off by default)."""
 
@@ -138,6 +170,7 @@ class AgriNeRFModel(Model):
         self.use_thermal = "thermal" in self.modalities
         self.use_events = "events" in self.modalities
         self.has_thermal_head = self.use_thermal or self.use_events
+        self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
         if not (self.use_rgb or self.use_thermal):
             raise ValueError(
                 f"AgriNeRF needs RGB or thermal supervision: config modalities {wanted}, dataset modalities "
@@ -177,6 +210,7 @@ class AgriNeRFModel(Model):
             num_thermal_components=cfg.num_thermal_components,
             thermal_appearance_dim=cfg.thermal_appearance_dim,
             thermal_view_dependent=cfg.thermal_view_dependent,
+            thermal_channels=2 if self.has_thermal_camera else 1,
             mlp_width=cfg.mlp_width,
             thermal_mlp_width=cfg.thermal_mlp_width,
             density_shift=cfg.density_shift,
@@ -341,47 +375,89 @@ class AgriNeRFModel(Model):
                 coords[selected], directions[selected], corners.select(selected.reshape(-1))
             )
 
-        accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
-        outputs: Dict[str, Tensor] = {
-            "accumulation": accumulation,
-            "depth": self.renderer_depth(weights, samples),
-        }
-        names = {FieldHeadNames.RGB: "rgb", AgriNeRFFieldHeadNames.THERMAL: "thermal"}
+        dense: Dict[str, Tensor] = {}  # per output: the head's values at every sample (zero where not selected)
         for head, values in flat_values.items():
             if every_sample:
-                dense = values.to(weights.dtype).view(num_rays, num_samples, values.shape[-1])
-                dense = torch.where(selected[..., None], dense, 0.0)
+                full = values.to(weights.dtype).view(num_rays, num_samples, values.shape[-1])
+                full = torch.where(selected[..., None], full, 0.0)
             else:
-                dense = weights.new_zeros(num_rays, num_samples, values.shape[-1])
-                dense[selected] = values.to(dense.dtype)
-            composite = (weights * dense).sum(dim=-2) + self._background(dense) * (1.0 - accumulation)
-            if not self.training:
-                composite = composite.clamp(0.0, 1.0)
-            outputs[names[head]] = composite
+                full = weights.new_zeros(num_rays, num_samples, values.shape[-1])
+                full[selected] = values.to(full.dtype)
+            if head == FieldHeadNames.RGB:
+                dense["rgb"] = full
+            else:
+                dense["thermal"] = full[..., :1]
+                if self.has_thermal_camera:
+                    dense["thermal_camera"] = full[..., 1:2]
+
+        # "rgb" first: the viewer shows the first output when it opens
+        outputs: Dict[str, Tensor] = {name: self._composite(weights, values) for name, values in dense.items()}
+        outputs["depth"] = self.renderer_depth(weights, samples)
+        outputs["accumulation"] = self.renderer_accumulation(weights).clamp(0.0, 1.0)
+        if self.training and torch.is_grad_enabled():
+            outputs.update(self._routed_outputs(weights, dense))
+        if not self.training:
+            for name in dense:
+                outputs[name] = outputs[name].clamp(0.0, 1.0)
         return outputs
+
+    def _composite(
+        self, weights: Float[Tensor, "rays samples 1"], values: Float[Tensor, "rays samples c"]
+    ) -> Float[Tensor, "rays c"]:
+        """Alpha compositing of per-sample values, with the background behind the last sample."""
+        accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
+        return (weights * values).sum(dim=-2) + self._background(values) * (1.0 - accumulation)
+
+    def density_gradient_scale(self, term: str) -> float:
+        """The configured scale of `term`'s gradient into the density (1 when not configured)."""
+        return float(self.config.density_gradient_scales.get(term, 1.0))
+
+    def _routed_outputs(self, weights: Float[Tensor, "rays samples 1"], dense: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """Training only: for each data term whose density gradient scale is not 1, its output composited with weights
+        whose gradient is scaled (same values), under the key "<output>/<term>"."""
+        routed: Dict[str, Tensor] = {}
+        by_scale: Dict[Tuple[str, float], Tensor] = {}
+        for term, name in TERM_OUTPUTS.items():
+            scale = self.density_gradient_scale(term)
+            if name not in dense or scale == 1.0:
+                continue
+            if (name, scale) not in by_scale:
+                by_scale[(name, scale)] = self._composite(losses.scale_gradient(weights, scale), dense[name])
+            routed[f"{name}/{term}"] = by_scale[(name, scale)]
+        return routed
 
     # --------------------------------------------------------------- losses
     def _data_terms(self, outputs: Dict[str, Tensor], batch: Dict[str, Any]) -> Dict[str, Tensor]:
-        """Raw (unweighted) data loss terms for the modalities this model uses and the batch carries."""
+        """Raw (unweighted) data loss terms for the modalities this model uses and the batch carries; each term reads
+        its routed output ("<output>/<term>", training) where there is one."""
         coef = self.config.loss_coefficients
+
+        def pred(term: str) -> Tensor:
+            name = TERM_OUTPUTS[term]
+            return outputs.get(f"{name}/{term}", outputs[name])
+
+        def optional(key: str) -> Any:
+            value = batch.get(key)
+            return None if value is None else value.to(self.device)
+
         terms: Dict[str, Tensor] = {}
         image = batch["image"][..., :3].to(self.device) if "image" in batch else None
         if self.use_rgb and image is not None:
             terms["rgb_loss"] = losses.rgb_loss(outputs["rgb"], image)
         if not self.has_thermal_head:
             return terms
-        pred_th = outputs["thermal"]
         if self.use_thermal and "thermal" in batch:
-            mask = batch.get("thermal_mask")
-            terms["thermal_loss"] = losses.thermal_loss(
-                pred_th, batch["thermal"].to(self.device), None if mask is None else mask.to(self.device)
-            )
+            thermal = batch["thermal"].to(self.device)
+            terms["thermal_loss"] = losses.thermal_loss(pred("thermal_loss"), thermal, optional("thermal_mask"))
+            if self.has_thermal_camera:
+                terms["thermal_camera_loss"] = losses.thermal_loss(
+                    pred("thermal_camera_loss"), thermal, optional("thermal_mask")
+                )
         if self.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
-            terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred_th, image)
+            terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)
         if self.use_events and "event" in batch and coef.get("reg_event_loss", 0.0) > 0:
-            mask = batch.get("event_mask")
             terms["reg_event_loss"] = losses.cross_spectral_event_term(
-                pred_th, batch["event"].to(self.device), None if mask is None else mask.to(self.device)
+                pred("reg_event_loss"), batch["event"].to(self.device), optional("event_mask")
             )
         return terms
 
@@ -406,8 +482,9 @@ class AgriNeRFModel(Model):
         if self.use_rgb and "image" in batch:
             metrics["psnr"] = self.psnr(outputs["rgb"].detach(), batch["image"][..., :3].to(self.device).float())
         metrics.update(self._data_terms(outputs, batch))
-        if "thermal_loss" in metrics:
-            metrics["thermal_psnr"] = -10.0 * torch.log10(metrics["thermal_loss"].detach().clamp(min=1e-10))
+        for term, name in (("thermal_loss", "thermal_psnr"), ("thermal_camera_loss", "thermal_camera_psnr")):
+            if term in metrics:
+                metrics[name] = -10.0 * torch.log10(metrics[term].detach().clamp(min=1e-10))
         if self.training:
             metrics.update(self._regularisers())
         self.camera_optimizer.get_metrics_dict(metrics)
@@ -440,7 +517,8 @@ class AgriNeRFModel(Model):
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Any]
     ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
-        """RGB: psnr, ssim, lpips; thermal: thermal_psnr, thermal_ssim (over the thermal mask). Images side by side."""
+        """RGB: psnr, ssim, lpips; thermal (and thermal_camera): <output>_psnr, <output>_ssim against the rescaled
+        thermal frames, over the thermal mask. Images side by side."""
         metrics: Dict[str, float] = {}
         images: Dict[str, Tensor] = {
             "accumulation": colormaps.apply_colormap(outputs["accumulation"]),
@@ -461,13 +539,26 @@ class AgriNeRFModel(Model):
                 gt_th = batch["thermal"].to(self.device).float()
                 mask = batch.get("thermal_mask")
                 mask = torch.ones_like(gt_th) if mask is None else (mask.to(self.device).float() > 0.5).float()
-                mse = losses.thermal_loss(pred_th, gt_th, mask)
-                metrics["thermal_psnr"] = float((-10.0 * torch.log10(mse.clamp(min=1e-10))).item())
-                # outside the thermal camera's view the prediction is replaced by the truth before SSIM
-                filled = pred_th * mask + gt_th * (1.0 - mask)
-                metrics["thermal_ssim"] = float(
-                    self.ssim(filled.permute(2, 0, 1)[None], gt_th.permute(2, 0, 1)[None]).item()  # type: ignore
-                )
-                images["thermal"] = torch.cat([gt_th, pred_th], dim=1).expand(-1, -1, 3)
+                for name in ("thermal", "thermal_camera"):
+                    if name in outputs:
+                        metrics.update(self._thermal_metrics(name, outputs[name], gt_th, mask))
+                        images[name] = torch.cat([gt_th, outputs[name]], dim=1).expand(-1, -1, 3)
         self.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
         return metrics, images
+
+    def _thermal_metrics(
+        self,
+        name: str,
+        pred: Float[Tensor, "h w 1"],
+        gt: Float[Tensor, "h w 1"],
+        mask: Float[Tensor, "h w 1"],
+    ) -> Dict[str, float]:
+        """`<name>_psnr` over the thermal mask and `<name>_ssim` (outside the mask the prediction is replaced by the
+        truth first) of one thermal output against the rescaled thermal frame."""
+        mse = losses.thermal_loss(pred, gt, mask)
+        filled = pred * mask + gt * (1.0 - mask)
+        ssim = self.ssim(filled.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])  # type: ignore[operator]
+        return {
+            f"{name}_psnr": float((-10.0 * torch.log10(mse.clamp(min=1e-10))).item()),
+            f"{name}_ssim": float(ssim.item()),  # type: ignore[union-attr]
+        }

@@ -1,0 +1,142 @@
+"""Loss routing: which parameter groups each loss term moves, on a tiny AgriNeRF model (issue 20).
+
+The default: L_rgb and the thermal-camera term shape the shared density; the cross-spectral terms (L_th and L_reg on
+the `thermal` output) train the thermal head's appearance only. The paper's routing (every term into the density)
+stays a configuration.
+"""
+
+from __future__ import annotations
+
+from typing import Dict
+
+import pytest
+import torch
+from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.data.scene_box import SceneBox
+
+from agrinerf_ns.model.gradients import parameter_groups, term_gradient_norms
+from agrinerf_ns.model.losses import scale_gradient
+from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES, AgriNeRFModel, AgriNeRFModelConfig
+
+SMALL = dict(
+    init_resolution=8,
+    final_resolution=12,
+    upsampling_iters=(3,),
+    num_coarse_samples=8,
+    num_fine_samples=8,
+    num_density_components=3,
+    num_rgb_components=4,
+    rgb_appearance_dim=4,
+    num_thermal_components=2,
+    thermal_appearance_dim=3,
+    mlp_width=16,
+    thermal_mlp_width=8,
+    occupancy_resolution=8,
+    density_shift=0.0,  # dense enough at initialisation that every ray has weight to route
+)
+
+
+def _model(modalities=("rgb", "thermal", "events"), **kw) -> AgriNeRFModel:
+    torch.manual_seed(0)
+    cfg = AgriNeRFModelConfig(modalities=modalities, **{**SMALL, **kw})
+    box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    model = cfg.setup(scene_box=box, num_train_data=4, metadata={"modalities": ("rgb", "thermal", "events")})
+    model.train()
+    return model
+
+
+def _rays(n: int = 64) -> RayBundle:
+    gen = torch.Generator().manual_seed(1)
+    origins = torch.randn(n, 3, generator=gen) * 0.1 + torch.tensor([0.0, 0.0, 3.0])
+    directions = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen) * 0.3 - origins, dim=-1)
+    return RayBundle(
+        origins=origins,
+        directions=directions,
+        pixel_area=torch.full((n, 1), 1e-4),
+        camera_indices=torch.zeros(n, 1, dtype=torch.long),
+    )
+
+
+def _batch(n: int = 64) -> Dict[str, torch.Tensor]:
+    gen = torch.Generator().manual_seed(2)
+    return {
+        "image": torch.rand(n, 3, generator=gen),
+        "thermal": torch.rand(n, 1, generator=gen),
+        "thermal_mask": torch.ones(n, 1),
+        "event": torch.rand(n, 1, generator=gen),
+        "event_mask": torch.ones(n, 1),
+    }
+
+
+def _norms(model: AgriNeRFModel) -> Dict[str, Dict[str, float]]:
+    outputs = model(_rays())
+    batch = _batch()
+    loss_dict = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
+    data_terms = {k: v for k, v in loss_dict.items() if k.endswith("_loss")}
+    return term_gradient_norms(data_terms, parameter_groups(model))
+
+
+def _reached(norms: Dict[str, Dict[str, float]]) -> Dict[str, set]:
+    return {term: {group for group, n in groups.items() if n > 0.0} for term, groups in norms.items()}
+
+
+def test_default_routing_keeps_cross_spectral_terms_off_the_density() -> None:
+    reached = _reached(_norms(_model()))
+    assert reached == {
+        "rgb_loss": {"density", "rgb_volume", "rgb_mlp"},
+        "thermal_camera_loss": {"density", "thermal_volume", "thermal_mlp"},
+        "thermal_loss": {"thermal_volume", "thermal_mlp"},
+        "reg_rgb_loss": {"thermal_volume", "thermal_mlp"},
+        "reg_event_loss": {"thermal_volume", "thermal_mlp"},
+    }
+
+
+def test_paper_routing_sends_every_term_into_the_density() -> None:
+    model = _model(density_gradient_scales=PAPER_DENSITY_GRADIENT_SCALES, thermal_camera_output=False)
+    reached = _reached(_norms(model))
+    assert set(reached) == {"rgb_loss", "thermal_loss", "reg_rgb_loss", "reg_event_loss"}
+    assert all("density" in groups for groups in reached.values())
+    assert all(not (groups & {"rgb_volume", "rgb_mlp"}) for term, groups in reached.items() if term != "rgb_loss")
+
+
+def test_rgb_and_events_without_thermal_frames_leave_the_geometry_to_rgb() -> None:
+    reached = _reached(_norms(_model(modalities=("rgb", "events"))))
+    assert set(reached) == {"rgb_loss", "reg_rgb_loss", "reg_event_loss"}  # no thermal frames: no thermal-camera term
+    assert [term for term, groups in reached.items() if "density" in groups] == ["rgb_loss"]
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.1])
+def test_a_fractional_scale_scales_the_density_gradient_and_nothing_else(scale: float) -> None:
+    full = _norms(_model(density_gradient_scales={"thermal_loss": 1.0}))["thermal_loss"]
+    part = _norms(_model(density_gradient_scales={"thermal_loss": scale}))["thermal_loss"]
+    assert part["density"] == pytest.approx(scale * full["density"], rel=1e-4)
+    assert part["thermal_volume"] == pytest.approx(full["thermal_volume"], rel=1e-6)
+    assert part["thermal_mlp"] == pytest.approx(full["thermal_mlp"], rel=1e-6)
+
+
+def test_routing_changes_gradients_not_values() -> None:
+    routed, paper = _model(), _model(density_gradient_scales=PAPER_DENSITY_GRADIENT_SCALES)
+    rays, batch = _rays(), _batch()
+    torch.manual_seed(3)  # the samplers jitter: the same draws for both
+    a = routed(rays)
+    torch.manual_seed(3)
+    b = paper(rays)
+    for name in ("rgb", "thermal", "thermal_camera"):
+        assert torch.equal(a[name], b[name])
+    terms_a, terms_b = routed.get_metrics_dict(a, batch), paper.get_metrics_dict(b, batch)
+    for term in ("rgb_loss", "thermal_loss", "reg_rgb_loss", "reg_event_loss", "thermal_camera_loss"):
+        assert torch.equal(terms_a[term], terms_b[term])
+    routed.eval()
+    with torch.no_grad():
+        assert not any("/" in key for key in routed(rays))  # routed copies are training-only, never rendered
+
+
+def test_scale_gradient_is_identity_forward() -> None:
+    x = torch.linspace(-3, 3, 7, requires_grad=True)
+    for scale in (0.0, 0.25, 1.0):
+        y = scale_gradient(x, scale)
+        assert torch.equal(y, x)
+        (grad,) = torch.autograd.grad(y.sum(), x, allow_unused=True) if scale else (None,)
+        if scale:
+            assert torch.allclose(grad, torch.full_like(x, scale))
+    assert not scale_gradient(x, 0.0).requires_grad
