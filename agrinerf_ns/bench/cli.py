@@ -88,11 +88,25 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
         generate_capture(config, raw)
         if data.exists():
             shutil.rmtree(data)
-    if not (data / "transforms.json").exists() or recorded_plane_depth(data) != profile.plane_depth:
+    if (
+        not (data / "transforms.json").exists()
+        or recorded_plane_depth(data) != profile.plane_depth
+        or not _same_split(data, profile.eval_every)
+    ):
         # Poses from the capture's odometry: the benchmark compares reconstructions, not SfM.
-        process = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth)
+        process = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth,
+                                eval_every=profile.eval_every)  # fmt: skip
         process_capture(raw, data, process)
     return raw, data
+
+
+def _same_split(data: Path, eval_every: int) -> bool:
+    """Whether the dataset's held-out list is the one ``eval_every`` gives."""
+    from agrinerf_ns.process.dataset_writer import split_names
+
+    meta = json.loads((data / "transforms.json").read_text())
+    names = [frame["file_path"] for frame in meta["frames"]]
+    return meta.get("test_filenames") == split_names(names, eval_every)["test_filenames"]
 
 
 def _same_capture(raw: Path, config: "SynthConfig") -> bool:

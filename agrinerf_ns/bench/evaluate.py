@@ -65,13 +65,14 @@ def evaluate_checkpoint(
     truth: Optional[TruthImages],
     chunk: Optional[int] = None,
     max_views: Optional[int] = None,
-) -> Dict[str, float]:
+) -> Dict[str, object]:
     """Mean metrics over the eval split (or ``max_views`` of its views, evenly spaced) at one checkpoint, rendered
     ``chunk`` rays at a time (None: :func:`agrinerf_ns.views.rays_per_chunk`).
 
     Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
     LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the
-    rescaled thermal frames).
+    rescaled thermal frames), ``thermal_camera_psnr`` (the thermal-camera output, where the model has one), and
+    ``psnr_clean_per_view`` (each rendered view's ``psnr_clean``, by held-out index, for paired comparisons).
     """
     from nerfstudio.utils.eval_utils import eval_setup
 
@@ -92,7 +93,9 @@ def evaluate_checkpoint(
             outputs = pipeline.model.get_outputs_for_camera(camera=camera)
         metrics, _ = pipeline.model.get_image_metrics_and_images(outputs, batch)
         row = {
-            k: float(v) for k, v in metrics.items() if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim")
+            k: float(v)
+            for k, v in metrics.items()
+            if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim", "thermal_camera_psnr")
         }
         if method.supervision == "thermal" and "psnr" in row:  # Nerfacto on thermal frames: its psnr is thermal
             row = {"thermal_psnr": row["psnr"], "thermal_ssim": row["ssim"]}
@@ -103,7 +106,9 @@ def evaluate_checkpoint(
             row["ssim_clean"] = image_metrics.ssim(aligned, target)
         per_image.append(row)
     keys = sorted({k for row in per_image for k in row})
-    means = {k: _nanmean([row.get(k, math.nan) for row in per_image]) for k in keys}
+    means: Dict[str, object] = {k: _nanmean([row.get(k, math.nan) for row in per_image]) for k in keys}
+    if "psnr_clean" in keys:
+        means["psnr_clean_per_view"] = ";".join(f"{row.get('psnr_clean', math.nan):.4f}" for row in per_image)
     return {**means, "eval_views": len(per_image)}
 
 

@@ -11,6 +11,7 @@ from typing import Dict, Iterable, List, Sequence, Set, Tuple
 COLUMNS = (
     "scene", "method", "label", "step", "wall_s", "s_per_step", "peak_rss_mb", "device",
     "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim", "eval_views",
+    "thermal_camera_psnr", "psnr_clean_per_view",
 )  # fmt: skip
 """One row per evaluated checkpoint."""
 
@@ -138,3 +139,63 @@ def plot(rows: Sequence[Row], path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def per_view(row: Row, key: str = "psnr_clean_per_view") -> List[float]:
+    """A row's per-view figures (empty for rows written before the column)."""
+    text = row.get(key) or ""
+    return [float(v) for v in text.split(";") if v]
+
+
+def paired_difference(mine: Sequence[float], base: Sequence[float], confidence: float = 0.95) -> Tuple[float, float]:
+    """Mean of the per-view differences ``mine - base`` and the half-width of its Student-t confidence interval.
+
+    Views are paired (the same held-out view rendered by both runs), so view-to-view variation in difficulty cancels;
+    the interval is NaN with fewer than two views.
+    """
+    from scipy import stats
+
+    if len(mine) != len(base):
+        raise ValueError(f"paired views differ in number: {len(mine)} and {len(base)}")
+    diffs = [a - b for a, b in zip(mine, base, strict=True)]
+    n = len(diffs)
+    mean = sum(diffs) / n if n else math.nan
+    if n < 2:
+        return mean, math.nan
+    sd = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (n - 1))
+    return mean, float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * sd / math.sqrt(n)
+
+
+def final_rows(rows: Sequence[Row]) -> Dict[Tuple[str, str], Row]:
+    """The last evaluated checkpoint of every (scene, method)."""
+    last: Dict[Tuple[str, str], Row] = {}
+    for r in rows:
+        key = (r["scene"], r["method"])
+        if key not in last or int(r["step"]) > int(last[key]["step"]):
+            last[key] = r
+    return last
+
+
+def ablation_table(rows: Sequence[Row], methods: Sequence[str], baseline: str, labels: Dict[str, str]) -> str:
+    """Scenes down, methods across: each cell the final ``psnr_clean`` and, for the non-baseline methods, the paired
+    per-view difference to ``baseline`` with its 95% interval (a difference whose interval excludes 0 is marked *)."""
+    last = final_rows(rows)
+    scenes = sorted({scene for scene, _ in last})
+    header = "| scene | " + " | ".join(labels.get(m, m) for m in methods) + " |"
+    lines = [header, "|" + "---|" * (len(methods) + 1)]
+    for scene in scenes:
+        cells = [scene]
+        base = last.get((scene, baseline))
+        for method in methods:
+            row = last.get((scene, method))
+            if row is None:
+                cells.append("-")
+                continue
+            cell = f"{as_float(row, 'psnr_clean'):.2f}"
+            if method != baseline and base is not None and per_view(row) and per_view(base):
+                mean, half = paired_difference(per_view(row), per_view(base))
+                mark = "*" if math.isfinite(half) and abs(mean) > half else ""
+                cell += f" ({mean:+.2f} ± {half:.2f}{mark})"
+            cells.append(cell)
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
