@@ -232,9 +232,12 @@ class EventChunk:
         return int(self.t.shape[0])
 
 
+EVENT_FILE_NAMES = ("events.h5", "events.hdf5", "events.raw", "events.npz", "events.txt")
+
+
 def find_event_file(events_dir: Path) -> Optional[Path]:
-    """Return the first of events.h5 / events.hdf5 / events.npz / events.txt present, else None."""
-    for name in ("events.h5", "events.hdf5", "events.npz", "events.txt"):
+    """Return the first of :data:`EVENT_FILE_NAMES` present, else None."""
+    for name in EVENT_FILE_NAMES:
         if (events_dir / name).is_file():
             return events_dir / name
     return None
@@ -255,8 +258,10 @@ def iter_event_chunks(
         raw = _iter_npz(path, chunk_size)
     elif suffix == ".txt":
         raw = _iter_txt(path, chunk_size)
+    elif suffix == ".raw":
+        raw = _iter_raw(path, chunk_size)
     else:
-        raise RawInputError(f"{path}: unknown event file type (expected .h5, .npz or .txt)")
+        raise RawInputError(f"{path}: unknown event file type (expected .h5, .raw, .npz or .txt)")
     last_t = 0
     start = 0
     for x, y, t, p in raw:
@@ -379,9 +384,63 @@ def _iter_txt(path: Path, chunk_size: int):
             yield block[:, 1], block[:, 2], t_us, block[:, 3]
 
 
-def count_events(path: Path) -> int:
-    """Number of events in a file, without reading them (text files are counted by lines)."""
+def _iter_raw(path: Path, chunk_size: int):
+    """Prophesee ``.raw`` (EVT 2.0 / 3.0): CD events, decoded ``chunk_size`` words at a time and re-sliced to at most
+    ``chunk_size`` events (external-trigger events: :func:`read_triggers`)."""
+    from agrinerf_ns.process.event_codecs import iter_raw
+
+    for d in iter_raw(path, chunk_size):
+        for s in range(0, len(d.t), chunk_size):
+            yield d.x[s : s + chunk_size], d.y[s : s + chunk_size], d.t[s : s + chunk_size], d.p[s : s + chunk_size]
+
+
+@dataclass(frozen=True)
+class TriggerEvents:
+    """External-trigger events of an event camera: time (microseconds), edge (1 rising, 0 falling), channel id."""
+
+    t: Int64[np.ndarray, "n"]
+    p: UInt8[np.ndarray, "n"]
+    id: UInt8[np.ndarray, "n"]
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def read_triggers(path: Path) -> TriggerEvents:
+    """External-trigger events of an event file: the ``triggers`` group (t, p, id) of an ``.h5`` file, or the
+    EXT_TRIGGER words of a ``.raw`` file; other formats have none (empty result)."""
     suffix = path.suffix.lower()
+    empty = TriggerEvents(np.zeros(0, np.int64), np.zeros(0, np.uint8), np.zeros(0, np.uint8))
+    if suffix == ".raw":
+        from agrinerf_ns.process.event_codecs import iter_raw
+
+        parts = [(d.trig_t, d.trig_p, d.trig_id) for d in iter_raw(path)]
+        if not parts:
+            return empty
+        return TriggerEvents(*(np.concatenate([q[i] for q in parts]) for i in range(3)))
+    if suffix in (".h5", ".hdf5"):
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            if "triggers" not in f:
+                return empty
+            g = f["triggers"]
+            for key in ("t", "p"):
+                if key not in g:
+                    raise RawInputError(f"{path}: dataset triggers/{key} missing")
+            ids = g["id"][:] if "id" in g else np.zeros(g["t"].shape[0], np.uint8)
+            return TriggerEvents(g["t"][:].astype(np.int64), g["p"][:].astype(np.uint8), ids.astype(np.uint8))
+    return empty
+
+
+def count_events(path: Path) -> int:
+    """Number of events in a file, without reading them (text files are counted by lines, ``.raw`` words by
+    type)."""
+    suffix = path.suffix.lower()
+    if suffix == ".raw":
+        from agrinerf_ns.process.event_codecs import count_raw
+
+        return count_raw(path)
     if suffix in (".h5", ".hdf5"):
         import h5py
 

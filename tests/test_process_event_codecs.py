@@ -1,0 +1,252 @@
+"""Prophesee EVT 2.0 / 3.0 and ROS EventPacket decoding, checked against the shared real bags' reference counts
+(upstream event_camera_py tests) and against a plain per-word reference decoder written here from the format
+description."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agrinerf_ns.process import readers
+from agrinerf_ns.process.readers import RawInputError
+
+pytest.importorskip("rosbags")
+
+BAGS = Path(__file__).parent / "data" / "event-camera-bags"  # real bags, Apache-2.0 (README there)
+TOPIC = "/event_camera/events"
+EVT3_HEADER = b"% camera_integrator_name Prophesee\n% evt 3.0\n% format EVT3;height=480;width=640\n% end\n"
+EVT2_HEADER = b"% evt 2.0\n% geometry 640x480\n"
+
+
+def _packets(bag: Path):
+    from agrinerf_ns.process.rosbag import open_bag
+
+    with open_bag(bag) as (conns, reader, deserialize):
+        for conn, _, raw in reader.messages(connections=[c for c in conns if c.topic == TOPIC]):
+            yield deserialize(raw, conn.msgtype)
+
+
+@pytest.fixture(scope="module")
+def evt3_raw(tmp_path_factory) -> Path:
+    """A .raw file: the EVT 3.0 byte stream of bag 1's packets behind a Metavision-style header."""
+    path = tmp_path_factory.mktemp("raw") / "events.raw"
+    with open(path, "wb") as fh:
+        fh.write(EVT3_HEADER)
+        for msg in _packets(BAGS / "test_events_1.bag"):
+            fh.write(np.asarray(msg.events, np.uint8).tobytes())
+    return path
+
+
+def reference_evt3(data: bytes):
+    """Word-by-word EVT 3.0 decoder (no vectorisation, no chunking): CD (x, y, t, p) and triggers (t, p)."""
+    words = np.frombuffer(data, "<u2").tolist()
+    y = bx = bp = low = high = 0
+    last_high12 = 0
+    cd, trig = [], []
+    for w in words:
+        typ, v = w >> 12, w & 0xFFF
+        t = (high << 12) | low
+        if typ == 0x0:
+            y = v & 0x7FF
+        elif typ == 0x2:
+            cd.append((v & 0x7FF, y, t, v >> 11))
+        elif typ == 0x3:
+            bx, bp = v & 0x7FF, v >> 11
+        elif typ in (0x4, 0x5):
+            n = 12 if typ == 0x4 else 8
+            for k in range(n):
+                if (v >> k) & 1:
+                    cd.append((bx + k, y, t, bp))
+            bx += n
+        elif typ == 0x6:
+            low = v
+        elif typ == 0x8:
+            if last_high12 - v > 2048:
+                high += 4096
+            high = (high & ~0xFFF) | v
+            last_high12 = v
+        elif typ == 0xA:
+            trig.append((t, v & 1))
+    return np.array(cd, np.int64).reshape(-1, 4), np.array(trig, np.int64).reshape(-1, 2)
+
+
+def encode_evt2(cd: np.ndarray, trig: np.ndarray) -> bytes:
+    """EVT 2.0 words for time-sorted CD events (x, y, t, p) and triggers (t, p): a TIME_HIGH word whenever time
+    bits 6+ change, then CD_OFF / CD_ON / EXT_TRIGGER words with time bits 0-5."""
+    rows = [(int(t), 0, (int(p) << 28) | ((int(t) & 0x3F) << 22) | (int(x) << 11) | int(y)) for x, y, t, p in cd]
+    rows += [(int(t), 1, (0xA << 28) | ((int(t) & 0x3F) << 22) | (6 << 8) | int(p)) for t, p in trig]
+    words, high = [], None
+    for t, _, w in sorted(rows, key=lambda r: (r[0], r[1])):
+        if t >> 6 != high:
+            high = t >> 6
+            words.append((0x8 << 28) | (high & 0x0FFF_FFFF))  # a 28-bit counter: wraps after 2^34 us
+        words.append(w)
+    return np.asarray(words, "<u4").tobytes()
+
+
+def _read_all(path: Path, chunk: int):
+    parts = list(readers.iter_event_chunks(path, chunk_size=chunk, sensor_wh=(640, 480)))
+    assert all(len(c) <= chunk for c in parts)
+    return np.stack([np.concatenate([getattr(c, k) for c in parts]).astype(np.int64) for k in "xytp"], 1)
+
+
+@pytest.mark.parametrize("bag", ["test_events_1.bag", "test_events_1", "test_events_2"])
+def test_shared_bags_match_the_reference_counts(bag: str, tmp_path: Path):
+    import h5py
+
+    from agrinerf_ns.process.rosbag import BagTopics, bag_to_raw
+
+    raw = bag_to_raw(
+        BAGS / bag,
+        _calib(tmp_path),
+        tmp_path / "raw",
+        BagTopics(rgb=None, thermal=None, events=TOPIC),
+        event_clock="sensor",
+    )
+    with h5py.File(raw / "events" / "events.h5") as f:
+        p, t = f["events/p"][:], f["events/t"][:]
+        trig_p = f["triggers/p"][:] if "triggers" in f else np.zeros(0)
+        trig_t = f["triggers/t"][:] if "triggers" in f else np.zeros(0, np.int64)
+    assert np.all(np.diff(t) >= 0)
+    if bag.startswith("test_events_1"):
+        assert (int((p == 0).sum()), int((p == 1).sum())) == (218_291, 125_183)
+        # edge bit 0 = falling, 1 = rising (Prophesee EVT 3.0). The upstream counter calls p == 0 "rise" and asserts
+        # 2,078 of those only; it sums the times of all trigger events, which pins the 2,079 rising edges too.
+        assert (int((trig_p == 0).sum()), int((trig_p == 1).sum())) == (2_078, 2_079)
+        assert int(t.sum()) + int(trig_t.sum()) == 2_885_601_049_874  # upstream's sum of CD + trigger times (us)
+    else:  # libcaer_cmp packets of a 346x260 sensor, no triggers
+        assert (int((p == 0).sum()), int((p == 1).sum())) == (360_223, 211_043)
+        assert trig_p.size == 0
+    assert readers.count_events(raw / "events" / "events.h5") == p.size
+
+
+def _calib(tmp_path: Path) -> Path:
+    import yaml
+
+    cam = {
+        "camera_model": "pinhole",
+        "intrinsics": [300.0, 300.0, 319.5, 239.5],
+        "distortion_model": "radtan",
+        "distortion_coeffs": [0.0, 0.0, 0.0, 0.0],
+        "resolution": [640, 480],
+    }
+    path = tmp_path / "calib.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {"cam0": {**cam, "modality": "rgb"}, "cam1": {**cam, "modality": "event", "T_cn_cnm1": np.eye(4).tolist()}}
+        )
+    )
+    return path
+
+
+def test_evt3_raw_decodes_like_the_reference_decoder(evt3_raw: Path):
+    header = readers_header(evt3_raw)
+    assert (header.evt, header.width, header.height) == ("3.0", 640, 480)
+    ref_cd, ref_trig = reference_evt3(evt3_raw.read_bytes()[header.data_offset :])
+    assert len(ref_cd) == 218_291 + 125_183
+    for chunk in (2_000_000, 4097):  # one chunk, and many (state carried across chunk boundaries)
+        np.testing.assert_array_equal(_read_all(evt3_raw, chunk), ref_cd)
+    assert readers.count_events(evt3_raw) == len(ref_cd)
+    trig = readers.read_triggers(evt3_raw)
+    np.testing.assert_array_equal(np.stack([trig.t, trig.p], 1), ref_trig)
+    assert set(trig.id.tolist()) == {6}
+
+
+def readers_header(path: Path):
+    from agrinerf_ns.process.event_codecs import read_raw_header
+
+    return read_raw_header(path)
+
+
+def test_evt2_raw_decodes_the_events_it_was_written_from(evt3_raw: Path, tmp_path: Path):
+    cd, trig_ref = reference_evt3(evt3_raw.read_bytes()[readers_header(evt3_raw).data_offset :])
+    cd = cd[::7]  # a subsample keeps the pure-Python encoder fast
+    path = tmp_path / "events.raw"
+    path.write_bytes(EVT2_HEADER + encode_evt2(cd, trig_ref))
+    header = readers_header(path)
+    assert (header.evt, header.width, header.height) == ("2.0", 640, 480)
+    # the encoder orders events by time (stable), as a sensor emits them
+    order = np.argsort(cd[:, 2], kind="stable")
+    np.testing.assert_array_equal(_read_all(path, 5000), cd[order])
+    assert readers.count_events(path) == len(cd)
+    trig = readers.read_triggers(path)
+    np.testing.assert_array_equal(np.stack([trig.t, trig.p], 1), trig_ref)
+
+
+def test_evt2_time_high_rollover_is_unwrapped(tmp_path: Path):
+    t = np.array([(1 << 34) - 3, (1 << 34) + 5])  # EVT 2.0 time wraps after 2^34 us
+    cd = np.array([[1, 2, t[0], 1], [3, 4, t[1], 0]])
+    path = tmp_path / "wrap.raw"
+    path.write_bytes(EVT2_HEADER + encode_evt2(cd, np.zeros((0, 2), np.int64)))
+    np.testing.assert_array_equal(_read_all(path, 10)[:, 2], t)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# bad input
+
+
+def test_truncated_raw_names_the_file(evt3_raw: Path, tmp_path: Path):
+    cut = tmp_path / "cut.raw"
+    cut.write_bytes(evt3_raw.read_bytes()[:-1])
+    with pytest.raises(RawInputError, match=r"cut\.raw: event data is .*truncated"):
+        readers.count_events(cut)
+    with pytest.raises(RawInputError, match=r"cut\.raw.*truncated"):
+        next(readers.iter_event_chunks(cut))
+    head = tmp_path / "head.raw"
+    head.write_bytes(b"% evt 3.0\n% format EVT3;wid")
+    with pytest.raises(RawInputError, match=r"head\.raw: header line .* cut off"):
+        readers.count_events(head)
+
+
+@pytest.mark.parametrize("header", [b"% evt 2.1\n", b"% format EVT4;width=640;height=480\n", b"% date 2020\n"])
+def test_unknown_evt_version_names_the_file_and_version(header: bytes, tmp_path: Path):
+    path = tmp_path / "v.raw"
+    path.write_bytes(header + b"\x00\x00\x00\x00")
+    with pytest.raises(RawInputError, match=r"v\.raw: (EVT version '(2\.1|EVT4)' is not supported|no '% evt')"):
+        next(readers.iter_event_chunks(path))
+
+
+def test_bag_without_the_event_topic_lists_the_topics(tmp_path: Path):
+    from agrinerf_ns.process.rosbag import BagTopics, bag_to_raw
+
+    with pytest.raises(
+        RawInputError,
+        match=r"no event topic '/dvs/events'; topics in the bag: /event_camera/events "
+        r"\(event_camera_msgs/msg/EventPacket\)",
+    ):
+        bag_to_raw(
+            BAGS / "test_events_1.bag",
+            _calib(tmp_path),
+            tmp_path / "raw",
+            BagTopics(rgb=None, thermal=None, events="/dvs/events"),
+        )
+    assert not (tmp_path / "raw").exists()
+
+
+def test_unsupported_packet_encoding_is_named(tmp_path: Path):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from agrinerf_ns.process.rosbag import EVENT_PACKET_MSG, BagTopics, bag_to_raw
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ts.register(get_types_from_msg(EVENT_PACKET_MSG, "event_camera_msgs/msg/EventPacket"))
+    T = ts.types
+    msg = T["event_camera_msgs/msg/EventPacket"](
+        header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="ev"),
+        height=480,
+        width=640,
+        seq=0,
+        time_base=0,
+        encoding="mono",
+        is_bigendian=False,
+        events=np.zeros(16, np.uint8),
+    )
+    with Writer(tmp_path / "bag", version=9) as w:
+        conn = w.add_connection(TOPIC, "event_camera_msgs/msg/EventPacket", typestore=ts)
+        w.write(conn, 1, ts.serialize_cdr(msg, "event_camera_msgs/msg/EventPacket"))
+    with pytest.raises(RawInputError, match=r"/event_camera/events: EventPacket encoding 'mono' is not supported"):
+        bag_to_raw(
+            tmp_path / "bag", _calib(tmp_path), tmp_path / "raw", BagTopics(rgb=None, thermal=None, events=TOPIC)
+        )
+    assert not (tmp_path / "raw").exists() and not list(tmp_path.glob(".raw.tmp-*"))
