@@ -7,6 +7,10 @@ Presets:
 - `agrinerf`: the paper (1024 rays, 64 coarse + 64 fine samples, 30k steps, lr decayed x0.1 every 10k steps).
 - `agrinerf-lite`: fast on a CPU (smaller grids and MLPs, 32 + 32 samples, 2k steps).
 
+Device: a preset trains on the GPU when PyTorch sees a CUDA device and on the CPU otherwise (the default of
+`--machine.device-type` is chosen when this module is imported, so `--help` shows it and an explicit value wins);
+`ns-train` then says in one line that it trains on the CPU (:meth:`AgriNeRFTrainerConfig.print_to_terminal`).
+
 Table IV ablations of the paper are `--pipeline.model.modalities` values of either preset
 (see `agrinerf_ns.modalities.TABLE_IV_ABLATIONS`): RGB `rgb`; RGB+Events `rgb events`; RGB+Thermal `rgb thermal`;
 Thermal `thermal`; Thermal+Events `thermal events`; All `rgb thermal events` (the default).
@@ -14,14 +18,17 @@ Thermal `thermal`; Thermal+Events `thermal events`; All `rgb thermal events` (th
 
 from __future__ import annotations
 
-from typing import Any, Dict
+from dataclasses import dataclass, field
+from typing import Any, Dict, Literal
 
-from nerfstudio.configs.base_config import ViewerConfig
+import torch
+from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from agrinerf_ns.model.dataset import agrinerf_datamanager_config
 from agrinerf_ns.model.model import AgriNeRFModelConfig
@@ -47,6 +54,29 @@ def _optimizers(lr_fields: float, lr_encodings: float, max_steps: int) -> Dict[s
     }
 
 
+def default_device_type() -> Literal["cuda", "cpu"]:
+    """``cuda`` where PyTorch sees a CUDA device, else ``cpu`` (Nerfstudio's own default is always ``cuda``)."""
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+@dataclass
+class AgriNeRFTrainerConfig(TrainerConfig):
+    """Nerfstudio's ``TrainerConfig`` whose machine defaults to the device this machine has."""
+
+    machine: MachineConfig = field(default_factory=lambda: MachineConfig(device_type=default_device_type()))
+    """Machine configuration (``--machine.device-type`` defaults to ``cuda`` with a CUDA device, else ``cpu``)."""
+
+    def print_to_terminal(self) -> None:
+        """Nerfstudio's config print-out (``ns-train`` shows it before training), then one line when this run trains
+        on the CPU because no CUDA device is present."""
+        super().print_to_terminal()
+        if self.machine.device_type == "cpu" and not torch.cuda.is_available():
+            CONSOLE.print(
+                f"{self.method_name}: no CUDA device found, training on the CPU (--machine.device-type cpu)",
+                soft_wrap=True,
+            )
+
+
 def agrinerf_trainer_config(
     method_name: str,
     max_num_iterations: int,
@@ -56,9 +86,9 @@ def agrinerf_trainer_config(
     steps_per_eval_batch: int = 500,
     steps_per_save: int = 2000,
     **model_overrides: Any,
-) -> TrainerConfig:
+) -> AgriNeRFTrainerConfig:
     """The one base of every preset: a `TrainerConfig` whose presets differ only in the arguments given here."""
-    return TrainerConfig(
+    return AgriNeRFTrainerConfig(
         method_name=method_name,
         steps_per_eval_batch=steps_per_eval_batch,
         steps_per_eval_image=steps_per_save,
