@@ -12,11 +12,16 @@ Shims:
   nothing changes.
 - :func:`allow_checkpoint_globals`: since torch 2.6 ``torch.load`` defaults to ``weights_only=True``; Nerfstudio's
   checkpoints hold numpy scalars. Exactly those numpy globals are allow-listed (no blanket ``weights_only=False``).
+- :func:`expose_venv_ffmpeg`: Nerfstudio (``check_ffmpeg_installed``) and mediapy look ``ffmpeg`` up on PATH, so a
+  venv run without activation (``.venv/bin/ns-render``) does not see the ``ffmpeg`` that ``scripts/install.sh``
+  links into its bin folder. When PATH has no ``ffmpeg`` and that folder has one, the folder is appended to PATH.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
+import sys
 import urllib.error
 import warnings
 from dataclasses import dataclass
@@ -171,13 +176,27 @@ def activate() -> None:
     """Apply every shim that this environment needs. Safe to call more than once; never raises."""
     if os.environ.get("AGRINERF_NO_COMPAT") == "1":
         return
-    for shim in (_activate_lpips, allow_checkpoint_globals):
+    for shim in (_activate_lpips, allow_checkpoint_globals, expose_venv_ffmpeg):
         try:
             shim()
         except Exception as err:  # a plugin must never break `ns-*` commands
             warnings.warn(
                 f"agrinerf-ns compatibility shim {shim.__name__} failed: {err!r}", RuntimeWarning, stacklevel=2
             )
+
+
+def expose_venv_ffmpeg() -> bool:
+    """Append the running interpreter's bin folder to PATH when it holds an ``ffmpeg`` and PATH has none.
+
+    Returns True if PATH was changed. Appended, not prepended: nothing else on PATH changes meaning.
+    """
+    if shutil.which("ffmpeg") is not None:
+        return False
+    bin_dir = Path(sys.executable).parent
+    if shutil.which("ffmpeg", path=str(bin_dir)) is None:
+        return False
+    os.environ["PATH"] = os.pathsep.join(p for p in (os.environ.get("PATH", ""), str(bin_dir)) if p)
+    return True
 
 
 def _activate_lpips() -> bool:

@@ -1,0 +1,71 @@
+"""The system pieces that Nerfstudio's commands need beyond pip: open3d's libusb (``ns-export``) and an ``ffmpeg``
+(``ns-render`` videos). Each check returns None when the piece works, else a message that says how to install it.
+
+``python -m agrinerf_ns.system_deps`` prints every problem and exits 1 if there is one (``scripts/install.sh`` runs
+it after installing).
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from typing import List, Optional
+
+OPEN3D_LIBUSB_HINT = (
+    "open3d (used by ns-export and agrinerf-export) cannot load: {err}. It needs the system library libusb-1.0: "
+    "on Debian/Ubuntu run 'sudo apt-get install libusb-1.0-0' (Fedora: 'sudo dnf install libusb1')."
+)
+FFMPEG_HINT = (
+    "No 'ffmpeg' on PATH, which ns-render needs for videos. scripts/install.sh links the binary of the [video] extra "
+    "(imageio-ffmpeg) as .venv/bin/ffmpeg; or install one: 'sudo apt-get install ffmpeg'."
+)
+
+
+class SystemDependencyError(RuntimeError):
+    """A system library or program that a command needs is missing (the message says how to install it)."""
+
+
+def open3d_problem() -> Optional[str]:
+    """None if ``import open3d`` works; else what is missing and how to install it."""
+    try:
+        import open3d  # noqa: F401
+    except ImportError as err:
+        if "libusb" in str(err):
+            return OPEN3D_LIBUSB_HINT.format(err=err)
+        return f"open3d cannot be imported: {err} (reinstall with 'bash scripts/install.sh')."
+    return None
+
+
+def import_open3d():
+    """``import open3d``, or :class:`SystemDependencyError` naming the missing system library."""
+    problem = open3d_problem()
+    if problem is not None:
+        raise SystemDependencyError(problem)
+    import open3d
+
+    return open3d
+
+
+def ffmpeg_problem() -> Optional[str]:
+    """None if an ``ffmpeg`` is on PATH (as Nerfstudio's ``check_ffmpeg_installed`` and mediapy look it up)."""
+    return None if shutil.which("ffmpeg") else FFMPEG_HINT
+
+
+def problems() -> List[str]:
+    """Every missing system piece, as messages."""
+    return [p for p in (open3d_problem(), ffmpeg_problem()) if p is not None]
+
+
+def main() -> int:
+    """Print each problem on stderr; 1 if there is any (after the compat shims, as every ns-* command runs them)."""
+    from agrinerf_ns import compat
+
+    compat.activate()
+    found = problems()
+    for problem in found:
+        print(f"agrinerf-ns: {problem}", file=sys.stderr)
+    return 1 if found else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
