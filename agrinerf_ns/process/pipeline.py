@@ -25,6 +25,7 @@ from agrinerf_ns.process.dataset_writer import (
 from agrinerf_ns.process.event_frames import EventFrameConfig
 from agrinerf_ns.process.readers import RawInputError
 from agrinerf_ns.process.thermal_rescale import ThermalRescaleConfig, ThermalRescaler
+from agrinerf_ns.process.trigger_sync import TriggerSync, fit_trigger_sync
 
 CONSOLE = Console(stderr=True)
 
@@ -49,6 +50,16 @@ class ProcessConfig:
     max_time_offset_s: Optional[float] = None
     """Largest time gap when pairing RGB frames with thermal frames / odometry (None: half a frame interval of the
     slower sensor)."""
+    sync: Literal["recorded", "trigger"] = "recorded"
+    """Event windows at the recorded frame times, or at the frame times mapped into event time through the
+    event camera's external-trigger edges (the rig triggers its cameras; residual in agrinerf.events.sync)."""
+    trigger_edge: Literal["rising", "falling"] = "rising"
+    """--sync trigger: the edge that triggers a frame."""
+    trigger_channel: Optional[int] = None
+    """--sync trigger: only trigger events of this channel id (None: all)."""
+    trigger_offset_s: float = 0.0
+    """--sync trigger: coarse offset (event clock minus frame clock, s) before frames are matched to the nearest
+    edge; 0 when event times are on the frames' clock (agrinerf_ns.process.rosbag's default event_clock)."""
     min_registered_frac: float = 0.5
     """Fail when SfM registers fewer than this fraction of the frames."""
     overwrite: bool = False
@@ -65,6 +76,7 @@ class _Capture:
     event_file: Optional[Path]
     num_events: int
     warnings: List[str]
+    sync: Optional[TriggerSync] = None
 
 
 def inspect_capture(raw: Path) -> _Capture:
@@ -87,6 +99,15 @@ def inspect_capture(raw: Path) -> _Capture:
     if event_file is not None:
         if calib.event is None:
             raise RawInputError(f"{calib_path}: events in {event_file} but no camera with modality: event")
+        if event_file.suffix == ".raw":
+            from agrinerf_ns.process.event_codecs import read_raw_header
+
+            head = read_raw_header(event_file)
+            if head.width is not None and (head.width, head.height) != (calib.event.width, calib.event.height):
+                raise RawInputError(
+                    f"{event_file}: the header says a {head.width}x{head.height} sensor but {calib_path} gives the "
+                    f"event camera {calib.event.width}x{calib.event.height}"
+                )
         try:
             num_events = readers.count_events(event_file)
         except (OSError, KeyError, ValueError) as err:
@@ -128,6 +149,17 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         raise RawInputError(f"{raw}: --poses sfm-thermal needs thermal frames")
     if config.poses == "given" and not (raw / "odometry.txt").is_file():
         raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses given needs the odometry file")
+    if config.sync == "trigger":
+        if cap.event_file is None:
+            raise RawInputError(f"{raw / 'events'}: --sync trigger needs an event file with trigger events")
+        cap.sync = fit_trigger_sync(
+            cap.rgb.times, readers.read_triggers(cap.event_file), cap.event_file, config.trigger_edge,
+            config.trigger_channel, config.trigger_offset_s,
+        )
+        CONSOLE.log(
+            f"Trigger sync: {cap.sync.matched} of {cap.sync.frames} frames matched, residual rms "
+            f"{cap.sync.residual_rms_us:.1f} us (max {cap.sync.residual_max_us:.1f} us)"
+        )
 
     progress = Progress(
         TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -267,7 +299,8 @@ class _ThermalFrames:
 def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frames, progress) -> Dict:
     ev_cam, rgb_cam = cap.calib.event, cap.calib.rgb
     ecfg = config.events
-    t_start, t_end, window = event_frames.event_windows(cap.rgb.times, ecfg)
+    frame_times = cap.sync.apply(cap.rgb.times) if cap.sync is not None else cap.rgb.times
+    t_start, t_end, window = event_frames.event_windows(frame_times, ecfg)
     maps = align.warp_maps(rgb_cam, ev_cam, config.plane_depth)
     mask8 = (maps[2] * 255).astype(np.uint8)
     chunks = readers.iter_event_chunks(cap.event_file, ecfg.chunk_size, sensor_wh=(ev_cam.width, ev_cam.height))
@@ -316,6 +349,9 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
         "num_events": cap.num_events,
         "events_in_windows": total_in_windows,
         "file": str(cap.event_file.relative_to(raw)),
+        "sync": {"method": "trigger", **cap.sync.as_dict(), "edge": config.trigger_edge}
+        if cap.sync is not None
+        else {"method": "recorded"},
         "png_encoding": "value = png / 255; signed: 0.5 (png 128) = no change",
         "sums": "event_sums_path: npz with pos, neg (uint16 ON/OFF counts in RGB pixels, nearest warp), mask, "
                 "t_start, t_end (s)",
