@@ -1,31 +1,47 @@
 """``agrinerf-demo``: the whole product on a built-in scene, as a user runs it.
 
 Synthesise a dark orchard capture, process it into a tri-modal dataset, train ``agrinerf-lite`` with ``ns-train``,
-render the held-out views (RGB and thermal) with ``ns-render``, evaluate with ``ns-eval``, and write an image strip.
+score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.bench.evaluate.evaluate_checkpoint`: against
+the captured frames, against the clean truth after exposure alignment, and the thermal outputs against the rescaled
+thermal frames), draw a labelled contact sheet of those views, and print the commands that open the run in
+Nerfstudio's viewer and render a video of it.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import math
+import os
+import shutil
+import sys
+import time
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import List
+from typing import Dict, Iterator, List, Mapping, Optional, Sequence
 
 import numpy as np
 import tyro
-from PIL import Image
 from rich.console import Console
 from rich.table import Table
 
+from agrinerf_ns.contact_sheet import Box, ColourScale, Column, brighten, display_gain
+
 CONSOLE = Console()
+
+THERMAL_SCALE = ColourScale("rescaled thermal, 8-bit DN (Fieldscale-style: relative, not degrees C)", 0.0, 255.0)
+"""The colour scale of the thermal frames and of the model's thermal outputs (which are fit to them, x255)."""
+
+VIDEO_POSE_STEPS = 4
+"""Frames rendered between consecutive training cameras in the printed ``ns-render interpolate`` command."""
 
 
 @dataclass
 class DemoConfig:
-    """Run synth -> process -> ns-train agrinerf-lite -> ns-render -> ns-eval on a built-in scene."""
+    """Run synth -> process -> ns-train agrinerf-lite -> evaluation -> contact sheet on a built-in scene."""
 
     out: Path = Path("outputs/demo")
-    """Everything is written here (raw capture, dataset, run, renders, metrics, strip)."""
+    """Everything is written here (raw capture, dataset, run, metrics, contact sheet)."""
     scene: str = "orchard"
     """orchard or garden."""
     lighting: str = "dark"
@@ -38,56 +54,297 @@ class DemoConfig:
     """Training steps of agrinerf-lite (a few minutes on a 2-core CPU)."""
     seed: int = 0
     """Scene seed."""
+    sheet_views: int = 3
+    """Held-out views on the contact sheet (evenly spaced over the eval split)."""
 
 
-def image_strip(render_dir: Path, out: Path, max_views: int = 4) -> Path:
-    """Stack the rendered views: one row per output (rgb, thermal, ...), one column per held-out view."""
-    rows: List[np.ndarray] = []
-    for output in ("rgb", "thermal"):
-        files = sorted(render_dir.rglob(f"{output}/*.jpg")) + sorted(render_dir.rglob(f"{output}/*.png"))
-        if not files:
+@dataclass
+class Metric:
+    """One number of the demo, with what it compares."""
+
+    key: str
+    """Key in :func:`agrinerf_ns.bench.evaluate.evaluate_checkpoint`'s result."""
+    name: str
+    compares: str
+    unit: str
+    value: Optional[float]
+    """None when unavailable (then ``note`` says why)."""
+    note: str = ""
+
+
+_AGREEMENT = "cross-spectral `thermal` output vs rescaled thermal frames: agreement, not accuracy"
+METRIC_LABELS = (
+    ("psnr_clean", "PSNR", "RGB render vs clean truth, exposure-aligned (as agrinerf-bench)", "dB"),
+    ("ssim_clean", "SSIM", "RGB render vs clean truth, exposure-aligned (as agrinerf-bench)", ""),
+    ("psnr", "PSNR", "RGB render vs captured held-out frames (as ns-eval; dark and noisy)", "dB"),
+    ("ssim", "SSIM", "RGB render vs captured held-out frames (as ns-eval)", ""),
+    ("lpips", "LPIPS", "RGB render vs captured held-out frames (as ns-eval)", ""),
+    ("thermal_camera_psnr", "PSNR", "thermal-camera output vs rescaled thermal frames", "dB"),
+    ("thermal_camera_ssim", "SSIM", "thermal-camera output vs rescaled thermal frames", ""),
+    ("thermal_psnr", "PSNR", _AGREEMENT, "dB"),
+    ("thermal_ssim", "SSIM", _AGREEMENT, ""),
+)
+"""(key, name, what it compares, unit), in the order shown. Rows whose key the evaluation lacks are left out."""
+
+CROSS_SPECTRAL_NOTE = "a blend of thermal, RGB luma and events by design (docs/model.md, Losses)"
+
+
+def lpips_unavailable_reason() -> str:
+    """Why LPIPS is NaN: the one-line reason shown instead of the number."""
+    from agrinerf_ns import compat
+
+    if compat.lpips_shim_needed():
+        return (
+            f"unavailable: its AlexNet weights ({compat.ALEXNET_WEIGHTS}) are not in "
+            f"{compat.alexnet_weights_path().parent} and nothing is downloaded (README, Offline use)"
+        )
+    return "unavailable: the metric returned NaN"
+
+
+def labelled_metrics(results: Mapping[str, object]) -> List[Metric]:
+    """The evaluation's numbers with what each compares; LPIPS without a value carries its reason."""
+    rows = []
+    for key, name, compares, unit in METRIC_LABELS:
+        if key not in results:
             continue
-        tiles = [np.asarray(Image.open(f).convert("RGB")) for f in files[:max_views]]
-        rows.append(np.concatenate(tiles, axis=1))
-    if not rows:
-        raise FileNotFoundError(f"{render_dir}: ns-render wrote no rgb or thermal images")
-    width = max(r.shape[1] for r in rows)
-    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.concatenate(rows, axis=0)).save(out)
-    return out
+        value = float(results[key])  # type: ignore[arg-type]
+        note = CROSS_SPECTRAL_NOTE if key.startswith("thermal_") and not key.startswith("thermal_camera") else ""
+        if not math.isfinite(value):
+            rows.append(Metric(key, name, compares, unit, None, lpips_unavailable_reason() if key == "lpips" else ""))
+        else:
+            rows.append(Metric(key, name, compares, unit, value, note))
+    return rows
 
 
-def main(config: DemoConfig) -> dict:
-    from agrinerf_ns.bench.ns_commands import ns_eval, ns_render_dataset, ns_train
+@dataclass
+class HeldOutView:
+    """What the contact sheet shows of one held-out view, as numpy arrays at the RGB resolution."""
+
+    name: str
+    captured: np.ndarray
+    """(H, W, 3) sRGB in [0, 1]: the captured frame."""
+    truth: np.ndarray
+    """(H, W, 3) sRGB in [0, 1]: the clean truth."""
+    outputs: Dict[str, np.ndarray]
+    """The model's outputs: ``rgb`` (H, W, 3); ``thermal``, ``thermal_camera``, ``temperature`` (H, W) when present."""
+    thermal_frame: Optional[np.ndarray] = None
+    """(H, W) in [0, 1], NaN outside the thermal camera's view, or None (no thermal frames)."""
+
+
+OPTIONAL_OUTPUTS = (
+    ("thermal_camera", "AgriNeRF thermal-camera output (fit to the thermal frames)"),
+    ("thermal", "AgriNeRF cross-spectral `thermal` output (the AgriNeRF paper's)"),
+)
+"""Thermal outputs drawn when the model renders them, on :data:`THERMAL_SCALE`, in this order."""
+
+
+def sheet_columns(views: Sequence[HeldOutView], found: Optional[Mapping[str, Sequence[Box]]] = None) -> List[Column]:
+    """The contact sheet's columns for ``views``: captured RGB, the same brightened for display, the RGB render
+    exposure-aligned to the clean truth, the clean truth, the thermal frame, the thermal outputs and ``temperature``
+    when the model renders them. ``found`` (view name -> boxes), when given, is drawn on the render columns."""
+    import torch
+
+    from agrinerf_ns.bench.image_metrics import exposure_align
+
+    gain = display_gain(np.concatenate([v.captured for v in views], axis=0))
+    aligned = [
+        exposure_align(torch.from_numpy(v.outputs["rgb"]).float(), torch.from_numpy(v.truth).float()).numpy()
+        for v in views
+    ]
+    boxes = [list(found.get(v.name, ())) for v in views] if found is not None else None
+    columns = [
+        Column("captured RGB (held-out frame, as recorded)", [v.captured for v in views]),
+        Column(
+            f"the same frame x{gain:.0f} in linear light, brightened for display only",
+            [brighten(v.captured, gain) for v in views],
+        ),
+        Column("AgriNeRF RGB render, exposure-aligned to the clean truth", aligned, boxes=boxes),
+        Column("clean truth (synthetic, never trained on)", [v.truth for v in views]),
+    ]
+    if all(v.thermal_frame is not None for v in views):
+        frames = [255.0 * v.thermal_frame for v in views]  # type: ignore[operator]
+        columns.append(Column("thermal frame (captured, rescaled; grey: outside its view)", frames, THERMAL_SCALE))
+    for key, title in OPTIONAL_OUTPUTS:
+        if all(key in v.outputs for v in views):
+            columns.append(Column(title, [255.0 * v.outputs[key] for v in views], THERMAL_SCALE, boxes=boxes))
+    if all("temperature" in v.outputs for v in views):
+        values = np.concatenate([v.outputs["temperature"].ravel() for v in views])
+        low, high = np.nanpercentile(values, [1, 99]) if np.isfinite(values).any() else (0.0, 1.0)
+        scale = ColourScale("temperature, degrees C", float(low), float(max(high, low + 1e-3)), "magma")
+        columns.append(Column("AgriNeRF temperature (degrees C)", [v.outputs["temperature"] for v in views], scale))
+    return columns
+
+
+def render_held_out(config_path: Path, raw: Path, max_views: int) -> List[HeldOutView]:
+    """Render ``max_views`` evenly spaced eval views of a trained run with every output its model has, beside the
+    captured frames and the clean truth."""
+    from agrinerf_ns.bench.evaluate import TruthImages
+    from agrinerf_ns.detect.render import load_run, render_camera
+    from agrinerf_ns.views import evenly_spaced
+
+    run = load_run(config_path)
+    dataset = run.pipeline.datamanager.eval_dataset
+    names = [Path(p).name for p in dataset._dataparser_outputs.image_filenames]
+    truth = TruthImages(raw)
+    views = []
+    for index in evenly_spaced(len(names), max_views):
+        outputs = {k: v.detach().cpu().float().numpy() for k, v in render_camera(run, dataset, index).items()}
+        outputs = {k: (v[..., 0] if v.shape[-1] == 1 else v) for k, v in outputs.items()}
+        data = dataset[index]
+        thermal = None
+        if "thermal" in data:
+            thermal = data["thermal"][..., 0].numpy().astype(np.float32)
+            if "thermal_mask" in data:
+                thermal = np.where(data["thermal_mask"][..., 0].numpy() > 0.5, thermal, np.nan)
+        captured = data["image"][..., :3].numpy().astype(np.float32)
+        views.append(HeldOutView(names[index], captured, truth.get(names[index]).numpy(), outputs, thermal))
+    del run
+    return views
+
+
+def _command_path(name: str) -> str:
+    """How to type ``name`` (an ``ns-*`` script of this environment): bare when PATH finds this one, else its path."""
+    local = Path(sys.executable).parent / name
+    if not local.exists():
+        return name
+    found = shutil.which(name)
+    if found is not None and Path(found).resolve() == local.resolve():
+        return name
+    try:
+        return os.path.relpath(local)
+    except ValueError:
+        return str(local)
+
+
+def follow_up_commands(config_path: Path, out: Path) -> Dict[str, str]:
+    """The commands that open the run in Nerfstudio's viewer and render a video flying along the training path."""
+    return {
+        "viewer": f"{_command_path('ns-viewer')} --load-config {config_path}",
+        "video": (
+            f"{_command_path('ns-render')} interpolate --load-config {config_path} --pose-source train "
+            f"--interpolation-steps {VIDEO_POSE_STEPS} --rendered-output-names rgb thermal "
+            f"--output-path {out / 'video.mp4'}"
+        ),
+    }
+
+
+@dataclass
+class DemoResult:
+    """What the demo made (also written to ``summary.json``)."""
+
+    config: str
+    contact_sheet: str
+    metrics: List[Metric]
+    stage_seconds: Dict[str, Optional[float]]
+    """Wall seconds per stage; None for a stage skipped because its output was already there."""
+    commands: Dict[str, str]
+    train: Dict[str, float] = field(default_factory=dict)
+
+
+@contextmanager
+def _timed(stages: Dict[str, Optional[float]], name: str) -> Iterator[None]:
+    start = time.perf_counter()
+    yield
+    stages[name] = time.perf_counter() - start
+
+
+def _fmt(metric: Metric) -> str:
+    if metric.value is None:
+        return metric.note
+    number = f"{metric.value:.2f} {metric.unit}".strip() if metric.unit else f"{metric.value:.3f}"
+    return f"{number} ({metric.note})" if metric.note else number
+
+
+def _caption(metrics: List[Metric], steps: int, device: str) -> str:
+    by_key = {m.key: m for m in metrics}
+    parts = [f"agrinerf-lite, {steps} steps on the {device}."]
+    for key, text in (
+        ("psnr_clean", "RGB vs clean truth (exposure-aligned)"),
+        ("psnr", "RGB vs captured frames"),
+        ("thermal_camera_psnr", "thermal-camera output vs thermal frames"),
+        ("thermal_psnr", "cross-spectral output vs thermal frames (a blend by design)"),
+    ):
+        if key in by_key and by_key[key].value is not None:
+            parts.append(f"{text}: {by_key[key].value:.2f} dB.")
+    parts.append("Mean PSNR over all held-out views.")
+    return " ".join(parts)
+
+
+def main(config: DemoConfig) -> DemoResult:
+    from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
+    from agrinerf_ns.bench.methods import METHODS
+    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.contact_sheet import write_contact_sheet
+    from agrinerf_ns.method_configs.agrinerf_methods import default_device_type
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
     raw, data = config.out / "raw", config.out / "orchard"
-    if not (raw / "calib.yaml").exists():
+    stages: Dict[str, Optional[float]] = {"agrinerf-synth": None, "agrinerf-process": None}
+    started = time.perf_counter()
+    if (raw / "calib.yaml").exists():
+        CONSOLE.print(f"reusing the raw capture in {raw} (delete it to synthesise again)", soft_wrap=True)
+    else:
         CONSOLE.rule("1/5 agrinerf-synth")
         synth = SynthConfig(scene=config.scene, lighting=config.lighting, seed=config.seed, views=config.views,
                             width=config.width, height=config.width * 3 // 4)  # fmt: skip
-        generate_capture(synth, raw)
-    if not (data / "transforms.json").exists():
+        with _timed(stages, "agrinerf-synth"):
+            generate_capture(synth, raw)
+    if (data / "transforms.json").exists():
+        CONSOLE.print(f"reusing the dataset in {data} (delete it to process again)", soft_wrap=True)
+    else:
         CONSOLE.rule("2/5 agrinerf-process")
-        process_capture(raw, data, ProcessConfig(poses="given", overwrite=True))
+        with _timed(stages, "agrinerf-process"):
+            process_capture(raw, data, ProcessConfig(poses="given", overwrite=True))
     CONSOLE.rule(f"3/5 ns-train agrinerf-lite ({config.steps} steps)")
-    run = ns_train("agrinerf-lite", data, config.out / "runs", "demo", max_steps=config.steps)
+    with _timed(stages, "ns-train agrinerf-lite"):
+        run = ns_train("agrinerf-lite", data, config.out / "runs", "demo", max_steps=config.steps)
     CONSOLE.print(f"trained in {run.wall_s:.0f} s ({run.s_per_step:.3f} s/step, peak {run.peak_rss_mb:.0f} MiB)")
-    CONSOLE.rule("4/5 ns-render (held-out views: rgb, thermal)")
-    renders = ns_render_dataset(run.config, config.out / "renders", outputs=["rgb", "thermal"], split="test")
-    strip = image_strip(renders, config.out / "strip.png")
-    CONSOLE.rule("5/5 ns-eval")
-    metrics = ns_eval(run.config, config.out / "metrics.json")
-    table = Table("metric", "value", title=f"agrinerf-lite on the {config.lighting} {config.scene} (held-out views)")
-    for key, value in sorted(metrics.items()):
-        if not key.endswith("_std"):
-            table.add_row(key, f"{value:.4f}")
+    CONSOLE.rule("4/5 evaluation of the held-out views (as agrinerf-bench)")
+    step = run.checkpoints()[-1][0]
+    with _timed(stages, "evaluation (held-out views)"):
+        results = evaluate_checkpoint(run.config, step, METHODS["agrinerf-lite"], TruthImages(raw))
+    metrics = labelled_metrics(results)
+    CONSOLE.rule("5/5 contact sheet")
+    sheet = config.out / "contact_sheet.png"
+    with _timed(stages, "contact sheet (render + draw)"):
+        views = render_held_out(run.config, raw, config.sheet_views)
+        write_contact_sheet(
+            sheet_columns(views),
+            [v.name for v in views],
+            sheet,
+            title=f"agrinerf-demo: the synthetic {config.lighting} {config.scene}, held-out views (not trained on)",
+            caption=_caption(metrics, config.steps, default_device_type().upper()),
+            row_prefix="held-out",
+        )
+    stages["total"] = time.perf_counter() - started
+
+    held_out = int(results.get("eval_views", 0))  # type: ignore[call-overload]
+    table = Table("metric", "compares", "value", title=f"agrinerf-lite on the {config.lighting} {config.scene}, "
+                  f"mean of {held_out} held-out views", title_justify="left")  # fmt: skip
+    for metric in metrics:
+        table.add_row(metric.name, metric.compares, _fmt(metric))
     CONSOLE.print(table)
-    CONSOLE.print(f"config: {run.config}\nstrip: {strip}\nmetrics: {config.out / 'metrics.json'}")
-    (config.out / "summary.json").write_text(json.dumps({"config": str(run.config), "metrics": metrics}, indent=2))
-    return metrics
+    times = Table("stage", "wall time", title="wall time per stage", title_justify="left")
+    for name, seconds in stages.items():
+        times.add_row(name, "reused (already there)" if seconds is None else f"{seconds:.1f} s")
+    CONSOLE.print(times)
+    commands = follow_up_commands(run.config, config.out)
+    CONSOLE.print(f"contact sheet: {sheet}", soft_wrap=True)
+    CONSOLE.print(f"open this run in the viewer:\n  {commands['viewer']}", soft_wrap=True)
+    video_note = "" if shutil.which("ffmpeg") else " (needs ffmpeg on PATH: apt-get install ffmpeg)"
+    CONSOLE.print(f"render a video of it{video_note}:\n  {commands['video']}", soft_wrap=True)
+
+    result = DemoResult(
+        config=str(run.config),
+        contact_sheet=str(sheet),
+        metrics=metrics,
+        stage_seconds=stages,
+        commands=commands,
+        train={"steps": config.steps, "s_per_step": run.s_per_step, "peak_rss_mb": run.peak_rss_mb},
+    )
+    (config.out / "summary.json").write_text(json.dumps(asdict(result), indent=2))
+    return result
 
 
 def entrypoint() -> None:
