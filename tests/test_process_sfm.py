@@ -64,3 +64,39 @@ def test_auto_picks_thermal_on_the_default_dark_scene(tmp_path: Path):
     assert len(meta["frames"]) >= 18  # >= 90 %
     err = pose_report(raw, out)
     assert err["rotation_deg_mean"] < 3.0 and err["translation_mean"] < 0.1, err
+
+
+def test_auto_matching_is_exhaustive_for_short_sequences_only():
+    from agrinerf_ns.process.poses import SfmConfig, sfm_matching
+
+    cfg = SfmConfig()
+    assert sfm_matching(cfg, cfg.exhaustive_max_frames) == "exhaustive"
+    assert sfm_matching(cfg, cfg.exhaustive_max_frames + 1) == "sequential"
+    assert sfm_matching(SfmConfig(matching="sequential"), 3) == "sequential"
+
+
+@pytest.mark.slow
+def test_sfm_scaling_benchmark_with_sequential_matching(tmp_path: Path):
+    """The scaling benchmark at toy sizes: sequential matching registers >= 90 % of each sequence with small pose
+    error, and the table and plot are written."""
+    import importlib.util
+    import sys
+
+    path = Path(__file__).parents[1] / "benchmarks" / "bench_sfm_scaling.py"
+    spec = importlib.util.spec_from_file_location("bench_sfm_scaling", path)
+    bench = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = bench  # dataclasses look their module up
+    spec.loader.exec_module(bench)
+    args = bench.Args(
+        out=tmp_path / "out",
+        work=tmp_path / "work",
+        sizes=(12, 24),
+        modes=("sequential",),
+        sfm_overrides={"sequential_overlap": 5},
+    )
+    rows = bench.main(args)
+    assert [r["frames"] for r in rows] == [12, 24]
+    for r in rows:
+        assert r["registered_frac"] >= 0.9 and r["rotation_deg_mean"] < 3.0 and r["translation_mean_frac"] < 0.05, r
+    assert "| 24 | sequential |" in (tmp_path / "out" / "results.md").read_text()
+    assert (tmp_path / "out" / "scaling.png").stat().st_size > 0

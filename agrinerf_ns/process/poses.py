@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -136,6 +136,19 @@ class SfmConfig:
     thermal frames are not changed)."""
     num_threads: int = 1
     """Threads for extraction, matching and mapping; 1 keeps the result deterministic given the seed."""
+    matching: Literal["auto", "exhaustive", "sequential"] = "auto"
+    """Image pairs to match: every pair (cost grows with the square of the frame count), each frame with its next
+    ``sequential_overlap`` frames (linear; for video along a row), or auto: exhaustive up to
+    ``exhaustive_max_frames`` frames, sequential above. Loop detection is off: COLMAP's needs a vocabulary tree
+    file, which is not shipped."""
+    exhaustive_max_frames: int = 80
+    """auto: the largest frame count matched exhaustively."""
+    sequential_overlap: int = 20
+    """sequential: frames each frame is matched with (its successors)."""
+    sequential_quadratic_overlap: bool = True
+    """sequential: also match with the successors at distance 2^k beyond the overlap (ties longer spans)."""
+    mapper: Literal["incremental", "global"] = "incremental"
+    """pycolmap's incremental mapper, or its global mapper (GLOMAP: rotation averaging + global positioning)."""
     verbose: bool = False
     """Show COLMAP's log (warnings only otherwise)."""
 
@@ -211,17 +224,37 @@ def run_sfm(
     matching.num_threads = config.num_threads
     verification = pycolmap.TwoViewGeometryOptions()
     verification.min_num_inliers = config.min_num_matches
-    # exhaustive: every pair (sequential pairing registered far fewer thermal frames in trials here)
-    pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
+    if sfm_matching(config, len(images)) == "exhaustive":
+        # every pair (on short thermal sequences sequential pairing registered far fewer frames in trials here)
+        pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = config.sequential_overlap
+        pairing.quadratic_overlap = config.sequential_quadratic_overlap
+        pairing.loop_detection = False
+        pycolmap.match_sequential(
+            db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
+        )
 
-    pipeline = pycolmap.IncrementalPipelineOptions()
-    pipeline.min_num_matches = config.min_num_matches
-    pipeline.ba_refine_focal_length = False
-    pipeline.ba_refine_principal_point = False
-    pipeline.ba_refine_extra_params = False
-    pipeline.num_threads = config.num_threads
-    pipeline.random_seed = config.seed
-    recs = pycolmap.incremental_mapping(db_path, img_dir, work_dir / "sparse", options=pipeline)
+    (work_dir / "sparse").mkdir(exist_ok=True)
+    if config.mapper == "global":
+        gopts = pycolmap.GlobalPipelineOptions()
+        gopts.min_num_matches = config.min_num_matches
+        gopts.num_threads = gopts.mapper.num_threads = config.num_threads
+        gopts.random_seed = gopts.mapper.random_seed = config.seed
+        ba = gopts.mapper.bundle_adjustment
+        ba.refine_focal_length = ba.refine_principal_point = ba.refine_extra_params = False
+        ba.ceres.use_gpu = False
+        recs = pycolmap.global_mapping(db_path, img_dir, work_dir / "sparse", options=gopts)
+    else:
+        pipeline = pycolmap.IncrementalPipelineOptions()
+        pipeline.min_num_matches = config.min_num_matches
+        pipeline.ba_refine_focal_length = False
+        pipeline.ba_refine_principal_point = False
+        pipeline.ba_refine_extra_params = False
+        pipeline.num_threads = config.num_threads
+        pipeline.random_seed = config.seed
+        recs = pycolmap.incremental_mapping(db_path, img_dir, work_dir / "sparse", options=pipeline)
     n = len(images)
     c2w = np.tile(np.eye(4), (n, 1, 1))
     registered = np.zeros(n, dtype=bool)
@@ -237,6 +270,13 @@ def run_sfm(
         c2w[i] = np.linalg.inv(w2c)
         registered[i] = True
     return SfmResult(c2w, registered, source)
+
+
+def sfm_matching(config: SfmConfig, num_frames: int) -> str:
+    """The pairing ``config`` gives for ``num_frames`` frames: exhaustive or sequential."""
+    if config.matching != "auto":
+        return config.matching
+    return "exhaustive" if num_frames <= config.exhaustive_max_frames else "sequential"
 
 
 def _is_registered(image) -> bool:
