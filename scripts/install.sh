@@ -30,6 +30,8 @@ if [ "$EDITABLE" = 1 ]; then python -m pip install --quiet -e "$TARGET"; else py
 python -m pip install --quiet --force-reinstall --no-deps "opencv-contrib-python-headless==4.10.0.84"
 # 4. optional detection extra (Ultralytics, AGPL-3.0), installed without its opencv-python requirement.
 if [ "$DEV" = 1 ]; then bash scripts/install_detect.sh; fi
+# optional FLIR radiometric JPEG reader (flyr, EUPL-1.2, pure Python) for the tests of agrinerf_ns/process/flir.py
+if [ "$DEV" = 1 ]; then python -m pip install --quiet "flyr>=5.1"; fi
 # 5. ns-render finds ffmpeg on PATH: link the one imageio-ffmpeg ships as .venv/bin/ffmpeg (agrinerf_ns.compat makes
 #    it visible to ns-* commands run without activating the venv).
 ln -sf "$(python -c 'import imageio_ffmpeg; print(imageio_ffmpeg.get_ffmpeg_exe())')" .venv/bin/ffmpeg

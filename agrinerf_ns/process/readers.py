@@ -85,8 +85,14 @@ def read_rgb(path: Path) -> UInt8[np.ndarray, "h w 3"]:
 
 
 def read_thermal(path: Path, expected_hw: Optional[Tuple[int, int]] = None) -> UInt16[np.ndarray, "h w"]:
-    """Read a raw single-channel thermal frame (16-bit counts; 8-bit is widened). PNG or TIFF, by content."""
-    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    """Read a raw single-channel thermal frame (16-bit counts; 8-bit is widened). PNG or TIFF, by content; a
+    ``.jpg`` is a FLIR radiometric JPEG (its embedded raw counts, :mod:`agrinerf_ns.process.flir`)."""
+    if Path(path).suffix.lower() in (".jpg", ".jpeg"):
+        from agrinerf_ns.process.flir import read_flir
+
+        img = read_flir(path).counts
+    else:
+        img = _imread(path, cv2.IMREAD_UNCHANGED)
     if img.ndim == 3:
         if img.shape[2] == 1 or np.all(img == img[:, :, :1]):
             img = img[:, :, 0]
