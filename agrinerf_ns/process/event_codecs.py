@@ -2,9 +2,8 @@
 messages) and ``libcaer_cmp`` (the ROS event-camera driver's compressed format for iniVation cameras).
 
 Written here, vectorised with numpy, because no maintained decoder fits (compared in docs/formats.md):
-evlib (MIT) decodes a whole file into memory at once (no chunked reading, so no memory bound), returns no
-external-trigger events and, on the shared bag ``test_events_1``, gives CD times whose sum disagrees with the
-upstream reference; expelliarmus is GPL-2.0 (last release 2023) and faery LGPL-3.0; Prophesee's own Metavision
+evlib (MIT) decodes a whole file into memory at once (no chunked reading, so no memory bound) and returns no
+external-trigger events (its CD events of bag ``test_events_1`` agree with these); expelliarmus is GPL-2.0 (last release 2023) and faery LGPL-3.0; Prophesee's own Metavision
 SDK and the ROS ``event_camera_py`` / ``event_camera_codecs`` decoders are not on PyPI. The formats are the
 publicly documented word layouts (docs.prophesee.ai, "EVT 2.0" / "EVT 3.0"; libcaer_cmp from the driver's
 documentation). Each decoder keeps the stream state (time, row, vector base) between calls, so a file or a
