@@ -264,3 +264,30 @@ def test_evt3_encoder_round_trips_through_the_reader(evt3_raw: Path, tmp_path: P
             c = cd[s : s + 50_000]
             fh.write(enc.encode(c[:, 0], c[:, 1], c[:, 2], c[:, 3]).tobytes())
     np.testing.assert_array_equal(_read_all(path, 30_000), cd)
+
+
+def test_capture_with_events_raw_gives_the_dataset_of_events_h5(tmp_path: Path):
+    import h5py
+    from process_raw_fixture import make_raw_capture
+
+    from agrinerf_ns.process import ProcessConfig, process_capture
+    from agrinerf_ns.process.event_codecs import Evt3Encoder, evt3_header
+
+    raw = make_raw_capture(tmp_path / "raw", n=4, with_thermal=False)
+    cfg = ProcessConfig(poses="given", show_progress=False)
+    ref = process_capture(raw, tmp_path / "ref", cfg)
+    with h5py.File(raw / "events" / "events.h5") as f:
+        x, y, t, p = (f["events"][k][:] for k in "xytp")
+    (raw / "events" / "events.h5").unlink()
+    (raw / "events" / "events.raw").write_bytes(evt3_header(56, 42) + Evt3Encoder().encode(x, y, t, p).tobytes())
+    out = process_capture(raw, tmp_path / "ds", cfg)
+    for f in sorted((ref / "events").glob("*.npz")):
+        with np.load(f) as a, np.load(out / "events" / f.name) as b:
+            np.testing.assert_array_equal(a["pos"], b["pos"])
+            np.testing.assert_array_equal(a["neg"], b["neg"])
+    # a header whose sensor size disagrees with the calibration is refused before any output
+    (raw / "events" / "events.raw").write_bytes(evt3_header(640, 480) + Evt3Encoder().encode(x, y, t, p).tobytes())
+    with pytest.raises(RawInputError, match=r"events\.raw: the header says a 640x480 sensor but .*calib\.yaml gives "
+                                            r"the event camera 56x42"):  # fmt: skip
+        process_capture(raw, tmp_path / "ds2", cfg)
+    assert not (tmp_path / "ds2").exists()
