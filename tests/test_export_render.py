@@ -1,0 +1,118 @@
+"""What a user takes away from a trained AgriNeRF run, through the real commands on a tiny run: `ns-export pointcloud`
+(rgb and thermal), `agrinerf-export pointcloud` (the thermal value as a PLY property), `ns-export tsdf` (thermal) and
+`ns-render interpolate --output-format video` with the ffmpeg that scripts/install.sh provides."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pytest
+
+from agrinerf_ns import system_deps
+
+pytestmark = pytest.mark.slow
+
+ENV = {**os.environ, "PYTHONWARNINGS": "ignore"}
+TURBO = np.asarray(matplotlib.colormaps["turbo"].colors) * 255.0  # Nerfstudio's colormap for one-channel outputs
+
+
+def _run(cmd, env=ENV) -> None:
+    subprocess.run(cmd, check=True, env=env, timeout=600)
+
+
+def _on_turbo(colours: np.ndarray) -> np.ndarray:
+    """Distance of each uint8 colour to the nearest entry of the turbo colormap."""
+    return np.abs(colours[:, None, :].astype(float) - TURBO[None]).max(axis=-1).min(axis=-1)
+
+
+def _read_cloud(path: Path):
+    o3d = system_deps.import_open3d()
+    assert path.is_file(), path
+    return o3d.t.io.read_point_cloud(str(path)).point
+
+
+@pytest.mark.parametrize("output", ["rgb", "thermal"])
+def test_ns_export_pointcloud(tiny_run_config: Path, tmp_path: Path, output: str) -> None:
+    """Nerfstudio's own exporter: points where the accumulation passes 0.5, thermal coloured by the turbo colormap."""
+    cmd = ["ns-export", "pointcloud", "--load-config", str(tiny_run_config), "--output-dir", str(tmp_path)]
+    cmd += ["--rgb-output-name", output, "--normal-method", "open3d", "--num-points", "2000"]
+    _run(cmd + ["--num-rays-per-batch", "1024"])
+    cloud = _read_cloud(tmp_path / "point_cloud.ply")
+    points, colours = cloud.positions.numpy(), cloud.colors.numpy()
+    assert points.shape[0] > 1000 and np.isfinite(points).all()  # 2048 asked (whole batches), few outliers
+    assert colours.shape == points.shape and cloud.normals.numpy().shape == points.shape
+    on_turbo = _on_turbo(colours) <= 1.0
+    if output == "thermal":
+        assert on_turbo.all()
+    else:
+        assert not on_turbo.all()  # the rgb cloud holds the scene's colours (checker, sky), not a colormap
+
+
+def test_agrinerf_export_keeps_the_thermal_value(tiny_run_config: Path, tmp_path: Path) -> None:
+    """The thermal value of every point is a float PLY property; the colours are its turbo colormap."""
+    cmd = ["agrinerf-export", "pointcloud", "--load-config", str(tiny_run_config), "--output-dir", str(tmp_path)]
+    _run(cmd + ["--rgb-output-name", "thermal", "--num-points", "2000", "--num-rays-per-batch", "1024"])
+    cloud = _read_cloud(tmp_path / "point_cloud.ply")
+    points, colours, values = cloud.positions.numpy(), cloud.colors.numpy(), cloud["thermal"].numpy()
+    assert points.shape[0] > 1000 and values.shape == (points.shape[0], 1) and values.dtype == np.float32
+    assert 0.0 <= values.min() < values.max() <= 1.0
+    expected = TURBO[np.clip((values[:, 0] * 255).astype(int), 0, 255)]  # Nerfstudio's apply_float_colormap
+    assert np.abs(colours - expected).max() <= 1.0  # uint8 truncation
+    assert not list(tmp_path.glob(".*tmp*"))  # written atomically
+
+
+def test_ns_export_tsdf_thermal(tiny_run_config: Path, tmp_path: Path) -> None:
+    """A mesh exporter that needs no normals (TSDF), coloured by the thermal output."""
+    cmd = ["ns-export", "tsdf", "--load-config", str(tiny_run_config), "--output-dir", str(tmp_path)]
+    _run(cmd + ["--rgb-output-name", "thermal", "--texture-method", "tsdf", "--resolution", "32"])
+    o3d = system_deps.import_open3d()
+    mesh = o3d.io.read_triangle_mesh(str(tmp_path / "tsdf_mesh.ply"))
+    assert len(mesh.vertices) > 100 and len(mesh.triangles) > 100 and mesh.has_vertex_colors()
+
+
+def test_ns_render_interpolate_video(tiny_run_config: Path, tmp_path: Path) -> None:
+    """`.venv/bin/ns-render` as a user runs it without activating the venv: PATH lacks the venv's bin folder (and
+    its ffmpeg link), which the plugin's compat shim adds back. The video holds rgb | thermal side by side."""
+    import mediapy
+
+    venv_bin = str(Path(sys.executable).parent)
+    path = os.pathsep.join(p for p in ENV["PATH"].split(os.pathsep) if p != venv_bin)
+    video = tmp_path / "interpolated.mp4"
+    cmd = [str(Path(venv_bin) / "ns-render"), "interpolate", "--load-config", str(tiny_run_config)]
+    cmd += ["--output-path", str(video), "--output-format", "video", "--pose-source", "train"]
+    cmd += ["--interpolation-steps", "1", "--frame-rate", "4", "--rendered-output-names", "rgb", "thermal"]
+    _run(cmd, env={**ENV, "PATH": path})
+    assert shutil.which("ffmpeg"), "the test reads the video back with ffmpeg (mediapy)"
+    frames = mediapy.read_video(str(video))
+    assert frames.shape == (8, 48, 128, 3)  # 9 training views, one step per transition; 64x48 rgb + thermal
+    assert frames.std() > 5  # an image, not a blank frame
+
+
+def test_system_deps_report_nothing_missing_after_install() -> None:
+    """scripts/install.sh runs this check: on a machine set up as .ci/run does, it finds everything."""
+    cmd = [sys.executable, "-m", "agrinerf_ns.system_deps"]
+    result = subprocess.run(cmd, check=False, env=ENV, timeout=300, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+
+
+def test_missing_libusb_gets_the_install_command(monkeypatch) -> None:
+    """open3d's import error when libusb is absent (the message seen on a fresh Debian) becomes one that says what
+    to install."""
+
+    class NoLibusb:
+        def find_spec(self, name, path=None, target=None):
+            if name == "open3d":
+                raise ImportError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+            return None
+
+    for name in [m for m in sys.modules if m == "open3d" or m.startswith("open3d.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setattr(sys, "meta_path", [NoLibusb(), *sys.meta_path])
+    with pytest.raises(system_deps.SystemDependencyError, match=r"apt-get install libusb-1\.0-0"):
+        system_deps.import_open3d()

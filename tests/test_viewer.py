@@ -1,0 +1,121 @@
+"""`ns-viewer` on a tiny trained AgriNeRF run, opened in a real headless Chromium (Debian's `chromium`, which .ci/run
+installs; driven by playwright-python, which downloads no browser): the page connects, the viewer opens on `rgb`, its
+output list holds `rgb` and `thermal`, and `thermal` renders with a colormap. Screenshots are written next to the
+test's output (its tmp_path, printed on failure)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+import urllib.request
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pytest
+from PIL import Image
+
+pytestmark = pytest.mark.slow
+
+ENV = {**os.environ, "PYTHONWARNINGS": "ignore"}
+STARTUP_S = 300
+"""How long ns-viewer may take to load the run and serve the page (about 40 s on 2 busy cores)."""
+
+
+def _chromium() -> str:
+    """Path of the system Chromium; a failure in CI (.ci/run installs it), a skip elsewhere."""
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    message = "no Chromium on PATH: install Debian's with 'apt-get install chromium' (.ci/run does)"
+    if os.environ.get("CI"):
+        pytest.fail(message)
+    pytest.skip(message)
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@pytest.fixture
+def viewer_url(tiny_run_config: Path, tmp_path: Path) -> Iterator[str]:
+    """ns-viewer serving the run on a free local port; stopped (its whole process group) afterwards."""
+    port = _free_port()
+    log_path = tmp_path / "ns-viewer.log"
+    cmd = ["ns-viewer", "--load-config", str(tiny_run_config), "--viewer.websocket-port", str(port)]
+    cmd += ["--viewer.websocket-host", "127.0.0.1"]
+    with open(log_path, "w") as log:
+        process = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=ENV, start_new_session=True)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + STARTUP_S
+        while True:
+            if process.poll() is not None:
+                pytest.fail(f"ns-viewer exited with {process.returncode}:\n{log_path.read_text()[-3000:]}")
+            try:
+                urllib.request.urlopen(url, timeout=2).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    pytest.fail(f"ns-viewer served nothing at {url} in {STARTUP_S} s:\n{log_path.read_text()[-3000:]}")
+                time.sleep(1)
+        yield url
+    finally:
+        os.killpg(process.pid, signal.SIGTERM)
+        try:
+            process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=30)
+
+
+def _viewport(path: Path) -> np.ndarray:
+    """The render area of a screenshot (left of the control panel, below the title bar)."""
+    image = np.asarray(Image.open(path).convert("RGB"), dtype=float)
+    return image[80:, : int(image.shape[1] * 0.7)]
+
+
+def test_viewer_opens_on_rgb_and_lists_thermal(viewer_url: str, tmp_path: Path) -> None:
+    from playwright.sync_api import expect, sync_playwright
+
+    with sync_playwright() as playwright:
+        # --no-sandbox: CI runs as root, where Chromium's sandbox refuses to start
+        browser = playwright.chromium.launch(executable_path=_chromium(), headless=True, args=["--no-sandbox"])
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(viewer_url)
+            expect(page.get_by_text("Connected", exact=True)).to_be_visible(timeout=120_000)
+            output = page.get_by_label("Output type", exact=True)
+            # "not set" until the first rendered frame reaches the page with the model's output names
+            expect(output).not_to_have_value("not set", timeout=120_000)
+            assert output.input_value() == "rgb"
+            page.wait_for_timeout(3000)
+            page.screenshot(path=tmp_path / "viewer_rgb.png")
+
+            output.click()
+            options = page.get_by_role("option").all_inner_texts()
+            assert {"rgb", "thermal", "depth", "accumulation"} <= set(options), options
+            page.get_by_role("option", name="thermal", exact=True).click()
+            expect(output).to_have_value("thermal")
+            colormap = page.get_by_label("Colormap", exact=True).first
+            expect(colormap).to_be_enabled()  # disabled for rgb
+            expect(colormap).to_have_value("turbo")  # Nerfstudio's choice for a one-channel output
+
+            rgb = _viewport(tmp_path / "viewer_rgb.png")
+            deadline = time.monotonic() + 60
+            while True:  # the thermal render replaces the rgb one in the page
+                page.screenshot(path=tmp_path / "viewer_thermal.png")
+                if np.abs(_viewport(tmp_path / "viewer_thermal.png") - rgb).mean() > 10:
+                    break
+                assert time.monotonic() < deadline, "the viewport still shows the rgb render 60 s after thermal"
+                page.wait_for_timeout(1000)
+        finally:
+            browser.close()
+    print(f"screenshots: {tmp_path / 'viewer_rgb.png'} {tmp_path / 'viewer_thermal.png'}")
