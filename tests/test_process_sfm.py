@@ -78,7 +78,8 @@ def test_auto_matching_is_exhaustive_for_short_sequences_only():
 @pytest.mark.slow
 def test_sfm_scaling_benchmark_with_sequential_matching(tmp_path: Path):
     """The scaling benchmark at toy sizes: sequential matching registers >= 90 % of each sequence with small pose
-    error, and the table and plot are written."""
+    error with the incremental and the global mapper, and the table and plot are written."""
+    import dataclasses
     import importlib.util
     import sys
 
@@ -100,3 +101,7 @@ def test_sfm_scaling_benchmark_with_sequential_matching(tmp_path: Path):
         assert r["registered_frac"] >= 0.9 and r["rotation_deg_mean"] < 3.0 and r["translation_mean_frac"] < 0.05, r
     assert "| 24 | sequential |" in (tmp_path / "out" / "results.md").read_text()
     assert (tmp_path / "out" / "scaling.png").stat().st_size > 0
+    # pycolmap's global mapper (GLOMAP) on the same frames
+    glob = bench.main(dataclasses.replace(args, out=tmp_path / "out_global", sizes=(12,), mapper="global"))
+    assert glob[0]["mapper"] == "global" and glob[0]["registered_frac"] >= 0.9, glob
+    assert glob[0]["rotation_deg_mean"] < 3.0 and glob[0]["translation_mean_frac"] < 0.05, glob
