@@ -11,7 +11,8 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from agrinerf_ns.synth import writer as W
-from agrinerf_ns.synth.config import SynthConfig, check_output_dir
+from agrinerf_ns.synth.config import MAX_SUBFRAMES, SynthConfig, check_output_dir
+from agrinerf_ns.synth.motion_blur import blur_lengths_px, exposure_average, subframe_count
 from agrinerf_ns.synth.raycast import Hits, PinholeRadtan, cast
 from agrinerf_ns.synth.rig import T0, THERMAL_DELAY, Rig, build_rig, frame_times, heldout_poses, odometry
 from agrinerf_ns.synth.scene import (
@@ -101,6 +102,20 @@ def simulate_events(
     return sim.finish(float(times[0]), float(times[-1]), noise_hz, rng)
 
 
+def blur_summary(enabled: bool, exposure_s: float, subframes: List[int], blur_px: List[np.ndarray]) -> dict:
+    """truth/scene.json's record of the RGB motion blur: exposure, sub-frames per frame, blur streak lengths (px)."""
+    allpx = np.concatenate(blur_px) if blur_px else np.zeros(1)
+    return {
+        "enabled": bool(enabled),
+        "exposure_s": round(float(exposure_s), 9),
+        "subframes": [int(k) for k in subframes],
+        "blur_px_median": round(float(np.median(allpx)), 4),
+        "blur_px_p95": round(float(np.percentile(allpx, 95)), 4),
+        "blur_px_p95_per_frame": [round(float(np.percentile(b, 95)), 4) for b in blur_px],
+        "blur_px": "per pixel, image motion of the point seen there between exposure start and end poses",
+    }
+
+
 def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool = False) -> Path:
     """Write the raw capture of ``config`` to ``out`` (absent or empty) atomically; returns ``out``.
 
@@ -122,6 +137,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
     gain, truth_gain = exposure_gains(float(luminance(rad0.reshape(-1, 3)).mean()),
                                       float(luminance(rad0_bright.reshape(-1, 3)).mean()))
 
+    exposure = config.rgb_exposure_s(light.exposure_s)
     rng_rgb = np.random.default_rng([config.seed, 41])
     rng_th = np.random.default_rng([config.seed, 43])
     thermal = ThermalSensor.create(cam_th.width, cam_th.height, np.random.default_rng([config.seed, 44]))
@@ -140,19 +156,22 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         for d in dirs.values():
             d.mkdir(parents=True, exist_ok=True)
         names = [W.frame_name(i) for i in range(config.views)]
-        poses, boxes_all = [], []
+        poses, boxes_all, subframes, blur_px = [], [], [], []
         for i, t in enumerate(times):
             T = rig.pose(float(t))
             poses.append(T)
             rad, hits = render_radiance(scene, cam_rgb, T, light, s)
             if s > 1:
                 hits = cast(scene.prims, cam_rgb, T)
-            if config.motion_blur:
-                offs = np.linspace(-0.5, 0.5, 5) * light.exposure_s
-                rad_cam = np.mean([render_radiance(scene, cam_rgb, rig.pose(float(t + o)), light, s)[0]
-                                   for o in offs], axis=0)
-            else:
-                rad_cam = rad
+            # the camera frame integrates the moving scene over its exposure; the truth stays the sharp frame at t
+            t_a, t_b = float(t) - exposure / 2, float(t) + exposure / 2
+            streak = blur_lengths_px(cam_rgb, hits, rig.pose(t_a), rig.pose(t_b))
+            blur_px.append(streak)
+            p95 = float(np.percentile(streak, 95))
+            k = config.blur_subframes or subframe_count(p95, config.blur_step_px, MAX_SUBFRAMES)
+            subframes.append(k if exposure > 0 else 1)
+            rad_cam = exposure_average(lambda tj: render_radiance(scene, cam_rgb, rig.pose(tj), light, s)[0],
+                                       rad, float(t), exposure, subframes[-1])  # fmt: skip
             W.write_png(dirs["rgb"] / names[i], noisy_rgb(rad_cam, gain, rng_rgb))
             W.write_png(dirs["truth/rgb_clean"] / names[i], clean_rgb(rad, truth_gain))
             np.save(dirs["truth/depth"] / names[i].replace(".png", ".npy"),
@@ -174,6 +193,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
                 prog.advance(prog.task_ids[-1])
 
         W.write_timestamps(dirs["rgb"] / "timestamps.txt", names, times)
+        W.write_exposures(dirs["rgb"] / "exposures.txt", names, times - exposure / 2, times + exposure / 2)
         W.write_timestamps(dirs["thermal"] / "timestamps.txt", names, times + THERMAL_DELAY)
         W.write_tum(tmp / "truth" / "poses.txt", times, poses)
         W.write_tum(tmp / "odometry.txt", times, odometry(poses, config.seed))
@@ -209,6 +229,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             "temperatures_c": {k: round(v, 4) for k, v in scene.temps.items()},
             "thermal_counts": {"offset_at_0c": 3500.0, "per_kelvin": 100.0},
             "rgb_gain": gain, "truth_gain": truth_gain, "num_events": int(et.size),
+            "rgb_motion_blur": blur_summary(config.motion_blur, exposure, subframes, blur_px),
             "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
             "world": "x along the row, y across it away from the rig, z up; metres",
         })

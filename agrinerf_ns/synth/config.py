@@ -12,6 +12,10 @@ from typing_extensions import Annotated
 
 SCENES = ("orchard", "garden")
 LIGHTINGS = ("bright", "shadowed", "dusk", "dark")
+MAX_SUBFRAMES = 63
+"""Most sub-frame renders per blurred RGB frame."""
+MAX_EXPOSURE_FRACTION = 0.95
+"""An auto-exposed frame's exposure is at most this fraction of the frame interval (the rest is readout)."""
 
 
 class SynthConfigError(ValueError):
@@ -55,8 +59,18 @@ class SynthConfig:
     """Refractory period of an event pixel in microseconds."""
     event_noise_hz: float = 0.1
     """Background-activity noise rate per pixel in Hz (scaled up in dim lighting)."""
-    motion_blur: bool = False
-    """Average several renders over the RGB exposure time (longer in dim lighting)."""
+    motion_blur: bool = True
+    """Render each RGB camera frame as the average of sub-frame renders across its exposure interval (the
+    lighting's auto-exposure time: long at dusk and in the dark); off: instantaneous frames (zero-length exposure).
+    The truth (truth/rgb_clean) is always the sharp mid-exposure frame."""
+    exposure_s: Optional[float] = None
+    """RGB exposure time in seconds; None: the lighting's auto-exposure time (bright 2 ms, shadowed 4 ms, dusk
+    60 ms, dark 100 ms), at most 95 % of the frame interval."""
+    blur_step_px: float = 1.0
+    """Largest image motion between two sub-frames (pixels, 95th percentile over the frame's pixels): each frame
+    gets the odd number of sub-frames that keeps its blur this smooth (1, i.e. sharp, when its blur is shorter)."""
+    blur_subframes: Optional[int] = None
+    """Sub-frames per RGB frame, fixed; None chooses them per frame from ``blur_step_px``."""
     rgb_supersample: int = 1
     """Supersampling factor per axis of the RGB renders (anti-aliasing)."""
     min_box_pixels: int = 3
@@ -92,6 +106,15 @@ class SynthConfig:
         w = max(8, round(self.width * 0.8))
         return w, max(8, round(w * 9 / 16))
 
+    def rgb_exposure_s(self, lighting_exposure_s: float) -> float:
+        """The RGB exposure time: ``exposure_s``, else the lighting's, capped at 95 % of the frame interval; 0 when
+        motion blur is off (instantaneous frames)."""
+        if not self.motion_blur:
+            return 0.0
+        if self.exposure_s is not None:
+            return float(self.exposure_s)
+        return float(min(lighting_exposure_s, MAX_EXPOSURE_FRACTION / self.fps))
+
     @property
     def num_heldout(self) -> int:
         """Number of held-out views."""
@@ -124,6 +147,12 @@ class SynthConfig:
             raise SynthConfigError("event_threshold_sigma, event_noise_hz and event_refractory_us must be >= 0")
         if self.rgb_supersample < 1 or self.rgb_supersample > 4:
             raise SynthConfigError(f"rgb_supersample must be in 1..4, got {self.rgb_supersample}")
+        if self.exposure_s is not None and not 0 <= self.exposure_s <= 1.0 / self.fps:
+            raise SynthConfigError(f"exposure_s must be in [0, 1/fps = {1.0 / self.fps:.4f}] s, got {self.exposure_s}")
+        if not self.blur_step_px > 0:
+            raise SynthConfigError(f"blur_step_px must be positive, got {self.blur_step_px}")
+        if self.blur_subframes is not None and not 1 <= self.blur_subframes <= MAX_SUBFRAMES:
+            raise SynthConfigError(f"blur_subframes must be in 1..{MAX_SUBFRAMES}, got {self.blur_subframes}")
         if self.min_box_pixels < 1:
             raise SynthConfigError(f"min_box_pixels must be >= 1, got {self.min_box_pixels}")
 

@@ -34,7 +34,8 @@ class Lighting:
     event_noise_scale: float
     """Background-activity noise multiplier of the event camera (dim light is noisier)."""
     exposure_s: float
-    """RGB exposure time (for optional motion blur)."""
+    """RGB auto-exposure time in seconds (the motion-blur length; the image level is the capped gain of
+    ``sensors.exposure_gains``)."""
 
 
 def _dir(elev_deg: float, azim_deg: float) -> tuple:
@@ -51,10 +52,10 @@ LIGHTING_PRESETS: Dict[str, Lighting] = {
                          (0.16, 0.19, 0.26), 3.0, 1.0, 0.004),
     # sun on the horizon, warm and dim
     "dusk": Lighting("dusk", _dir(5.0, -150.0), (0.30, 0.15, 0.06), (0.035, 0.04, 0.08), (0.20, 0.11, 0.06),
-                     (0.030, 0.026, 0.035), 2.5, 2.0, 0.015),
+                     (0.030, 0.026, 0.035), 2.5, 2.0, 0.060),
     # night: faint sky light only
     "dark": Lighting("dark", _dir(-20.0, 0.0), (0.0, 0.0, 0.0), (0.0012, 0.0016, 0.003), (0.002, 0.0022, 0.003),
-                     (0.001, 0.0012, 0.0016), 2.5, 5.0, 0.030),
+                     (0.001, 0.0012, 0.0016), 2.5, 5.0, 0.100),
 }
 
 

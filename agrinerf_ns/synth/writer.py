@@ -34,6 +34,16 @@ def write_timestamps(path: Path, names: Sequence[str], times: Union[np.ndarray, 
     path.write_text("".join(f"{n} {t:.6f}\n" for n, t in zip(names, times, strict=True)))
 
 
+def write_exposures(
+    path: Path,
+    names: Sequence[str],
+    starts: Union[np.ndarray, Sequence[float]],
+    ends: Union[np.ndarray, Sequence[float]],
+) -> None:
+    """rgb/exposures.txt: "<file name> <exposure start> <exposure end>" (seconds, the timestamps' clock)."""
+    path.write_text("".join(f"{n} {a:.6f} {b:.6f}\n" for n, a, b in zip(names, starts, ends, strict=True)))
+
+
 def tum_line(t: float, T: np.ndarray) -> str:
     q = quat_from_R(T[:3, :3])
     x, y, z = T[:3, 3]

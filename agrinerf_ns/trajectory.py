@@ -1,0 +1,145 @@
+"""A continuous camera trajectory: the camera-to-world pose at any time from timed pose samples.
+
+Rotations are interpolated by spherical linear interpolation (scipy's :class:`~scipy.spatial.transform.Slerp`),
+translations linearly, between consecutive samples; before the first and after the last sample the end segment's
+constant velocity is continued (``extrapolate="linear"``), the end pose is held (``"clamp"``), or a query raises
+(``"error"``). This is what EvDeblurNeRF does for event times (poses at event times by interpolation of the frame
+poses) and what a blur model needs for sub-poses across an exposure.
+
+The samples are the dataset's frame poses, or a denser odometry where the capture has one. Any rigid change of
+world frame applied to every sample (and a uniform scale of the translations, as Nerfstudio's dataparser applies),
+and any fixed change of camera axes (OpenCV <-> OpenGL), commutes with this interpolation, so a trajectory can be
+built in the capture's frame and moved into the dataparser's with :meth:`CameraTrajectory.transformed`.
+
+Times are float64 seconds in the capture's clock (real clocks are Unix times near 1.7e9 s, which float32 cannot
+resolve below minutes: subtract a reference before any float32 use).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal, Optional, Union
+
+import numpy as np
+from jaxtyping import Float
+from scipy.spatial.transform import Rotation, Slerp
+
+if TYPE_CHECKING:  # torch is imported only when a tensor is asked for (agrinerf-synth does not load it)
+    import torch
+    from torch import Tensor
+
+Extrapolate = Literal["linear", "clamp", "error"]
+
+
+class TrajectoryError(ValueError):
+    """Invalid trajectory samples, or a query outside the samples' time span with ``extrapolate="error"``."""
+
+
+class CameraTrajectory:
+    """Camera-to-world poses at any time from samples (times strictly increasing, rigid 3x4 or 4x4 poses)."""
+
+    def __init__(
+        self,
+        times: Float[np.ndarray, " n"],
+        c2w: Union[Float[np.ndarray, "n 3 4"], Float[np.ndarray, "n 4 4"]],
+        extrapolate: Extrapolate = "linear",
+    ) -> None:
+        times = np.asarray(times, dtype=np.float64).reshape(-1)
+        c2w = np.asarray(c2w, dtype=np.float64)
+        if c2w.ndim != 3 or c2w.shape[1:] not in ((3, 4), (4, 4)) or c2w.shape[0] != times.size:
+            raise TrajectoryError(f"poses must be [n, 3, 4] or [n, 4, 4] for {times.size} times, got {c2w.shape}")
+        if times.size == 0:
+            raise TrajectoryError("a trajectory needs at least one pose sample")
+        if not (np.all(np.isfinite(times)) and np.all(np.isfinite(c2w))):
+            raise TrajectoryError("pose samples and their times must be finite")
+        if np.any(np.diff(times) <= 0):
+            bad = int(np.argmax(np.diff(times) <= 0)) + 1
+            raise TrajectoryError(f"sample times must increase strictly (sample {bad} at {times[bad]!r} s)")
+        if extrapolate not in ("linear", "clamp", "error"):
+            raise TrajectoryError(f"extrapolate must be linear, clamp or error, got {extrapolate!r}")
+        self.times = times
+        self.extrapolate: Extrapolate = extrapolate
+        self.translations: Float[np.ndarray, "n 3"] = c2w[:, :3, 3].copy()
+        self.rotations = Rotation.from_matrix(c2w[:, :3, :3])
+        self._slerp = Slerp(times, self.rotations) if times.size > 1 else None
+
+    def __repr__(self) -> str:
+        return f"CameraTrajectory({len(self)} samples, {self.t_min:.6f}..{self.t_max:.6f} s, {self.extrapolate})"
+
+    def __len__(self) -> int:
+        return int(self.times.size)
+
+    @property
+    def t_min(self) -> float:
+        return float(self.times[0])
+
+    @property
+    def t_max(self) -> float:
+        return float(self.times[-1])
+
+    def poses_at(self, t: Float[np.ndarray, "*b"]) -> Float[np.ndarray, "*b 3 4"]:
+        """Camera-to-world poses (float64, the samples' axes and world frame) at times ``t`` (seconds)."""
+        t = np.asarray(t, dtype=np.float64)
+        flat = t.reshape(-1)
+        if not np.all(np.isfinite(flat)):
+            raise TrajectoryError("query times must be finite")
+        out = np.zeros((flat.size, 3, 4))
+        if flat.size == 0:
+            return out.reshape(*t.shape, 3, 4)
+        outside = (flat < self.t_min) | (flat > self.t_max)
+        if self.extrapolate == "error" and np.any(outside):
+            raise TrajectoryError(
+                f"query times {flat.min():.6f}..{flat.max():.6f} s leave the trajectory's "
+                f"{self.t_min:.6f}..{self.t_max:.6f} s"
+            )
+        if self._slerp is None:  # one sample: a constant pose
+            out[:, :3, :3] = self.rotations.as_matrix()[0]
+            out[:, :3, 3] = self.translations[0]
+            return out.reshape(*t.shape, 3, 4)
+        inside = np.clip(flat, self.t_min, self.t_max)
+        out[:, :3, :3] = self._slerp(inside).as_matrix()
+        out[:, :3, 3] = np.stack([np.interp(inside, self.times, self.translations[:, k]) for k in range(3)], -1)
+        if self.extrapolate == "linear" and np.any(outside):
+            for sel, i0, i1, t_ref in ((flat < self.t_min, 0, 1, self.t_min), (flat > self.t_max, -2, -1, self.t_max)):
+                if not np.any(sel):
+                    continue
+                dt = self.times[i1] - self.times[i0]
+                # constant angular and linear velocity of the end segment, continued from the end sample
+                omega = (self.rotations[i0].inv() * self.rotations[i1]).as_rotvec() / dt
+                velocity = (self.translations[i1] - self.translations[i0]) / dt
+                i_end = 0 if i0 == 0 else -1
+                tau = flat[sel] - t_ref
+                rot = self.rotations[i_end] * Rotation.from_rotvec(tau[:, None] * omega[None])
+                out[sel, :3, :3] = rot.as_matrix()
+                out[sel, :3, 3] = self.translations[i_end] + tau[:, None] * velocity[None]
+        return out.reshape(*t.shape, 3, 4)
+
+    def poses_at_tensor(self, t: Float[Tensor, "*b"], dtype: Optional[torch.dtype] = None) -> Float[Tensor, "*b 3 4"]:
+        """:meth:`poses_at` for a tensor of times (pass float64 times); poses on ``t``'s device, in ``dtype``
+        (default float32). No gradient flows to the times (the interpolation runs in scipy on the CPU)."""
+        import torch
+
+        poses = self.poses_at(t.detach().to("cpu", torch.float64).numpy())
+        return torch.from_numpy(poses).to(device=t.device, dtype=dtype or torch.float32)
+
+    def transformed(self, transform: Float[np.ndarray, "3 4"], scale: float = 1.0) -> "CameraTrajectory":
+        """The trajectory in another world frame: ``p' = scale * (R p + t)`` for ``transform = [R | t]``.
+
+        This is how Nerfstudio's dataparser maps poses (``dataparser_transform``, then ``dataparser_scale`` on the
+        translations).
+        """
+        A = np.asarray(transform, dtype=np.float64)[:3, :4]
+        c2w = np.zeros((len(self), 4, 4))
+        c2w[:, :3, :3] = A[:3, :3] @ self.rotations.as_matrix()
+        c2w[:, :3, 3] = scale * (self.translations @ A[:3, :3].T + A[:3, 3])
+        c2w[:, 3, 3] = 1.0
+        return CameraTrajectory(self.times, c2w, self.extrapolate)
+
+
+def exposure_subtimes(exposure: Float[np.ndarray, "n 2"], k: int) -> Float[np.ndarray, "n k"]:
+    """``k`` times per exposure interval ``[start, end]``: the midpoints of ``k`` equal parts (a box filter; the
+    middle one is the interval's centre when ``k`` is odd; all equal ``start`` for a zero-length exposure)."""
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    exposure = np.asarray(exposure, dtype=np.float64)
+    frac = (np.arange(k) + 0.5) / k
+    return exposure[:, :1] + frac[None] * (exposure[:, 1:2] - exposure[:, :1])
