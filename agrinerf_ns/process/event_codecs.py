@@ -97,7 +97,8 @@ class Evt3Decoder:
         # events: ADDR_X is one bit at its own x, vectors have 12 or 8 bits from the base
         ev = np.flatnonzero(is_ax | is_v12 | is_v8)
         bits = np.where(is_v8[ev], val[ev] & 0xFF, np.where(is_ax[ev], 1, val[ev]))
-        rows, k = np.nonzero((bits[:, None] >> np.arange(12)) & 1)  # row-major: stream order
+        bits = bits.astype(np.uint16)[:, None] >> np.arange(12, dtype=np.uint16)  # uint16 keeps this (m, 12) small
+        rows, k = np.nonzero(bits & 1)  # row-major: stream order
         src = ev[rows]
         x0 = np.where(is_ax[src], val[src] & 0x7FF, base[src])
         p_ev = np.where(is_ax[src], (val[src] >> 11) & 1, pol[src])
@@ -188,7 +189,7 @@ def decode_libcaer_cmp(data: bytes, time_base_ns: int, width: int, height: int) 
     pol = _ffill(is_base, (val >> 11) & 1, 0)
     ev = np.flatnonzero(is_ay | is_v8)
     bits = np.where(is_ay[ev], 1, val[ev] & 0xFF)
-    rows, k = np.nonzero((bits[:, None] >> np.arange(8)) & 1)
+    rows, k = np.nonzero((bits.astype(np.uint16)[:, None] >> np.arange(8, dtype=np.uint16)) & 1)
     src = ev[rows]
     y = np.where(is_ay[src], val[src] & 0x7FF, base[src] + k)
     p = np.where(is_ay[src], (val[src] >> 11) & 1, pol[src])
