@@ -163,7 +163,7 @@ def write_contact_sheet(
     fig = Figure(figsize=(fig_w / DPI, fig_h / DPI), dpi=DPI)
     FigureCanvasAgg(fig)
 
-    def axes_at(x: float, y: float, w: float, h: float):
+    def axes_at(x: int, y: int, w: int, h: int):
         """Axes at pixel box (x, y, w, h) measured from the top left."""
         ax = fig.add_axes((x / fig_w, 1.0 - (y + h) / fig_h, w / fig_w, h / fig_h))
         ax.set_axis_off()

@@ -32,9 +32,6 @@ CONSOLE = Console()
 THERMAL_SCALE = ColourScale("rescaled thermal, 8-bit DN (Fieldscale-style: relative, not degrees C)", 0.0, 255.0)
 """The colour scale of the thermal frames and of the model's thermal outputs (which are fit to them, x255)."""
 
-VIDEO_POSE_STEPS = 4
-"""Frames rendered between consecutive training cameras in the printed ``ns-render interpolate`` command."""
-
 
 @dataclass
 class DemoConfig:
@@ -56,6 +53,8 @@ class DemoConfig:
     """Scene seed."""
     sheet_views: int = 3
     """Held-out views on the contact sheet (evenly spaced over the eval split)."""
+    video_steps: int = 4
+    """Frames between consecutive training cameras in the printed ``ns-render interpolate`` command."""
 
 
 @dataclass
@@ -216,13 +215,13 @@ def _command_path(name: str) -> str:
         return str(local)
 
 
-def follow_up_commands(config_path: Path, out: Path) -> Dict[str, str]:
+def follow_up_commands(config_path: Path, out: Path, video_steps: int) -> Dict[str, str]:
     """The commands that open the run in Nerfstudio's viewer and render a video flying along the training path."""
     return {
         "viewer": f"{_command_path('ns-viewer')} --load-config {config_path}",
         "video": (
             f"{_command_path('ns-render')} interpolate --load-config {config_path} --pose-source train "
-            f"--interpolation-steps {VIDEO_POSE_STEPS} --rendered-output-names rgb thermal "
+            f"--interpolation-steps {video_steps} --rendered-output-names rgb thermal "
             f"--output-path {out / 'video.mp4'}"
         ),
     }
@@ -271,6 +270,7 @@ def _caption(metrics: List[Metric], steps: int, device: str) -> str:
 
 
 def main(config: DemoConfig) -> DemoResult:
+    from agrinerf_ns import compat
     from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
     from agrinerf_ns.bench.methods import METHODS
     from agrinerf_ns.bench.ns_commands import ns_train
@@ -279,6 +279,7 @@ def main(config: DemoConfig) -> DemoResult:
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
+    compat.activate()  # LPIPS offline, checkpoint loading, the venv's ffmpeg (as every ns-* command has them)
     raw, data = config.out / "raw", config.out / "orchard"
     stages: Dict[str, Optional[float]] = {"agrinerf-synth": None, "agrinerf-process": None}
     started = time.perf_counter()
@@ -329,9 +330,13 @@ def main(config: DemoConfig) -> DemoResult:
     for name, seconds in stages.items():
         times.add_row(name, "reused (already there)" if seconds is None else f"{seconds:.1f} s")
     CONSOLE.print(times)
-    commands = follow_up_commands(run.config, config.out)
+    commands = follow_up_commands(run.config, config.out, config.video_steps)
     CONSOLE.print(f"contact sheet: {sheet}", soft_wrap=True)
-    CONSOLE.print(f"open this run in the viewer:\n  {commands['viewer']}", soft_wrap=True)
+    CONSOLE.print(
+        f"open this run in the viewer (then the address it prints, http://localhost:7007 by default):\n"
+        f"  {commands['viewer']}",
+        soft_wrap=True,
+    )
     video_note = "" if shutil.which("ffmpeg") else " (needs ffmpeg on PATH: apt-get install ffmpeg)"
     CONSOLE.print(f"render a video of it{video_note}:\n  {commands['video']}", soft_wrap=True)
 

@@ -27,7 +27,9 @@ def test_preset_without_cuda_trains_on_the_cpu_and_says_so(method: str, tmp_path
         "--timestamp", "run",
     ]  # fmt: skip
     env = {**os.environ, "CUDA_VISIBLE_DEVICES": "", "COLUMNS": "200"}
-    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    done = subprocess.run(
+        command, check=False, env=env, capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL
+    )
     output = done.stdout + done.stderr
     assert done.returncode == 0, output[-3000:]
     assert "Found no NVIDIA driver" not in output

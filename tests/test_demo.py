@@ -1,0 +1,193 @@
+"""`agrinerf-demo` at a tiny size, run as a user runs it: its contact sheet (size and panels, by layout), its labelled
+numbers, and the printed viewer and video commands (both run). Plus the sheet's optional columns on given arrays."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shlex
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+from typing import Dict
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from agrinerf_ns.contact_sheet import SheetLayout, write_contact_sheet
+from agrinerf_ns.demo import THERMAL_SCALE, HeldOutView, sheet_columns
+
+WIDTH, HEIGHT = 64, 48
+RGB_COLUMNS = (
+    "captured RGB",
+    "the same frame x",
+    "AgriNeRF RGB render, exposure-aligned to the clean truth",
+    "clean truth",
+    "thermal frame",
+)
+FINITE = ("psnr_clean", "ssim_clean", "psnr", "ssim", "thermal_psnr", "thermal_ssim")
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory) -> Dict:
+    """The demo on 13 views of 64x48 (two held-out views), 20 training steps, a video of 10 frames."""
+    root = tmp_path_factory.mktemp("demo")
+    out = root / "demo"
+    command = [
+        str(Path(sys.executable).parent / "agrinerf-demo"), "--out", str(out), "--views", "13",
+        "--width", str(WIDTH), "--steps", "20", "--sheet-views", "2", "--video-steps", "1",
+    ]  # fmt: skip
+    env = {**os.environ, "COLUMNS": "200"}
+    done = subprocess.run(
+        command, check=False, cwd=root, env=env, capture_output=True, text=True, timeout=900, stdin=subprocess.DEVNULL
+    )
+    assert done.returncode == 0, (done.stdout + done.stderr)[-4000:]
+    summary = json.loads((out / "summary.json").read_text())
+    return dict(out=out, root=root, env=env, stdout=done.stdout, summary=summary)
+
+
+@pytest.mark.slow
+def test_contact_sheet_size_and_panels(demo: Dict) -> None:
+    sheet = Path(demo["summary"]["contact_sheet"])
+    assert sheet == demo["out"] / "contact_sheet.png" and f"contact sheet: {sheet}" in demo["stdout"]
+    layout = SheetLayout.load(sheet.with_suffix(".json"))
+    with Image.open(sheet) as image:
+        assert image.size == (layout.width, layout.height)
+    for prefix, title in zip(RGB_COLUMNS, layout.columns, strict=False):
+        assert title.startswith(prefix), (prefix, title)
+    assert "for display only" in layout.columns[1]
+    assert layout.columns[-1].startswith("AgriNeRF cross-spectral `thermal` output")
+    held_out = json.loads((demo["out"] / "orchard" / "transforms.json").read_text())["test_filenames"]
+    assert layout.views == [Path(name).name for name in held_out] and len(layout.views) == 2
+
+    boxes = {(p.column, p.view): p.box for p in layout.panels}
+    assert set(boxes) == {(c, v) for c in layout.columns for v in layout.views}
+    for x0, y0, x1, y1 in boxes.values():
+        assert 0 <= x0 < x1 <= layout.width and 0 <= y0 < y1 <= layout.height
+        assert x1 - x0 >= 240, "tiles are upscaled to a readable size"
+        assert abs((x1 - x0) * HEIGHT - (y1 - y0) * WIDTH) <= 2 * WIDTH, "tiles keep the view's aspect"
+    for column in layout.columns:  # rows top to bottom, one column's tiles aligned
+        top, bottom = (boxes[(column, v)] for v in layout.views)
+        assert top[3] <= bottom[1] and top[0] == bottom[0]
+    for view in layout.views:  # columns left to right, no overlap
+        row = [boxes[(c, view)] for c in layout.columns]
+        assert all(a[2] <= b[0] for a, b in zip(row, row[1:], strict=False))
+
+    assert list(layout.scales) == [THERMAL_SCALE.label]  # one bar under the adjacent thermal columns
+    bar = layout.scales[THERMAL_SCALE.label]
+    thermal = [c for c in layout.columns if c.startswith(("thermal frame", "AgriNeRF thermal", "AgriNeRF cross"))]
+    assert thermal == layout.columns[4:]
+    assert bar[1] >= max(b[3] for b in boxes.values())
+    assert abs(bar[0] - boxes[(thermal[0], layout.views[0])][0]) <= 1
+    assert abs(bar[2] - boxes[(thermal[-1], layout.views[0])][2]) <= 1
+
+
+@pytest.mark.slow
+def test_labelled_numbers(demo: Dict) -> None:
+    metrics = {m["key"]: m for m in demo["summary"]["metrics"]}
+    for key in FINITE:
+        assert metrics[key]["value"] is not None and math.isfinite(metrics[key]["value"]), metrics[key]
+    assert metrics["psnr_clean"]["compares"].startswith("RGB render vs clean truth, exposure-aligned")
+    assert metrics["psnr"]["compares"].startswith("RGB render vs captured held-out frames")
+    assert metrics["thermal_psnr"]["compares"].startswith("cross-spectral `thermal` output vs rescaled thermal frames")
+    lpips = metrics["lpips"]
+    if lpips["value"] is None:
+        assert lpips["note"].startswith("unavailable: ") and "alexnet" in lpips["note"].lower()
+        assert "unavailable: " in demo["stdout"]
+    else:
+        assert math.isfinite(lpips["value"])
+    stdout = demo["stdout"]
+    assert not re.search(r"\bnan\b", stdout, re.IGNORECASE), "no metric is shown as nan"
+    for text in ("vs clean truth, exposure-aligned", "vs captured held-out frames", "rescaled thermal frames"):
+        assert text in stdout, text
+    stages = demo["summary"]["stage_seconds"]
+    assert list(stages) == [
+        "agrinerf-synth", "agrinerf-process", "ns-train agrinerf-lite", "evaluation (held-out views)",
+        "contact sheet (render + draw)", "total",
+    ]  # fmt: skip
+    assert all(s is not None and s > 0 for s in stages.values()), stages
+    assert stages["total"] >= sum(s for k, s in stages.items() if k != "total")
+    assert "wall time per stage" in stdout
+
+
+def _printed_command(stdout: str, header: str) -> str:
+    lines = stdout.splitlines()
+    index = next(i for i, line in enumerate(lines) if line.startswith(header))
+    return lines[index + 1].strip()
+
+
+@pytest.mark.slow
+def test_printed_commands_open_the_viewer_and_render_a_video(demo: Dict) -> None:
+    config = demo["summary"]["config"]
+    viewer = _printed_command(demo["stdout"], "open this run in the viewer")
+    video = _printed_command(demo["stdout"], "render a video of it")
+    assert demo["summary"]["commands"] == {"viewer": viewer, "video": video}
+    assert shlex.split(viewer)[0].endswith("ns-viewer") and shlex.split(video)[:2][1] == "interpolate"
+    assert f"--load-config {config}" in viewer and f"--load-config {config}" in video
+
+    subprocess.run(shlex.split(video), cwd=demo["root"], env=demo["env"], check=True, capture_output=True,
+                   timeout=600, stdin=subprocess.DEVNULL)  # fmt: skip
+    mp4 = demo["out"] / "video.mp4"
+    assert mp4.stat().st_size > 1000 and mp4.read_bytes()[4:8] == b"ftyp"
+    import av  # PyAV, a Nerfstudio dependency
+
+    train = json.loads((demo["out"] / "orchard" / "transforms.json").read_text())["train_filenames"]
+    with av.open(str(mp4)) as container:
+        stream = container.streams.video[0]
+        assert stream.frames == len(train) - 1  # --video-steps 1: one frame per pair of consecutive training cameras
+        assert stream.width >= 2 * WIDTH - 2  # rgb and thermal side by side
+
+    log_path = demo["root"] / "viewer.log"
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(shlex.split(viewer), cwd=demo["root"], env=demo["env"], stdout=log,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)  # fmt: skip
+    try:
+        port, deadline = None, time.monotonic() + 300
+        while port is None and time.monotonic() < deadline and proc.poll() is None:
+            found = re.search(r"HTTP\s*\S\s*http://[0-9.]+:(\d+)", log_path.read_text(errors="replace"))
+            port = int(found.group(1)) if found else None
+            time.sleep(1)
+        assert port is not None, log_path.read_text(errors="replace")[-3000:]
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as page:
+            assert page.status == 200 and b"<html" in page.read(2000).lower()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=60)
+
+
+def test_sheet_draws_the_outputs_a_model_has(tmp_path: Path) -> None:
+    """Optional columns follow the model's outputs: temperature gets its own degrees-C bar, found fruit is boxed."""
+    rng = np.random.default_rng(0)
+
+    def view(name: str, with_thermal: bool) -> HeldOutView:
+        outputs = {"rgb": rng.uniform(0, 0.1, (HEIGHT, WIDTH, 3)).astype(np.float32)}
+        outputs["temperature"] = rng.uniform(10, 30, (HEIGHT, WIDTH)).astype(np.float32)
+        frame = rng.uniform(0, 1, (HEIGHT, WIDTH)).astype(np.float32) if with_thermal else None
+        if with_thermal:
+            outputs["thermal"] = frame
+        dark = rng.uniform(0, 0.03, (HEIGHT, WIDTH, 3)).astype(np.float32)
+        return HeldOutView(name, dark, rng.uniform(0, 1, (HEIGHT, WIDTH, 3)).astype(np.float32), outputs, frame)
+
+    views = [view("a.png", True), view("b.png", True)]
+    columns = sheet_columns(views, found={"a.png": [(2.0, 3.0, 20.0, 18.0)]})
+    titles = [c.title for c in columns]
+    assert titles[-1] == "AgriNeRF temperature (degrees C)" and "AgriNeRF thermal-camera output" not in " ".join(titles)
+    assert float(re.search(r"x(\d+)", titles[1]).group(1)) > 1  # a dark frame is brightened
+    rendered = next(c for c in columns if c.title.startswith("AgriNeRF RGB render"))
+    assert rendered.boxes == [[(2.0, 3.0, 20.0, 18.0)], []]
+    temperature = columns[-1].scale
+    assert temperature is not None and 10 <= temperature.vmin < temperature.vmax <= 30
+
+    layout = write_contact_sheet(columns, [v.name for v in views], tmp_path / "sheet.png", title="t", caption="c")
+    with Image.open(tmp_path / "sheet.png") as image:
+        assert image.size == (layout.width, layout.height)
+    assert list(layout.scales) == [THERMAL_SCALE.label, "temperature, degrees C"]
+    assert SheetLayout.load(tmp_path / "sheet.json") == layout
+
+    no_thermal = sheet_columns([view("c.png", False)])
+    assert not any(c.title.startswith(("thermal frame", "AgriNeRF cross")) for c in no_thermal)
