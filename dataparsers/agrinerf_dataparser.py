@@ -11,6 +11,13 @@ the thermal and event frames (and their valid masks) and hands their paths to th
   (or the modality is not requested in ``modalities``).
 - ``"modalities"``: the tuple of modalities that are both present and requested, among ("rgb", "thermal", "events").
 - ``"agrinerf"``: the dataset's top-level ``agrinerf`` block (a dict; empty when the file has none).
+- ``"times"``: float64 tensor [N], each image's ``timestamp`` (seconds, the capture's clock); ``"exposure"``: float64
+  tensor [N, 2], its exposure interval (``exposure_start``, ``exposure_end``), or [t, t] (an instantaneous frame)
+  when the dataset records no exposures; ``"trajectory"``: an :class:`agrinerf_ns.trajectory.CameraTrajectory`
+  giving the camera-to-world pose (3x4, this parser's world frame and scale, OpenGL camera axes like
+  ``cameras.camera_to_worlds``) at any time, from the dataset's ``trajectory.txt`` (the capture's odometry) when it
+  has one, else from every frame's pose and timestamp (all splits: poses are inputs, not targets). The three are
+  absent when the frames carry no ``timestamp``. Times are float64 seconds: subtract a reference before float32.
 
 The thermal and event frames are aligned to the RGB camera, so they must have the RGB frame's full resolution
 (``w`` x ``h`` in ``transforms.json``); the dataset resizes them like the image when the image is downscaled.
@@ -28,6 +35,8 @@ from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.io import load_from_json
 from nerfstudio.utils.rich_utils import CONSOLE
 from PIL import Image
+
+from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 
 Modality = Literal["rgb", "thermal", "events"]
 ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
@@ -102,8 +111,87 @@ class AgriNeRFDataParser(Nerfstudio):
         )
         metadata["modalities"] = modalities
         metadata["agrinerf"] = dict(block)
+        metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs
+
+
+TRAJECTORY_CHECK_TOL = 1e-4
+"""Largest difference (dataparser units) between the trajectory at a frame's time and the frame's camera pose."""
+
+
+def _timing(
+    frames: List[Dict[str, Any]],
+    kept: List[Dict[str, Any]],
+    block: Dict[str, Any],
+    outputs: DataparserOutputs,
+    meta: Dict[str, Any],
+    data_dir: Path,
+    transforms_path: Path,
+) -> Dict[str, Any]:
+    """The ``times``, ``exposure`` and ``trajectory`` metadata of the kept frames (empty without timestamps)."""
+    import numpy as np
+    import torch
+
+    if any("timestamp" not in f for f in frames):
+        if any("timestamp" in f for f in frames):
+            raise AgriNeRFDataError(f"{transforms_path}: 'timestamp' is given in some frames only; give it in all.")
+        return {}
+    with_exposure = ["exposure_start" in f and "exposure_end" in f for f in frames]
+    if any(with_exposure) and not all(with_exposure):
+        raise AgriNeRFDataError(
+            f"{transforms_path}: 'exposure_start'/'exposure_end' are given in {sum(with_exposure)} of {len(frames)} "
+            "frames; give them in every frame or none."
+        )
+    times = np.array([float(f["timestamp"]) for f in kept], dtype=np.float64)
+    if all(with_exposure):
+        exposure = np.array([[float(f["exposure_start"]), float(f["exposure_end"])] for f in kept], dtype=np.float64)
+        exposure = exposure.reshape(-1, 2)  # an empty split too
+        bad = np.flatnonzero(~(exposure[:, 1] >= exposure[:, 0]))
+        if bad.size:
+            raise AgriNeRFDataError(f"{transforms_path}: frame {kept[bad[0]]['file_path']} ends its exposure before "
+                                    "it starts")  # fmt: skip
+    else:
+        exposure = np.stack([times, times], -1)
+
+    # poses saved in transforms.json -> this parser's world frame: Nerfstudio's transform and scale, without the
+    # applied_transform / applied_scale it folds into them (those describe the saved poses, not a change of them)
+    transform = np.eye(4)
+    transform[:3] = outputs.dataparser_transform.double().numpy()
+    scale = float(outputs.dataparser_scale)
+    if "applied_transform" in meta:
+        applied = np.eye(4)
+        applied[:3] = np.asarray(meta["applied_transform"], dtype=np.float64)
+        transform = transform @ np.linalg.inv(applied)
+    if "applied_scale" in meta:
+        scale /= float(meta["applied_scale"])
+    traj_block = block.get("trajectory") or {}
+    try:
+        if traj_block.get("file"):
+            from agrinerf_ns.process.readers import RawInputError, read_tum
+
+            try:
+                t_samples, c2w = read_tum(data_dir / traj_block["file"])
+            except RawInputError as error:
+                raise AgriNeRFDataError(f"trajectory named by agrinerf.trajectory.file: {error}") from error
+        else:
+            order = np.argsort([float(f["timestamp"]) for f in frames], kind="stable")
+            t_samples = np.array([float(frames[i]["timestamp"]) for i in order])
+            c2w = np.array([frames[i]["transform_matrix"] for i in order], dtype=np.float64)
+        trajectory = CameraTrajectory(t_samples, c2w).transformed(transform[:3], scale)
+    except TrajectoryError as error:
+        raise AgriNeRFDataError(f"{transforms_path}: camera trajectory: {error}") from error
+
+    out: Dict[str, Any] = {"times": torch.from_numpy(times), "exposure": torch.from_numpy(exposure)}
+    # the trajectory must reproduce the cameras at their own times (it cannot when the saved poses were changed
+    # in a way this parser does not know, e.g. Nerfstudio's COLMAP default transform)
+    err = np.abs(trajectory.poses_at(times) - outputs.cameras.camera_to_worlds.double().numpy()).max(initial=0.0)
+    if err > TRAJECTORY_CHECK_TOL and not traj_block.get("file"):
+        CONSOLE.print(f"[bold yellow]Warning: {transforms_path}: the frame poses interpolated at the frames' times "
+                      f"differ from the cameras by {err:.2g}; no 'trajectory' in the dataparser metadata.")  # fmt: skip
+    else:
+        out["trajectory"] = trajectory
+    return out
 
 
 def _present_frame_keys(frames: List[Dict[str, Any]], transforms_path: Path) -> List[str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
@@ -178,3 +179,51 @@ def test_registered_as_entry_point() -> None:
     assert isinstance(spec, DataParserSpecification)
     assert isinstance(spec.config, AgriNeRFDataParserConfig)
     assert spec.config.modalities == ("rgb", "thermal", "events")
+
+
+def _timestamp_frames(meta: dict, exposure_s: Optional[float] = None) -> None:
+    for i, frame in enumerate(meta["frames"]):
+        frame["timestamp"] = 100.0 + 0.1 * i
+        if exposure_s is not None:
+            frame["exposure_start"], frame["exposure_end"] = frame["timestamp"] - exposure_s, frame["timestamp"]
+
+
+@pytest.mark.parametrize("applied", [False, True], ids=["plain", "applied_transform"])
+def test_times_exposure_and_trajectory_metadata(tmp_path: Path, applied: bool) -> None:
+    root = write_tridata(tmp_path)
+    edit_transforms(root, lambda meta: _timestamp_frames(meta, 0.03))
+    if applied:  # poses saved after a known change of world frame (as ns-process-data records it)
+        edit_transforms(root, lambda meta: meta.update(applied_transform=[[0, 1, 0, 0.5], [1, 0, 0, 0], [0, 0, -1, 1]]))
+    for split in ("train", "val"):
+        outputs = _outputs(root, split, train_split_fraction=0.75)
+        md = outputs.metadata
+        t = md["times"].numpy()
+        assert md["times"].dtype == torch.float64 and len(t) == len(outputs.image_filenames) > 0
+        np.testing.assert_allclose(t, [100.0 + 0.1 * int(p.stem.split("_")[-1]) for p in outputs.image_filenames])
+        np.testing.assert_allclose(md["exposure"].numpy(), np.stack([t - 0.03, t], -1))
+        c2w = outputs.cameras.camera_to_worlds.double().numpy()
+        np.testing.assert_allclose(md["trajectory"].poses_at(t), c2w, atol=1e-5)
+    empty = _outputs(root, "val")  # Nerfstudio's default fraction leaves 8 frames no val frame
+    assert len(empty.image_filenames) == 0 and empty.metadata["exposure"].shape == (0, 2)
+    # between two frames: between their camera centres
+    train = _outputs(root)
+    t = train.metadata["times"].numpy()
+    mid = train.metadata["trajectory"].poses_at(np.array([(t[0] + t[1]) / 2]))[0, :, 3]
+    c = train.cameras.camera_to_worlds[:2, :, 3].double().numpy()
+    assert np.linalg.norm(mid - c.mean(0)) < 0.05 * np.linalg.norm(c[1] - c[0])
+
+
+def test_timing_without_exposures_or_timestamps(tmp_path: Path) -> None:
+    root = write_tridata(tmp_path)
+    assert not {"times", "exposure", "trajectory"} & set(_outputs(root).metadata)  # no timestamps: no timing keys
+    edit_transforms(root, _timestamp_frames)
+    md = _outputs(root).metadata
+    np.testing.assert_array_equal(md["exposure"][:, 0], md["times"])  # unknown exposure: an instantaneous frame
+    np.testing.assert_array_equal(md["exposure"][:, 1], md["times"])
+    edit_transforms(root, lambda meta: meta["frames"][2].update(exposure_start=1.0, exposure_end=1.1))
+    with pytest.raises(AgriNeRFDataError, match="'exposure_start'/'exposure_end' are given in 1 of 8 frames"):
+        _outputs(root)
+    edit_transforms(root, lambda meta: [meta["frames"][2].pop(k) for k in ("exposure_start", "exposure_end",
+                                                                            "timestamp")])  # fmt: skip
+    with pytest.raises(AgriNeRFDataError, match="'timestamp' is given in some frames only"):
+        _outputs(root)

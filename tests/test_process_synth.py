@@ -77,3 +77,42 @@ def test_visible_fruit_depth_agrees_with_the_fruit_centres(tiny):
         near_side.append(centre[2] - min(fruit["radii"]))
     assert abs(depth["median"] - float(np.median(near_side))) < 0.05, (depth, np.median(near_side))
     assert visible_fruit_depth(raw, min_pixels=10**9)["count"] == 0
+
+
+def test_exposures_times_and_trajectory_reach_the_dataparser(tiny):
+    import torch
+
+    from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
+    from agrinerf_ns.trajectory import exposure_subtimes
+
+    raw, out = tiny
+    meta = json.loads((out / "transforms.json").read_text())
+    assert meta["agrinerf"]["exposure"]["source"] == "rgb/exposures.txt"
+    assert meta["agrinerf"]["trajectory"] == {"file": "trajectory.txt", "source": "odometry.txt", "samples": 8}
+    rows = {r.split()[0]: (float(r.split()[1]), float(r.split()[2]))
+            for r in (raw / "rgb" / "exposures.txt").read_text().splitlines()}  # fmt: skip
+    for f in meta["frames"]:
+        assert (f["exposure_start"], f["exposure_end"]) == rows[Path(f["raw_rgb"]).name]
+        assert f["exposure_start"] < f["timestamp"] < f["exposure_end"]
+    by_image = {out / f["file_path"]: f for f in meta["frames"]}
+
+    parser = AgriNeRFDataParserConfig(data=out).setup()
+    for split in ("train", "test"):
+        outputs = parser.get_dataparser_outputs(split)
+        md = outputs.metadata
+        kept = [by_image[p] for p in outputs.image_filenames]
+        n = len(kept)
+        assert md["times"].dtype == md["exposure"].dtype == torch.float64
+        assert md["times"].shape == (n,) and md["exposure"].shape == (n, 2)
+        np.testing.assert_array_equal(md["times"].numpy(), [f["timestamp"] for f in kept])
+        np.testing.assert_array_equal(md["exposure"].numpy(), [[f["exposure_start"], f["exposure_end"]] for f in kept])
+        # the trajectory (the odometry, in the dataparser's frame and scale) gives each camera at its own time ...
+        traj = md["trajectory"]
+        c2w = outputs.cameras.camera_to_worlds.double()
+        np.testing.assert_allclose(traj.poses_at(md["times"].numpy()), c2w.numpy(), atol=1e-5)
+        # ... and sub-poses across each exposure, between the neighbouring frames' poses
+        sub = traj.poses_at_tensor(torch.from_numpy(exposure_subtimes(md["exposure"].numpy(), 5)))
+        assert sub.shape == (n, 5, 3, 4) and torch.isfinite(sub).all()
+        step = (sub[:, -1, :, 3] - sub[:, 0, :, 3]).norm(dim=-1)
+        gap = (c2w[1:, :, 3] - c2w[:-1, :, 3]).norm(dim=-1).min() if n > 1 else 1.0
+        assert (step > 0).all() and (step < gap).all()

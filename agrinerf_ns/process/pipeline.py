@@ -12,7 +12,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from agrinerf_ns.process import align, event_frames, readers
+from agrinerf_ns.process import align, event_frames, exposure, readers
 from agrinerf_ns.process import poses as pose_utils
 from agrinerf_ns.process.dataset_writer import (
     atomic_output_dir,
@@ -20,6 +20,7 @@ from agrinerf_ns.process.dataset_writer import (
     intrinsics_block,
     remove_files,
     write_png,
+    write_trajectory,
     write_transforms,
 )
 from agrinerf_ns.process.event_frames import EventFrameConfig
@@ -60,6 +61,11 @@ class ProcessConfig:
     trigger_offset_s: float = 0.0
     """--sync trigger: coarse offset (event clock minus frame clock, s) before frames are matched to the nearest
     edge; 0 when event times are on the frames' clock (agrinerf_ns.process.rosbag's default event_clock)."""
+    exposure_time: Optional[float] = None
+    """RGB exposure time in seconds for every frame (captures without rgb/exposures.txt, or to override it); None:
+    rgb/exposures.txt when the capture has one, else no exposure intervals in the dataset."""
+    exposure_timestamp: exposure.TimestampAt = "middle"
+    """Where a frame's timestamp lies in its exposure, for --exposure-time: middle, start or end."""
     min_registered_frac: float = 0.5
     """Fail when SfM registers fewer than this fraction of the frames."""
     overwrite: bool = False
@@ -76,6 +82,9 @@ class _Capture:
     event_file: Optional[Path]
     num_events: int
     warnings: List[str]
+    exposure: Optional[np.ndarray] = None
+    """(start, end) seconds of each RGB frame's exposure, or None when unknown."""
+    exposure_meta: Dict = field(default_factory=dict)
     sync: Optional[TriggerSync] = None
 
 
@@ -143,6 +152,8 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         raise RawInputError(f"{raw}: raw capture folder does not exist")
     check_output(raw, out, config.overwrite)
     cap = inspect_capture(raw)
+    cap.exposure, cap.exposure_meta = exposure.frame_exposures(raw, cap.rgb, config.exposure_time,
+                                                                config.exposure_timestamp)  # fmt: skip
     for w in cap.warnings:
         CONSOLE.log(f"[yellow]Warning: {w}")
     if config.poses == "sfm-thermal" and cap.thermal is None:
@@ -179,9 +190,12 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
          "raw_rgb": str(cap.rgb.paths[i].relative_to(raw))}
         for i in range(n)
     ]
+    if cap.exposure is not None:
+        for i in range(n):
+            frames[i]["exposure_start"], frames[i]["exposure_end"] = (float(v) for v in cap.exposure[i])
     dropped: Dict[int, str] = {}
     modalities = ["rgb"]
-    meta: Dict = {"version": 1, "warnings": list(cap.warnings)}
+    meta: Dict = {"version": 1, "warnings": list(cap.warnings), "exposure": cap.exposure_meta}
 
     # --- RGB: check, undistort, write
     und = align.undistort_maps(rgb_cam)
@@ -255,6 +269,10 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
             dropped[i] = "no pose" if pose_meta["source"] == "given" else "not registered by SfM"
     del pose_meta["has_pose"]
     gl = pose_utils.opencv_to_opengl(c2w)
+    if pose_meta["source"] == "given":  # the whole odometry, for poses between frames (agrinerf_ns.trajectory)
+        odo_t, odo_c2w = readers.read_tum(raw / "odometry.txt")
+        write_trajectory(tmp / "trajectory.txt", odo_t, pose_utils.opencv_to_opengl(odo_c2w))
+        meta["trajectory"] = {"file": "trajectory.txt", "source": "odometry.txt", "samples": int(len(odo_t))}
     kept_frames = []
     for i in range(n):
         if i in dropped:
