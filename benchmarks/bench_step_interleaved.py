@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import statistics
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Tuple
@@ -26,6 +25,7 @@ import tyro
 
 from agrinerf_ns.bench.cli import device_name
 from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.bench.stepper import MethodStepper
 
 
 @dataclass
@@ -43,38 +43,6 @@ class Args:
     rays_per_batch: int = 1024
     """Rays per batch, the same for every method."""
     seed: int = 0
-
-
-class MethodStepper:
-    """One method's Nerfstudio pipeline and optimizers, set up on the CPU as ``ns-train`` would."""
-
-    def __init__(self, key: str, data: Path, rays_per_batch: int) -> None:
-        from nerfstudio.configs.dataparser_configs import all_dataparsers
-        from nerfstudio.configs.method_configs import all_methods
-        from nerfstudio.engine.optimizers import Optimizers
-
-        method = METHODS[key]
-        config = all_methods[method.ns_method]
-        config.set_timestamp()
-        datamanager = config.pipeline.datamanager
-        if method.dataparser_args:
-            datamanager.dataparser = all_dataparsers[method.dataparser_args[0]]
-        datamanager.data = data / method.data_file
-        datamanager.dataparser.data = data / method.data_file
-        datamanager.train_num_rays_per_batch = rays_per_batch
-        self.pipeline = config.pipeline.setup(device="cpu", test_mode="val", world_size=1, local_rank=0)
-        self.pipeline.train()
-        self.optimizers = Optimizers(config.optimizers.copy(), self.pipeline.get_param_groups())
-
-    def step(self, step: int) -> float:
-        """One training step; returns its wall time in seconds."""
-        start = time.perf_counter()
-        self.optimizers.zero_grad_all()
-        _, loss_dict, _ = self.pipeline.get_train_loss_dict(step=step)
-        loss = torch.stack([v for v in loss_dict.values()]).sum()
-        loss.backward()
-        self.optimizers.optimizer_step_all()
-        return time.perf_counter() - start
 
 
 def main(args: Args) -> None:

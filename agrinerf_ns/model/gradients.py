@@ -7,9 +7,10 @@ hard each term pulls the shared density over training).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Dict, List, Mapping
+from typing import TYPE_CHECKING, Dict, List, Mapping, Optional
 
 import torch
+from jaxtyping import Float
 from torch import Tensor
 from torch.nn import Parameter
 
@@ -29,25 +30,45 @@ def parameter_groups(model: "AgriNeRFModel") -> Dict[str, List[Parameter]]:
     return groups
 
 
+def term_gradients(
+    terms: Mapping[str, Tensor], groups: Mapping[str, List[Parameter]]
+) -> Dict[str, Dict[str, Optional[Float[Tensor, "n"]]]]:
+    """Each (weighted) loss term's gradient on each parameter group, flattened: ``{term: {group: grad or None}}``.
+
+    Each term is differentiated on its own (the graph is kept for the next); None where the term does not reach the
+    group at all.
+    """
+    flat = [p for params in groups.values() for p in params]
+    out: Dict[str, Dict[str, Optional[Tensor]]] = {}
+    for term, value in terms.items():
+        if not value.requires_grad:
+            out[term] = {group: None for group in groups}
+            continue
+        grads = torch.autograd.grad(value, flat, retain_graph=True, allow_unused=True)
+        by_param = dict(zip(map(id, flat), grads, strict=True))
+        out[term] = {}
+        for group, params in groups.items():
+            parts = [by_param[id(p)].reshape(-1) for p in params if by_param[id(p)] is not None]
+            out[term][group] = torch.cat(parts) if parts else None
+    return out
+
+
 def term_gradient_norms(
     terms: Mapping[str, Tensor], groups: Mapping[str, List[Parameter]]
 ) -> Dict[str, Dict[str, float]]:
     """L2 norm of each (weighted) loss term's gradient on each parameter group: ``{term: {group: norm}}``.
 
-    Each term is differentiated on its own (the graph is kept for the next); a group the term does not reach has norm
-    0.0. Non-finite gradients give NaN, so they show in a table instead of disappearing.
+    A group the term does not reach has norm 0.0; non-finite gradients give NaN, so they show in a table instead of
+    disappearing.
     """
-    flat = [p for params in groups.values() for p in params]
-    norms: Dict[str, Dict[str, float]] = {}
-    for term, value in terms.items():
-        if not value.requires_grad:
-            norms[term] = {group: 0.0 for group in groups}
-            continue
-        grads = torch.autograd.grad(value, flat, retain_graph=True, allow_unused=True)
-        by_param = dict(zip(map(id, flat), grads, strict=True))
-        norms[term] = {}
-        for group, params in groups.items():
-            squares = [by_param[id(p)].double().pow(2).sum() for p in params if by_param[id(p)] is not None]
-            total = float(torch.stack(squares).sum().sqrt()) if squares else 0.0
-            norms[term][group] = total if math.isfinite(total) else math.nan
-    return norms
+    return {
+        term: {group: _norm(grad) for group, grad in by_group.items()}
+        for term, by_group in term_gradients(terms, groups).items()
+    }
+
+
+def _norm(grad: Optional[Tensor]) -> float:
+    if grad is None:
+        return 0.0
+    value = float(grad.double().norm())
+    return value if math.isfinite(value) else math.nan
