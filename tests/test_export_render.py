@@ -1,6 +1,10 @@
 """What a user takes away from a trained AgriNeRF run, through the real commands on a tiny run: `ns-export pointcloud`
 (rgb and thermal), `agrinerf-export pointcloud` (the thermal value as a PLY property), `ns-export tsdf` (thermal) and
-`ns-render interpolate --output-format video` with the ffmpeg that scripts/install.sh provides."""
+`ns-render interpolate --output-format video` with the ffmpeg that scripts/install.sh provides.
+
+The exporters run in this process through their console scripts' entry points with a command line in `sys.argv`
+(the same parsing and code as the installed `ns-export`, without a new interpreter's 20 s of imports each);
+`ns-render` runs as its own process, to check that it finds ffmpeg without the venv on PATH."""
 
 from __future__ import annotations
 
@@ -26,6 +30,18 @@ def _run(cmd, env=ENV) -> None:
     subprocess.run(cmd, check=True, env=env, timeout=600)
 
 
+def _command(monkeypatch, entrypoint, argv) -> None:
+    """Run a console script's entry point on the command line `argv` (argv[0]: the script's name)."""
+    monkeypatch.setattr(sys, "argv", [str(a) for a in argv])
+    entrypoint()
+
+
+def _ns_export(monkeypatch, *args) -> None:
+    from nerfstudio.scripts.exporter import entrypoint
+
+    _command(monkeypatch, entrypoint, ["ns-export", *args])
+
+
 def _on_turbo(colours: np.ndarray) -> np.ndarray:
     """Distance of each uint8 colour to the nearest entry of the turbo colormap."""
     return np.abs(colours[:, None, :].astype(float) - TURBO[None]).max(axis=-1).min(axis=-1)
@@ -38,11 +54,10 @@ def _read_cloud(path: Path):
 
 
 @pytest.mark.parametrize("output", ["rgb", "thermal"])
-def test_ns_export_pointcloud(tiny_run_config: Path, tmp_path: Path, output: str) -> None:
+def test_ns_export_pointcloud(tiny_run_config: Path, tmp_path: Path, monkeypatch, output: str) -> None:
     """Nerfstudio's own exporter: points where the accumulation passes 0.5, thermal coloured by the turbo colormap."""
-    cmd = ["ns-export", "pointcloud", "--load-config", str(tiny_run_config), "--output-dir", str(tmp_path)]
-    cmd += ["--rgb-output-name", output, "--normal-method", "open3d", "--num-points", "2000"]
-    _run(cmd + ["--num-rays-per-batch", "1024"])
+    args = ["pointcloud", "--load-config", tiny_run_config, "--output-dir", tmp_path, "--rgb-output-name", output]
+    _ns_export(monkeypatch, *args, "--normal-method", "open3d", "--num-points", "2000", "--num-rays-per-batch", "1024")
     cloud = _read_cloud(tmp_path / "point_cloud.ply")
     points, colours = cloud.positions.numpy(), cloud.colors.numpy()
     assert points.shape[0] > 1000 and np.isfinite(points).all()  # 2048 asked (whole batches), few outliers
@@ -54,10 +69,13 @@ def test_ns_export_pointcloud(tiny_run_config: Path, tmp_path: Path, output: str
         assert not on_turbo.all()  # the rgb cloud holds the scene's colours (checker, sky), not a colormap
 
 
-def test_agrinerf_export_keeps_the_thermal_value(tiny_run_config: Path, tmp_path: Path) -> None:
+def test_agrinerf_export_keeps_the_thermal_value(tiny_run_config: Path, tmp_path: Path, monkeypatch) -> None:
     """The thermal value of every point is a float PLY property; the colours are its turbo colormap."""
-    cmd = ["agrinerf-export", "pointcloud", "--load-config", str(tiny_run_config), "--output-dir", str(tmp_path)]
-    _run(cmd + ["--rgb-output-name", "thermal", "--num-points", "2000", "--num-rays-per-batch", "1024"])
+    from agrinerf_ns.export import entrypoint
+
+    argv = ["agrinerf-export", "pointcloud", "--load-config", tiny_run_config, "--output-dir", tmp_path]
+    argv += ["--rgb-output-name", "thermal", "--num-points", "2000", "--num-rays-per-batch", "1024"]
+    _command(monkeypatch, entrypoint, argv)
     cloud = _read_cloud(tmp_path / "point_cloud.ply")
     points, colours, values = cloud.positions.numpy(), cloud.colors.numpy(), cloud["thermal"].numpy()
     assert points.shape[0] > 1000 and values.shape == (points.shape[0], 1) and values.dtype == np.float32
@@ -67,10 +85,19 @@ def test_agrinerf_export_keeps_the_thermal_value(tiny_run_config: Path, tmp_path
     assert not list(tmp_path.glob(".*tmp*"))  # written atomically
 
 
-def test_ns_export_tsdf_thermal(tiny_run_config: Path, tmp_path: Path) -> None:
+def test_agrinerf_export_names_a_missing_output(tiny_run_config: Path, tmp_path: Path, monkeypatch) -> None:
+    from agrinerf_ns.export import entrypoint
+
+    argv = ["agrinerf-export", "pointcloud", "--load-config", tiny_run_config, "--output-dir", tmp_path]
+    with pytest.raises(SystemExit, match=r"\['temperature'\] not among the model's outputs \[.*'thermal'"):
+        _command(monkeypatch, entrypoint, argv + ["--rgb-output-name", "temperature"])
+    assert not (tmp_path / "point_cloud.ply").exists()
+
+
+def test_ns_export_tsdf_thermal(tiny_run_config: Path, tmp_path: Path, monkeypatch) -> None:
     """A mesh exporter that needs no normals (TSDF), coloured by the thermal output."""
-    cmd = ["ns-export", "tsdf", "--load-config", str(tiny_run_config), "--output-dir", str(tmp_path)]
-    _run(cmd + ["--rgb-output-name", "thermal", "--texture-method", "tsdf", "--resolution", "32"])
+    args = ["tsdf", "--load-config", tiny_run_config, "--output-dir", tmp_path, "--rgb-output-name", "thermal"]
+    _ns_export(monkeypatch, *args, "--texture-method", "tsdf", "--resolution", "32")
     o3d = system_deps.import_open3d()
     mesh = o3d.io.read_triangle_mesh(str(tmp_path / "tsdf_mesh.ply"))
     assert len(mesh.vertices) > 100 and len(mesh.triangles) > 100 and mesh.has_vertex_colors()
@@ -94,11 +121,10 @@ def test_ns_render_interpolate_video(tiny_run_config: Path, tmp_path: Path) -> N
     assert frames.std() > 5  # an image, not a blank frame
 
 
-def test_system_deps_report_nothing_missing_after_install() -> None:
-    """scripts/install.sh runs this check: on a machine set up as .ci/run does, it finds everything."""
-    cmd = [sys.executable, "-m", "agrinerf_ns.system_deps"]
-    result = subprocess.run(cmd, check=False, env=ENV, timeout=300, capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr
+def test_system_deps_report_nothing_missing_after_install(capsys) -> None:
+    """`python -m agrinerf_ns.system_deps`, which scripts/install.sh runs: on a machine set up as .ci/run does, it
+    finds open3d's libusb and an ffmpeg."""
+    assert system_deps.main() == 0, capsys.readouterr().err
 
 
 def test_missing_libusb_gets_the_install_command(monkeypatch) -> None:
