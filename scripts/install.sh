@@ -34,7 +34,8 @@ if [ "$DEV" = 1 ]; then bash scripts/install_detect.sh; fi
 if [ "$DEV" = 1 ]; then python -m pip install --quiet "flyr>=5.1"; fi
 # 5. ns-render finds ffmpeg on PATH: link the one imageio-ffmpeg ships as .venv/bin/ffmpeg (agrinerf_ns.compat makes
 #    it visible to ns-* commands run without activating the venv).
-ln -sf "$(python -c 'import imageio_ffmpeg; print(imageio_ffmpeg.get_ffmpeg_exe())')" .venv/bin/ffmpeg
+FFMPEG=$(python -c 'import imageio_ffmpeg; print(imageio_ffmpeg.get_ffmpeg_exe())') && ln -sf "$FFMPEG" .venv/bin/ffmpeg \
+  || echo "install.sh: imageio-ffmpeg has no ffmpeg for this platform; install one for ns-render videos" >&2
 # 6. system libraries pip cannot install (open3d's libusb for ns-export): say how to install what is missing.
 python -m agrinerf_ns.system_deps || echo "install.sh: installed; the commands named above need what is missing" >&2
 python -c "import cv2; cv2.ximgproc; import agrinerf_ns, nerfstudio; print('agrinerf-ns', agrinerf_ns.__version__, 'installed; cv2', cv2.__version__)"
