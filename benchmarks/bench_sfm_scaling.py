@@ -129,11 +129,14 @@ def write_report(args: Args, rows: List[Dict]) -> None:
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     lines += ["| " + " | ".join(str(r.get(c, "-")) for c in cols) + " |" for r in rows]
     growth = []
-    for mode in args.modes:
-        by_n = {r["frames"]: r["wall_s"] for r in rows if r["matching"] == mode}
+    runs = sorted({(r["matching"], r["mapper"]) for r in rows})
+    for mode, mapper in runs:
+        by_n = {r["frames"]: r["wall_s"] for r in rows if (r["matching"], r["mapper"]) == (mode, mapper)}
         ns = sorted(by_n)
         for a, b in zip(ns[:-1], ns[1:], strict=True):
-            growth.append(f"- {mode}: {a} -> {b} frames ({b / a:.0f}x): wall time x{by_n[b] / max(by_n[a], 1e-9):.2f}")
+            growth.append(
+                f"- {mode} / {mapper}: {a} -> {b} frames ({b / a:.0f}x): wall time x{by_n[b] / max(by_n[a], 1e-9):.2f}"
+            )
     text = (
         "# SfM wall time against sequence length\n\n"
         f"Command: `python benchmarks/bench_sfm_scaling.py {' '.join(sys.argv[1:])}`\n\n"
@@ -148,18 +151,23 @@ def write_report(args: Args, rows: List[Dict]) -> None:
     )
     (args.out / "results.md").write_text(text)
     fig, ax = plt.subplots(figsize=(5, 3.5))
-    for mode in args.modes:
-        rs = sorted((r["frames"], r["wall_s"]) for r in rows if r["matching"] == mode)
-        if rs:
-            ax.loglog([r[0] for r in rs], [r[1] for r in rs], "o-", label=mode)
-    seq = sorted((r["frames"], r["wall_s"]) for r in rows if r["matching"] == "sequential")
-    if seq:
-        n0, t0 = seq[0]
+    for mode, mapper in runs:
+        rs = sorted((r["frames"], r["wall_s"]) for r in rows if (r["matching"], r["mapper"]) == (mode, mapper))
+        ax.loglog([r[0] for r in rs], [r[1] for r in rs], "o-", label=f"{mode} / {mapper}")
+    ref = ("sequential", "incremental") if ("sequential", "incremental") in runs else runs[0]
+    seq = sorted((r["frames"], r["wall_s"]) for r in rows if (r["matching"], r["mapper"]) == ref)
+    if len(seq) > 1:
+        n0, t0 = seq[-2]
         ns = np.array([r[0] for r in seq])
-        ax.loglog(ns, t0 * ns / n0, "k:", label="linear from the first")
+        ax.loglog(ns, t0 * ns / n0, "k:", label=f"linear through {ref[0]} / {ref[1]} at {n0}")
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+    ax.set_xticks(sorted({r["frames"] for r in rows}))
+    ax.xaxis.set_major_formatter(ScalarFormatter())
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("frames")
     ax.set_ylabel("SfM wall time (s)")
-    ax.legend()
+    ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     fig.savefig(args.out / "scaling.png", dpi=120)
 
