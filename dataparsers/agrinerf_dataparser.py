@@ -96,6 +96,9 @@ class AgriNeRFDataParser(Nerfstudio):
                 _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
             metadata[metadata_key] = paths
 
+        if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
+            metadata.update(_event_sums(data_dir, kept))
+
         sizes = {_frame_size(frame, meta) for frame in kept}
         if len(sizes) > 1 and any(key in metadata for _, _, key, _ in FRAME_KEYS):
             raise AgriNeRFDataError(
@@ -114,6 +117,26 @@ class AgriNeRFDataParser(Nerfstudio):
         metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs
+
+
+def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
+    """``event_sums_filenames`` (the frames' ``event_sums_path`` npz files) and ``event_windows`` (float64 [N, 2]: each
+    file's ``t_start``, ``t_end`` in seconds), for the event loss."""
+    import numpy as np
+    import torch
+
+    paths = [data_dir / frame["event_sums_path"] for frame in kept]
+    windows = np.zeros((len(paths), 2), dtype=np.float64)
+    for i, path in enumerate(paths):
+        try:
+            with np.load(path) as sums:
+                windows[i] = (float(sums["t_start"]), float(sums["t_end"]))
+        except (OSError, KeyError, ValueError) as error:
+            raise AgriNeRFDataError(f"{path}: not an event-sums file with t_start and t_end ({error})") from error
+    if not np.all(np.isfinite(windows)) or np.any(windows[:, 1] < windows[:, 0]):
+        bad = int(np.flatnonzero(~(np.isfinite(windows).all(1) & (windows[:, 1] >= windows[:, 0])))[0])
+        raise AgriNeRFDataError(f"{paths[bad]}: event window {windows[bad].tolist()} is not finite and ordered")
+    return {"event_sums_filenames": paths, "event_windows": torch.from_numpy(windows)}
 
 
 TRAJECTORY_CHECK_TOL = 1e-4

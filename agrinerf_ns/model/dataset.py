@@ -64,6 +64,30 @@ def load_aligned_frame(path: Path, height: int, width: int, is_mask: bool = Fals
     return torch.from_numpy(np.clip(frame, 0.0, 1.0).copy())[..., None]
 
 
+def load_event_counts(
+    path: Path, height: int, width: int
+) -> Tuple[Float[Tensor, "height width 1"], Float[Tensor, "height width 1"]]:
+    """The ON and OFF event counts per RGB pixel of one frame's event window (``event_sums_path``, float32).
+
+    The counts are per pixel of the full-resolution RGB camera; a downscaled image would need them pooled, which the
+    event loss does not do yet, so the size must match.
+    """
+    try:
+        with np.load(path) as sums:
+            pos, neg = np.asarray(sums["pos"]), np.asarray(sums["neg"])
+    except (OSError, KeyError, ValueError) as error:
+        raise AgriNeRFDataError(f"{path}: cannot read the ON/OFF counts 'pos' and 'neg': {error}") from error
+    if pos.shape != (height, width) or neg.shape != (height, width):
+        raise AgriNeRFDataError(
+            f"{path}: event counts are {pos.shape[::-1]} but the RGB image is {width}x{height}; the event loss needs "
+            "them at the image's resolution (train without downscaling)."
+        )
+    return (
+        torch.from_numpy(pos.astype(np.float32))[..., None],
+        torch.from_numpy(neg.astype(np.float32))[..., None],
+    )
+
+
 def _check_same_aspect(path: Path, file_height: int, file_width: int, height: int, width: int) -> None:
     """A frame may differ from the image only by the image's downscale factor (one pixel of rounding allowed)."""
     if abs(file_width * height / file_height - width) > 1.0 or abs(file_height * width / file_width - height) > 1.0:
@@ -81,6 +105,8 @@ class AgriNeRFDataset(InputDataset):
         "thermal_mask",
         "event",
         "event_mask",
+        "event_on",
+        "event_off",
     ]
 
     def get_metadata(self, data: Dict) -> Dict[str, Any]:
@@ -98,6 +124,9 @@ class AgriNeRFDataset(InputDataset):
                 out[mask_key] = load_aligned_frame(mask_files[image_idx], height, width, is_mask=True)
             else:
                 out[mask_key] = torch.ones((height, width, 1), dtype=torch.float32)
+        sums_files = self.metadata.get("event_sums_filenames")
+        if sums_files:
+            out["event_on"], out["event_off"] = load_event_counts(sums_files[image_idx], height, width)
         return out
 
     @property

@@ -23,6 +23,52 @@ def luminance(rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 1"]:
     return (rgb.float() * weights).sum(dim=-1, keepdim=True)
 
 
+REC709_WEIGHTS = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 luminance weights of linear RGB: what an event pixel's photodiode integrates (approximately: a real sensor
+has its own spectral response; the synthetic event camera uses exactly these)."""
+
+
+def srgb_to_linear(rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
+    """Inverse sRGB transfer curve of values in [0, 1] (the frames and the RGB head are sRGB-encoded)."""
+    rgb = rgb.float().clamp(0.0, 1.0)
+    return torch.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055).clamp(min=1e-8) ** 2.4)
+
+
+def linear_to_srgb(linear: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
+    """sRGB transfer curve of linear values in [0, 1] (the inverse of `srgb_to_linear`)."""
+    linear = linear.float().clamp(0.0, 1.0)
+    return torch.where(linear <= 0.0031308, linear * 12.92, 1.055 * linear.clamp(min=1e-8) ** (1 / 2.4) - 0.055)
+
+
+def log_luminance(rgb: Float[Tensor, "*bs 3"], eps: float) -> Float[Tensor, "*bs 1"]:
+    """The event camera's response to an sRGB-encoded colour: log(Y + eps), Y the Rec. 709 luminance of linear RGB.
+
+    Events fire on changes of this quantity; `eps` (in the linear units of the rendered colour) keeps the log finite
+    at black and sets how much a change near black counts.
+    """
+    weights = torch.tensor(REC709_WEIGHTS, dtype=torch.float32, device=rgb.device)
+    return torch.log((srgb_to_linear(rgb) * weights).sum(dim=-1, keepdim=True) + eps)
+
+
+def event_loss(
+    log_start: Float[Tensor, "*bs 1"],
+    log_end: Float[Tensor, "*bs 1"],
+    on_counts: Float[Tensor, "*bs 1"],
+    off_counts: Float[Tensor, "*bs 1"],
+    c_on: float,
+    c_off: float,
+    mask: Optional[Float[Tensor, "*bs 1"]] = None,
+) -> Float[Tensor, ""]:
+    """EvDeblurNeRF-style event loss: mean (log L(t_end) - log L(t_start) - (C_on N_on - C_off N_off))^2.
+
+    The rendered log luminance of one pixel at the two ends of a window, against the contrast thresholds times the ON
+    and OFF event counts the pixel fired in it. Pixels without events count too (their target is no change); pixels
+    outside the event camera's view are masked out.
+    """
+    target = c_on * on_counts.float() - c_off * off_counts.float()
+    return masked_mse(log_end.float() - log_start.float(), target, mask)
+
+
 def masked_mse(
     pred: Float[Tensor, "*bs c"], target: Float[Tensor, "*bs c"], mask: Optional[Float[Tensor, "*bs 1"]] = None
 ) -> Float[Tensor, ""]:

@@ -7,7 +7,7 @@ Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Loss
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Literal, Tuple, Type
+from typing import Any, Dict, List, Literal, Optional, Tuple, Type
 
 import numpy as np
 import torch
@@ -37,6 +37,7 @@ TERM_OUTPUTS: Dict[str, str] = {
     "reg_rgb_loss": "thermal",
     "reg_event_loss": "thermal",
     "thermal_camera_loss": "thermal_camera",
+    "event_loss": "rgb",
 }
 """Each data loss term and the output it compares with its target."""
 
@@ -139,6 +140,7 @@ class AgriNeRFModelConfig(ModelConfig):
             "reg_rgb_loss": 1.0,
             "reg_event_loss": 1.0,
             "thermal_camera_loss": 1.0,
+            "event_loss": 0.1,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
@@ -146,6 +148,20 @@ class AgriNeRFModelConfig(ModelConfig):
     )
     """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus the thermal-camera term and TensoRF
     L1/TV; 0 disables a term."""
+    blur_samples: int = 1
+    """Blur model: a training frame's pixel is compared with the mean, in linear radiance, of this many renders at
+    poses spread over the frame's exposure (the dataset's exposure intervals and camera trajectory). 1: the frame's
+    own pose only (no blur model). Evaluation always renders the sharp frame pose."""
+    blur_start_step: int = 0
+    """Training step from which the blur model runs (EvDeblurNeRF starts it after about 1200 steps)."""
+    event_rays_per_batch: int = 256
+    """Pixels per batch for the event loss (the first of the batch's random pixels), each rendered at the start and
+    end of its frame's event window; 0: no event loss."""
+    event_threshold: float = 0.2
+    """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
+    synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
+    event_log_eps: float = 1.0e-4
+    """Offset of the event response log(Y + eps), in the linear units of the rendered colour."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
     """Camera pose refinement (off by default)."""
 
@@ -171,6 +187,22 @@ class AgriNeRFModel(Model):
         self.use_events = "events" in self.modalities
         self.has_thermal_head = self.use_thermal or self.use_events
         self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
+        # timing of the training frames (dataparser metadata): what the blur model and the event loss need
+        self.frame_times: Optional[Tensor] = metadata.get("times")
+        self.exposure: Optional[Tensor] = metadata.get("exposure")
+        self.trajectory = metadata.get("trajectory")
+        self.event_windows: Optional[Tensor] = metadata.get("event_windows")
+        timed = self.trajectory is not None and self.frame_times is not None
+        self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
+        self.use_event_loss = (
+            self.use_rgb
+            and self.use_events
+            and timed
+            and self.event_windows is not None
+            and config.event_rays_per_batch > 0
+            and config.loss_coefficients.get("event_loss", 0.0) > 0
+        )
+        self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         if not (self.use_rgb or self.use_thermal):
             raise ValueError(
                 f"AgriNeRF needs RGB or thermal supervision: config modalities {wanted}, dataset modalities "
@@ -324,12 +356,18 @@ class AgriNeRFModel(Model):
             del step
             self.field.update_occupancy(self.config.occupancy_density_threshold)
 
+        def keep_step(step: int) -> None:
+            self.step = step
+
         callbacks = [
+            TrainingCallback(
+                where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], update_every_num_iters=1, func=keep_step
+            ),  # fmt: skip
             TrainingCallback(
                 where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
                 iters=tuple(self.config.upsampling_iters),
                 func=upsample,
-            )
+            ),
         ]
         if self.config.occupancy_resolution > 0 and self.config.occupancy_update_iters:
             callbacks.append(
@@ -349,9 +387,51 @@ class AgriNeRFModel(Model):
         return torch.full_like(values[:, -1, :], fill)
 
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, Tensor]:
-        """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold."""
+        """Renders the rays; in training also the blur model's and the event loss's renders of the same pixels at other
+        times ("rgb_blurred", "event_log_start", "event_log_end") where they are on."""
         if self.training:
             self.camera_optimizer.apply_to_raybundle(ray_bundle)
+        outputs = self._render(ray_bundle)
+        if self.training and torch.is_grad_enabled():
+            if self.use_blur and self.step >= self.config.blur_start_step:
+                outputs["rgb_blurred"] = self._blurred_rgb(ray_bundle)
+            if self.use_event_loss:
+                outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
+        return outputs
+
+    def _render_at(self, bundle: RayBundle, times: Tensor) -> Float[Tensor, "n k 3"]:
+        """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k]."""
+        from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
+
+        assert self.trajectory is not None and self.frame_times is not None
+        frame_times = self.frame_times[camera_rows(bundle)]
+        moved = self.collider(reposed_rays(bundle, self.trajectory, frame_times, times))
+        n, k = times.shape
+        return self._render(moved, routed=False)["rgb"].reshape(n, k, 3)
+
+    def _blurred_rgb(self, bundle: RayBundle) -> Float[Tensor, "n 3"]:
+        """The blur model: the mean in linear radiance of `blur_samples` renders across each frame's exposure."""
+        from agrinerf_ns.model.timed_rays import camera_rows, exposure_times
+
+        assert self.exposure is not None
+        times = exposure_times(self.exposure[camera_rows(bundle)], self.config.blur_samples)
+        renders = self._render_at(bundle, times)
+        return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
+
+    def _event_window_logs(self, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
+        """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows."""
+        from agrinerf_ns.model.timed_rays import camera_rows
+
+        assert self.event_windows is not None
+        m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
+        head = bundle[:m]
+        renders = self._render_at(head, self.event_windows[camera_rows(head)].double())
+        logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
+        return logs[:, 0], logs[:, 1]
+
+    def _render(self, ray_bundle: RayBundle, routed: bool = True) -> Dict[str, Tensor]:
+        """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold.
+        `routed`: add the training-only routed copies of the outputs (`density_gradient_scales`)."""
         with torch.no_grad():
             samples_coarse = self.sampler_coarse(ray_bundle)
             density_coarse, _ = self.field.get_density(samples_coarse)
@@ -394,7 +474,7 @@ class AgriNeRFModel(Model):
         outputs: Dict[str, Tensor] = {name: self._composite(weights, values) for name, values in dense.items()}
         outputs["depth"] = self.renderer_depth(weights, samples)
         outputs["accumulation"] = self.renderer_accumulation(weights).clamp(0.0, 1.0)
-        if self.training and torch.is_grad_enabled():
+        if routed and self.training and torch.is_grad_enabled():
             outputs.update(self._routed_outputs(weights, dense))
         if not self.training:
             for name in dense:
@@ -443,7 +523,19 @@ class AgriNeRFModel(Model):
         terms: Dict[str, Tensor] = {}
         image = batch["image"][..., :3].to(self.device) if "image" in batch else None
         if self.use_rgb and image is not None:
-            terms["rgb_loss"] = losses.rgb_loss(outputs["rgb"], image)
+            terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", outputs["rgb"]), image)
+        if "event_log_start" in outputs and "event_on" in batch:
+            m = outputs["event_log_start"].shape[0]
+            mask = optional("event_mask")
+            terms["event_loss"] = losses.event_loss(
+                outputs["event_log_start"],
+                outputs["event_log_end"],
+                batch["event_on"][:m].to(self.device),
+                batch["event_off"][:m].to(self.device),
+                self.config.event_threshold,
+                self.config.event_threshold,
+                None if mask is None else mask[:m],
+            )
         if not self.has_thermal_head:
             return terms
         if self.use_thermal and "thermal" in batch:
@@ -562,3 +654,18 @@ class AgriNeRFModel(Model):
             f"{name}_psnr": float((-10.0 * torch.log10(mse.clamp(min=1e-10))).item()),
             f"{name}_ssim": float(ssim.item()),  # type: ignore[union-attr]
         }
+
+    # ----------------------------------------------------------- exporters
+    def get_rgba_image(self, outputs: Dict[str, Tensor], output_name: str = "rgb") -> Float[Tensor, "*bs 4"]:
+        """RGB plus alpha of an output, for Nerfstudio's exporters (`ns-export pointcloud`, `tsdf`, `poisson`).
+
+        Alpha is the accumulation, so a ray that hits nothing (accumulation below 0.5, where the median depth is
+        not a surface) gives no point. A single-channel output (`thermal`) is coloured by Nerfstudio's colormap for
+        one channel (turbo, unnormalised: colours mean the same value in every export). Replaces the base method,
+        which reads a `renderer_rgb` this model does not have.
+        """
+        image = outputs[output_name]
+        if image.shape[-1] not in (1, 3):
+            raise ValueError(f"Output '{output_name}' has {image.shape[-1]} channels; an RGBA export needs 1 or 3")
+        colours = colormaps.apply_colormap(image.clamp(0.0, 1.0))
+        return torch.cat([colours, outputs["accumulation"].to(colours.dtype)], dim=-1)

@@ -1,0 +1,212 @@
+"""The event loss and the blur model (issue 15): hand-made cases, rays at other times, K = 1, gradients, extremes."""
+
+from __future__ import annotations
+
+import math
+from typing import Dict
+
+import numpy as np
+import pytest
+import torch
+from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.data.scene_box import SceneBox
+
+from agrinerf_ns.model import losses
+from agrinerf_ns.model.gradients import parameter_groups, term_gradient_norms
+from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
+from agrinerf_ns.model.timed_rays import exposure_times, reposed_rays
+from agrinerf_ns.trajectory import CameraTrajectory
+
+C = 0.2
+
+SMALL = dict(
+    init_resolution=8, final_resolution=12, upsampling_iters=(3,), num_coarse_samples=8, num_fine_samples=8,
+    num_density_components=3, num_rgb_components=4, rgb_appearance_dim=4, num_thermal_components=2,
+    thermal_appearance_dim=3, mlp_width=16, thermal_mlp_width=8, occupancy_resolution=8, density_shift=0.0,
+    event_threshold=C,
+)  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- the loss on hand-made cases
+def _loss(log_start: float, log_end: float, on: float, off: float, mask: float = 1.0) -> float:
+    t = lambda v: torch.tensor([[float(v)]])  # noqa: E731
+    return float(losses.event_loss(t(log_start), t(log_end), t(on), t(off), C, C, t(mask)))
+
+
+def test_a_log_step_of_two_thresholds_with_two_on_events_costs_nothing() -> None:
+    assert _loss(math.log(0.1), math.log(0.1) + 2 * C, on=2, off=0) == pytest.approx(0.0, abs=1e-12)
+    assert _loss(0.3, 0.3 - 3 * C, on=0, off=3) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_opposite_polarity_costs() -> None:
+    loss = _loss(0.0, 2 * C, on=0, off=2)
+    assert loss == pytest.approx((4 * C) ** 2, rel=1e-6)
+
+
+def test_a_static_pixel_without_events_costs_nothing_and_one_that_changed_without_events_does() -> None:
+    assert _loss(-1.0, -1.0, on=0, off=0) == 0.0
+    assert _loss(-1.0, -0.5, on=0, off=0) == pytest.approx(0.25)
+    assert _loss(-1.0, -0.5, on=0, off=0, mask=0.0) == 0.0  # outside the event camera's view
+
+
+def test_log_luminance_is_finite_at_black_and_exposure_invariant_in_differences() -> None:
+    black = losses.log_luminance(torch.zeros(2, 3), 1e-4)
+    assert torch.isfinite(black).all()
+    lin = torch.tensor([[0.02, 0.03, 0.01], [0.2, 0.1, 0.05]])
+    a, b = (losses.log_luminance(losses.linear_to_srgb(lin * g), 1e-9) for g in (1.0, 4.0))
+    assert torch.allclose((b - a), torch.full_like(a, math.log(4.0)), atol=1e-3)
+    assert torch.allclose(losses.srgb_to_linear(losses.linear_to_srgb(lin)), lin, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------ rays at other times
+def _trajectory() -> CameraTrajectory:
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    c2w = np.zeros((4, 3, 4))
+    for i, t in enumerate(times):
+        yaw = 0.3 * t
+        c2w[i, :3, :3] = [[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]]
+        c2w[i, :3, 3] = [t, 0.0, 3.0]
+    return CameraTrajectory(times, c2w)
+
+
+def _rays(n: int = 48, cameras: int = 4) -> RayBundle:
+    gen = torch.Generator().manual_seed(1)
+    traj = _trajectory()
+    index = torch.arange(n) % cameras
+    poses = torch.from_numpy(traj.poses_at(traj.times[index.numpy()])).float()
+    local = torch.nn.functional.normalize(
+        torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), dim=-1
+    )
+    return RayBundle(
+        origins=poses[:, :3, 3].clone(),
+        directions=(poses[:, :3, :3] @ local[..., None])[..., 0],
+        pixel_area=torch.full((n, 1), 1e-4),
+        camera_indices=index[:, None],
+    )
+
+
+def test_rays_at_the_frames_own_time_are_the_frames_rays() -> None:
+    bundle, traj = _rays(), _trajectory()
+    frame_times = torch.from_numpy(traj.times)[bundle.camera_indices[:, 0]]
+    same = reposed_rays(bundle, traj, frame_times, frame_times[:, None])
+    assert torch.allclose(same.origins, bundle.origins, atol=1e-6)
+    assert torch.allclose(same.directions, bundle.directions, atol=1e-6)
+
+
+def test_rays_at_another_time_come_from_the_trajectorys_pose_there() -> None:
+    bundle, traj = _rays(), _trajectory()
+    frame_times = torch.from_numpy(traj.times)[bundle.camera_indices[:, 0]]
+    later = frame_times[:, None] + torch.tensor([[0.05]], dtype=torch.float64)
+    moved = reposed_rays(bundle, traj, frame_times, later)
+    pose = torch.from_numpy(traj.poses_at(later[:, 0].numpy())).float()
+    frame = torch.from_numpy(traj.poses_at(frame_times.numpy())).float()
+    local = (frame[:, :3, :3].transpose(-1, -2) @ bundle.directions[..., None])[..., 0]  # the pixel's camera ray
+    assert torch.allclose(moved.origins, pose[:, :3, 3], atol=1e-6)
+    assert torch.allclose(moved.directions, (pose[:, :3, :3] @ local[..., None])[..., 0], atol=1e-6)
+
+
+def test_exposure_times_split_the_interval_and_a_zero_exposure_gives_its_instant() -> None:
+    times = exposure_times(torch.tensor([[1.0, 1.04], [2.0, 2.0]], dtype=torch.float64), 4)
+    assert torch.allclose(times[0], torch.tensor([1.005, 1.015, 1.025, 1.035], dtype=torch.float64))
+    assert torch.equal(times[1], torch.full((4,), 2.0, dtype=torch.float64))
+
+
+# ------------------------------------------------------------------------------------------------ the model
+def _metadata(exposure_s: float = 0.04, flood: bool = False) -> Dict[str, object]:
+    traj = _trajectory()
+    times = torch.from_numpy(traj.times)
+    return {
+        "modalities": ("rgb", "events"),
+        "times": times,
+        "exposure": torch.stack([times - exposure_s / 2, times + exposure_s / 2], -1),
+        "trajectory": traj,
+        "event_windows": torch.stack([times - 0.1, times], -1),
+    }
+
+
+def _model(metadata: Dict[str, object], **kw) -> AgriNeRFModel:
+    torch.manual_seed(0)
+    cfg = AgriNeRFModelConfig(modalities=("rgb", "events"), **{**SMALL, **kw})
+    box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    model = cfg.setup(scene_box=box, num_train_data=4, metadata=metadata)
+    model.train()
+    return model
+
+
+def _batch(n: int = 48, on: float = 1.0, off: float = 0.0) -> Dict[str, torch.Tensor]:
+    gen = torch.Generator().manual_seed(2)
+    return {
+        "image": torch.rand(n, 3, generator=gen),
+        "event": torch.full((n, 1), 0.5),
+        "event_mask": torch.ones(n, 1),
+        "event_on": torch.full((n, 1), on),
+        "event_off": torch.full((n, 1), off),
+    }
+
+
+def _losses(model: AgriNeRFModel, batch: Dict[str, torch.Tensor], seed: int = 3) -> Dict[str, torch.Tensor]:
+    torch.manual_seed(seed)
+    outputs = model(_rays())
+    return model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
+
+
+def test_one_blur_sample_is_the_sharp_path_bit_for_bit() -> None:
+    sharp = _losses(_model({"modalities": ("rgb", "events")}), _batch())  # no timing metadata at all
+    k1 = _model(_metadata(), blur_samples=1, event_rays_per_batch=0)
+    assert not k1.use_blur
+    one = _losses(k1, _batch())
+    assert set(one) == set(sharp)
+    for key in sharp:
+        assert torch.equal(one[key], sharp[key]), key
+
+
+def test_the_blur_model_renders_across_the_exposure_and_zero_exposure_is_the_sharp_render() -> None:
+    blurred = _model(_metadata(exposure_s=0.04), blur_samples=3, event_rays_per_batch=0)
+    torch.manual_seed(3)
+    out = blurred(_rays())
+    assert "rgb_blurred" in out and out["rgb_blurred"].shape == out["rgb"].shape
+    assert not torch.allclose(out["rgb_blurred"], out["rgb"], atol=1e-5)  # the camera moved during the exposure
+    instant = _model(_metadata(exposure_s=0.0), blur_samples=3, event_rays_per_batch=0)
+    torch.manual_seed(3)
+    out = instant(_rays())
+    assert torch.isfinite(out["rgb_blurred"]).all()
+    # every sub-pose is the frame's pose: only the samplers' jitter differs between the renders
+    assert (out["rgb_blurred"] - out["rgb"]).abs().mean() < 0.02
+    blurred.eval()
+    with torch.no_grad():
+        assert "rgb_blurred" not in blurred(_rays())  # evaluation renders the sharp frame pose
+
+
+def test_the_event_loss_reaches_the_density_and_the_rgb_appearance() -> None:
+    model = _model(_metadata(), event_rays_per_batch=16)
+    assert model.use_event_loss
+    loss_dict = _losses(model, _batch())
+    assert "event_loss" in loss_dict
+    norms = term_gradient_norms({"event_loss": loss_dict["event_loss"]}, parameter_groups(model))["event_loss"]
+    assert norms["density"] > 0 and norms["rgb_volume"] > 0 and norms["rgb_mlp"] > 0
+    assert norms["thermal_volume"] == 0.0 and norms["thermal_mlp"] == 0.0
+
+
+@pytest.mark.parametrize("case", ["no events", "flood", "zero exposure", "zero-length window"])
+def test_no_nan_or_inf_at_the_extremes(case: str) -> None:
+    metadata = _metadata(exposure_s=0.0 if case == "zero exposure" else 0.04)
+    if case == "zero-length window":
+        times = metadata["times"]
+        metadata["event_windows"] = torch.stack([times, times], -1)  # type: ignore[arg-type]
+    model = _model(metadata, blur_samples=3, event_rays_per_batch=16)
+    batch = _batch(on=0.0 if case == "no events" else (60000.0 if case == "flood" else 1.0),
+                   off=60000.0 if case == "flood" else 0.0)  # fmt: skip
+    loss_dict = _losses(model, batch)
+    total = torch.stack(list(loss_dict.values())).sum()
+    assert torch.isfinite(total)
+    total.backward()
+    for name, p in model.named_parameters():
+        assert p.grad is None or torch.isfinite(p.grad).all(), name
+
+
+def test_a_scene_without_event_sums_or_timing_has_no_event_loss() -> None:
+    meta = _metadata()
+    del meta["event_windows"]
+    assert not _model(meta).use_event_loss
+    assert "event_loss" not in _losses(_model(meta), _batch())
+    assert not _model({"modalities": ("rgb", "events")}, blur_samples=5).use_blur
