@@ -1,11 +1,13 @@
 """`MethodSpecification`s of the AgriNeRF presets, all built by one function (`agrinerf_trainer_config`).
 
-Every `ns-*` command imports this module (entry points `agrinerf`, `agrinerf-lite`), so it stays cheap and never
+Every `ns-*` command imports this module (the entry points of every preset below), so it stays cheap and never
 raises; it must not import `nerfstudio.configs.method_configs` (that module loads the entry points: circular import).
 
 Presets:
 - `agrinerf`: the paper (1024 rays, 64 coarse + 64 fine samples, 30k steps, lr decayed x0.1 every 10k steps).
 - `agrinerf-lite`: fast on a CPU (smaller grids and MLPs, 32 + 32 samples, 2k steps).
+- `evdeblurnerf`, `evdeblurnerf-lite`: the paper's EvDeblurNeRF baseline, the same presets' RGB module (event loss and
+  blur model) without the thermal head.
 
 Device: a preset trains on the GPU when PyTorch sees a CUDA device and on the CPU otherwise (the default of
 `--machine.device-type` is chosen when this module is imported, so `--help` shows it and an explicit value wins);
@@ -107,30 +109,56 @@ def agrinerf_trainer_config(
     )
 
 
+PAPER_TIMED: Dict[str, Any] = dict(blur_samples=5, blur_start_step=1200, event_rays_per_batch=1024)
+"""The paper preset's RGB module (EvDeblurNeRF's, which AgriNeRF extends): the blur model from step 1200 and the event
+loss. EvDeblurNeRF itself renders 10 rays per blurred pixel and 2048-4096 event pixels per batch."""
+
+LITE: Dict[str, Any] = dict(
+    max_num_iterations=2000,
+    steps_per_eval_batch=200,
+    steps_per_save=500,
+    init_resolution=32,
+    final_resolution=96,
+    upsampling_iters=(300, 600, 900),
+    num_coarse_samples=32,
+    num_fine_samples=32,
+    num_density_components=8,
+    num_rgb_components=16,
+    rgb_appearance_dim=16,
+    num_thermal_components=8,
+    thermal_appearance_dim=8,
+    mlp_width=64,
+    occupancy_resolution=32,
+    occupancy_update_iters=(500, 1000, 1500),
+    event_rays_per_batch=256,
+)
+"""The CPU preset: small grids and MLPs, 32 + 32 samples, 2k steps, the event loss on 256 pixels, no blur model."""
+
 agrinerf = MethodSpecification(
-    config=agrinerf_trainer_config("agrinerf", max_num_iterations=30000),
+    config=agrinerf_trainer_config("agrinerf", max_num_iterations=30000, **PAPER_TIMED),
     description="AgriNeRF (paper settings): RGB + thermal + event TensoRF NeRF, 64+64 samples, 30k steps.",
 )
 
 agrinerf_lite = MethodSpecification(
-    config=agrinerf_trainer_config(
-        "agrinerf-lite",
-        max_num_iterations=2000,
-        steps_per_eval_batch=200,
-        steps_per_save=500,
-        init_resolution=32,
-        final_resolution=96,
-        upsampling_iters=(300, 600, 900),
-        num_coarse_samples=32,
-        num_fine_samples=32,
-        num_density_components=8,
-        num_rgb_components=16,
-        rgb_appearance_dim=16,
-        num_thermal_components=8,
-        thermal_appearance_dim=8,
-        mlp_width=64,
-        occupancy_resolution=32,
-        occupancy_update_iters=(500, 1000, 1500),
-    ),
+    config=agrinerf_trainer_config("agrinerf-lite", **LITE),
     description="AgriNeRF, fast CPU preset: small grids and MLPs, 32+32 samples, 2k steps.",
+)
+
+evdeblurnerf = MethodSpecification(
+    config=agrinerf_trainer_config(
+        "evdeblurnerf",
+        max_num_iterations=30000,
+        modalities=("rgb", "events"),
+        cross_spectral_output=False,
+        **PAPER_TIMED,
+    ),
+    description="EvDeblurNeRF-style baseline: the RGB TensoRF with the event loss and blur model, no thermal head.",
+)
+
+evdeblurnerf_lite = MethodSpecification(
+    config=agrinerf_trainer_config(
+        "evdeblurnerf-lite", modalities=("rgb", "events"), cross_spectral_output=False, **{**LITE, "blur_samples": 3}
+    ),
+    description="EvDeblurNeRF-style baseline, CPU preset: AgriNeRF-lite's RGB module with the event loss and a 3-ray "
+    "blur model, no thermal head.",
 )

@@ -210,3 +210,10 @@ def test_a_scene_without_event_sums_or_timing_has_no_event_loss() -> None:
     assert not _model(meta).use_event_loss
     assert "event_loss" not in _losses(_model(meta), _batch())
     assert not _model({"modalities": ("rgb", "events")}, blur_samples=5).use_blur
+
+
+def test_the_evdeblurnerf_configuration_has_no_thermal_head() -> None:
+    model = _model(_metadata(), cross_spectral_output=False)
+    assert model.field.thermal_head is None and not any("thermal" in n for n, _ in model.named_parameters())
+    assert set(_losses(model, _batch())) >= {"rgb_loss", "event_loss"}
+    assert not any(k.startswith("reg_") for k in _losses(model, _batch()))

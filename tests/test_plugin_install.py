@@ -23,7 +23,7 @@ def test_method_entry_points_are_method_specifications() -> None:
     from nerfstudio.plugins.types import MethodSpecification
 
     eps = _entry_points("nerfstudio.method_configs")
-    assert {"agrinerf", "agrinerf-lite"} <= {ep.name for ep in eps}
+    assert {"agrinerf", "agrinerf-lite", "evdeblurnerf", "evdeblurnerf-lite"} <= {ep.name for ep in eps}
     for ep in eps:
         spec = ep.load()
         assert isinstance(spec, MethodSpecification), ep

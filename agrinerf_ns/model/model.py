@@ -85,6 +85,10 @@ class AgriNeRFModelConfig(ModelConfig):
     """Feature size fed to MLP_THERMAL."""
     thermal_view_dependent: bool = False
     """Feed the viewing direction to MLP_THERMAL."""
+    cross_spectral_output: bool = True
+    """Build the cross-spectral `thermal` head (and L_reg) for a scene with events but no thermal frames (Table IV
+    "RGB+Events"); False: such a scene gets no thermal head (the EvDeblurNeRF baseline). With thermal frames the head
+    is always built."""
     thermal_camera_output: bool = True
     """Give MLP_THERMAL a second channel, the output `thermal_camera`, fit to the thermal frames alone by
     `thermal_camera_loss` (built only when the scene has thermal frames). The cross-spectral `thermal` output cannot
@@ -185,7 +189,7 @@ class AgriNeRFModel(Model):
         self.use_rgb = "rgb" in self.modalities
         self.use_thermal = "thermal" in self.modalities
         self.use_events = "events" in self.modalities
-        self.has_thermal_head = self.use_thermal or self.use_events
+        self.has_thermal_head = self.use_thermal or (self.use_events and config.cross_spectral_output)
         self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
         # timing of the training frames (dataparser metadata): what the blur model and the event loss need
         self.frame_times: Optional[Tensor] = metadata.get("times")
