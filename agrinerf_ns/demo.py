@@ -109,7 +109,8 @@ def labelled_metrics(results: Mapping[str, object]) -> List[Metric]:
         value = float(results[key])  # type: ignore[arg-type]
         note = CROSS_SPECTRAL_NOTE if key.startswith("thermal_") and not key.startswith("thermal_camera") else ""
         if not math.isfinite(value):
-            rows.append(Metric(key, name, compares, unit, None, lpips_unavailable_reason() if key == "lpips" else ""))
+            reason = lpips_unavailable_reason() if key == "lpips" else "unavailable: not finite on any held-out view"
+            rows.append(Metric(key, name, compares, unit, None, reason))
         else:
             rows.append(Metric(key, name, compares, unit, value, note))
     return rows
