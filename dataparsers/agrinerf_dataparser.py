@@ -21,6 +21,8 @@ the thermal and event frames (and their valid masks) and hands their paths to th
 
 The thermal and event frames are aligned to the RGB camera, so they must have the RGB frame's full resolution
 (``w`` x ``h`` in ``transforms.json``); the dataset resizes them like the image when the image is downscaled.
+Before Nerfstudio's parser runs, ``dataset_checks`` checks the JSON, every frame's pose, intrinsics and RGB image;
+every :class:`AgriNeRFDataError` names the file (and the frame).
 """
 
 from __future__ import annotations
@@ -32,10 +34,10 @@ from typing import Any, Dict, List, Literal, Optional, Tuple, Type
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
 from nerfstudio.plugins.registry_dataparser import DataParserSpecification
-from nerfstudio.utils.io import load_from_json
 from nerfstudio.utils.rich_utils import CONSOLE
 from PIL import Image
 
+from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, read_transforms
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 
 Modality = Literal["rgb", "thermal", "events"]
@@ -48,10 +50,6 @@ FRAME_KEYS: Tuple[Tuple[Modality, str, str, bool], ...] = (
     ("events", "event_file_path", "event_filenames", False),
     ("events", "event_mask_path", "event_mask_filenames", True),
 )
-
-
-class AgriNeRFDataError(ValueError):
-    """A tri-modal dataset does not follow the contract of docs/formats.md."""
 
 
 @dataclass
@@ -71,11 +69,13 @@ class AgriNeRFDataParser(Nerfstudio):
     config: AgriNeRFDataParserConfig
 
     def _generate_dataparser_outputs(self, split: str = "train") -> DataparserOutputs:
-        outputs = super()._generate_dataparser_outputs(split)
         transforms_path = (
             self.config.data if self.config.data.suffix == ".json" else self.config.data / "transforms.json"
         )
-        meta = load_from_json(transforms_path)
+        # checked before Nerfstudio's parser reads it, so a bad file fails with its name before any training
+        meta = read_transforms(transforms_path)
+        check_transforms(meta, transforms_path)
+        outputs = super()._generate_dataparser_outputs(split)
         data_dir = transforms_path.parent
         frames: List[Dict[str, Any]] = meta["frames"]
 
@@ -98,6 +98,9 @@ class AgriNeRFDataParser(Nerfstudio):
 
         if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
             metadata.update(_event_sums(data_dir, kept))
+            camera = _event_camera(block, outputs, meta)
+            if camera is not None:
+                metadata["event_camera"] = camera
 
         sizes = {_frame_size(frame, meta) for frame in kept}
         if len(sizes) > 1 and any(key in metadata for _, _, key, _ in FRAME_KEYS):
@@ -137,6 +140,26 @@ def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
         bad = int(np.flatnonzero(~(np.isfinite(windows).all(1) & (windows[:, 1] >= windows[:, 0])))[0])
         raise AgriNeRFDataError(f"{paths[bad]}: event window {windows[bad].tolist()} is not finite and ordered")
     return {"event_sums_filenames": paths, "event_windows": torch.from_numpy(windows)}
+
+
+def _event_camera(
+    block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any]
+) -> Optional[Dict[str, Any]]:
+    """Where the event frames' rays start: ``centre``, the event camera's centre in the RGB camera's frame (OpenGL
+    axes, this parser's scale, float64 [3]), and ``plane_depth``, the depth (same scale) of the plane the frames were
+    warped into the RGB camera at (inf: at infinity). None when the calibration has no event camera."""
+    import numpy as np
+    import torch
+
+    calib = (block.get("calibration") or {}).get("event")
+    if not calib or "T_cam_rgb" not in calib:
+        return None
+    T = np.asarray(calib["T_cam_rgb"], dtype=np.float64)
+    centre_cv = -T[:3, :3].T @ T[:3, 3]  # the event camera's centre in the RGB camera's OpenCV frame
+    scale = float(outputs.dataparser_scale) / float(meta.get("applied_scale", 1.0))
+    depth = float((block.get("alignment") or {}).get("plane_depth", "inf"))
+    centre_gl = np.array([centre_cv[0], -centre_cv[1], -centre_cv[2]]) * scale
+    return {"centre": torch.from_numpy(centre_gl), "plane_depth": depth * scale}
 
 
 TRAJECTORY_CHECK_TOL = 1e-4

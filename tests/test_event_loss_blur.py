@@ -217,3 +217,21 @@ def test_the_evdeblurnerf_configuration_has_no_thermal_head() -> None:
     assert model.field.thermal_head is None and not any("thermal" in n for n, _ in model.named_parameters())
     assert set(_losses(model, _batch())) >= {"rgb_loss", "event_loss"}
     assert not any(k.startswith("reg_") for k in _losses(model, _batch()))
+
+
+def test_event_camera_rays_start_at_its_centre_and_meet_the_rgb_ray_on_the_alignment_plane() -> None:
+    bundle, traj = _rays(), _trajectory()
+    frame_times = torch.from_numpy(traj.times)[bundle.camera_indices[:, 0]]
+    centre = torch.tensor([-0.065, -0.02, 0.005], dtype=torch.float64)
+    at_infinity = reposed_rays(bundle, traj, frame_times, frame_times[:, None], centre, math.inf)
+    pose = torch.from_numpy(traj.poses_at(frame_times.numpy()))
+    world_centre = (pose[:, :3, :3] @ centre[:, None])[..., 0] + pose[:, :3, 3]
+    assert torch.allclose(at_infinity.origins.double(), world_centre, atol=1e-6)
+    assert torch.allclose(at_infinity.directions, bundle.directions, atol=1e-6)  # a rotation-only homography
+    depth = 2.5
+    on_plane = reposed_rays(bundle, traj, frame_times, frame_times[:, None], centre, depth)
+    forward = -pose[:, :3, 2]  # OpenGL: the camera looks along -z
+    cos = (bundle.directions.double() * forward).sum(-1, keepdim=True)
+    point = bundle.origins.double() + bundle.directions.double() * depth / cos
+    to_point = torch.nn.functional.normalize(point - world_centre, dim=-1)
+    assert torch.allclose(on_plane.directions.double(), to_point, atol=1e-5)

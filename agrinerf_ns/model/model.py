@@ -196,6 +196,7 @@ class AgriNeRFModel(Model):
         self.exposure: Optional[Tensor] = metadata.get("exposure")
         self.trajectory = metadata.get("trajectory")
         self.event_windows: Optional[Tensor] = metadata.get("event_windows")
+        self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
         self.use_event_loss = (
@@ -403,13 +404,14 @@ class AgriNeRFModel(Model):
                 outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
         return outputs
 
-    def _render_at(self, bundle: RayBundle, times: Tensor) -> Float[Tensor, "n k 3"]:
-        """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k]."""
+    def _render_at(self, bundle: RayBundle, times: Tensor, **camera: Any) -> Float[Tensor, "n k 3"]:
+        """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k] (`camera`: the
+        `camera_centre` and `plane_depth` of another rig camera whose frames were warped onto these pixels)."""
         from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
 
         assert self.trajectory is not None and self.frame_times is not None
         frame_times = self.frame_times[camera_rows(bundle)]
-        moved = self.collider(reposed_rays(bundle, self.trajectory, frame_times, times))
+        moved = self.collider(reposed_rays(bundle, self.trajectory, frame_times, times, **camera))
         n, k = times.shape
         return self._render(moved, routed=False)["rgb"].reshape(n, k, 3)
 
@@ -423,13 +425,17 @@ class AgriNeRFModel(Model):
         return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
 
     def _event_window_logs(self, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
-        """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows."""
+        """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows, seen
+        from the event camera (its centre and the alignment plane from the dataset's calibration, where recorded)."""
         from agrinerf_ns.model.timed_rays import camera_rows
 
         assert self.event_windows is not None
         m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
         head = bundle[:m]
-        renders = self._render_at(head, self.event_windows[camera_rows(head)].double())
+        camera: Dict[str, Any] = {}
+        if self.event_camera:
+            camera = {"camera_centre": self.event_camera["centre"], "plane_depth": self.event_camera["plane_depth"]}
+        renders = self._render_at(head, self.event_windows[camera_rows(head)].double(), **camera)
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]
 

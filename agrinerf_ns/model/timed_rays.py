@@ -8,7 +8,8 @@ model Nerfstudio generated the ray with (distortion included), and needs only th
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, Optional
 
 import torch
 from jaxtyping import Float
@@ -31,21 +32,38 @@ def reposed_rays(
     trajectory: "CameraTrajectory",
     frame_times: Float[Tensor, "n"],
     times: Float[Tensor, "n k"],
+    camera_centre: Optional[Float[Tensor, "3"]] = None,
+    plane_depth: float = math.inf,
 ) -> RayBundle:
     """The `n` rays of `bundle` (taken at their frames' `frame_times`) seen from the trajectory's poses at `times`,
-    as one flat bundle of n * k rays, ray-major (ray i's k copies are rows i * k ... i * k + k - 1)."""
+    as one flat bundle of n * k rays, ray-major (ray i's k copies are rows i * k ... i * k + k - 1).
+
+    `camera_centre` (the camera's frame, OpenGL axes): the rays of another camera of the rig whose frames were warped
+    onto these pixels through the plane at `plane_depth` (along the optical axis; inf: at infinity): each ray then
+    starts at that camera's centre and passes through the point of the original ray on the plane (at infinity: it
+    keeps the original direction). This is how an event frame aligned to the RGB camera is seen from the event camera.
+    """
     n, k = times.shape
     frame_pose = trajectory.poses_at_tensor(frame_times.double().cpu(), dtype=torch.float64)  # [n, 3, 4]
     new_pose = trajectory.poses_at_tensor(times.double().cpu(), dtype=torch.float64)  # [n, k, 3, 4]
-    relative = new_pose[..., :3] @ frame_pose[:, None, :3, :3].transpose(-1, -2)  # [n, k, 3, 3]
+    rot_t = frame_pose[:, :3, :3].transpose(-1, -2)
+    origins = bundle.origins.to(torch.float64).cpu()
+    local_o = (rot_t @ (origins - frame_pose[:, :3, 3])[..., None])[..., 0]  # [n, 3] in the camera frame
+    local_d = (rot_t @ bundle.directions.to(torch.float64).cpu()[..., None])[..., 0]
+    if camera_centre is not None:
+        centre = camera_centre.to(torch.float64).cpu()
+        if math.isfinite(plane_depth):
+            forward = (-local_d[:, 2:3]).clamp(min=1e-9)  # OpenGL: the optical axis is -z
+            on_plane = local_o + local_d * (plane_depth / forward)
+            local_d = torch.nn.functional.normalize(on_plane - centre, dim=-1)
+        local_o = local_o + centre
+    rot = new_pose[..., :3]  # [n, k, 3, 3]
+    new_o = new_pose[..., 3] + (rot @ local_o[:, None, :, None])[..., 0]
+    new_d = (rot @ local_d[:, None, :, None])[..., 0]
     device, dtype = bundle.origins.device, bundle.origins.dtype
-    relative = relative.to(device=device, dtype=dtype)
-    offset = (bundle.origins.to(torch.float64).cpu() - frame_pose[:, :3, 3]).to(device=device, dtype=dtype)
-    origins = new_pose[..., 3].to(device=device, dtype=dtype) + (relative @ offset[:, None, :, None])[..., 0]
-    directions = (relative @ bundle.directions[:, None, :, None])[..., 0]
     return RayBundle(
-        origins=origins.reshape(n * k, 3),
-        directions=directions.reshape(n * k, 3),
+        origins=new_o.reshape(n * k, 3).to(device=device, dtype=dtype),
+        directions=new_d.reshape(n * k, 3).to(device=device, dtype=dtype),
         pixel_area=bundle.pixel_area.repeat_interleave(k, dim=0),
         camera_indices=bundle.camera_indices.repeat_interleave(k, dim=0),
     )
@@ -55,4 +73,3 @@ def camera_rows(bundle: RayBundle) -> Tensor:
     """Each ray's camera index (into the training cameras) as a flat long tensor on the CPU."""
     assert bundle.camera_indices is not None, "training rays carry their camera indices"
     return bundle.camera_indices.reshape(-1).long().cpu()
-
