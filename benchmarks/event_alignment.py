@@ -56,7 +56,7 @@ def main(args: Args) -> None:
     meta = json.loads((args.data / "transforms.json").read_text())
     frames = sorted(meta["frames"], key=lambda f: f["timestamp"])
     rows: List[Tuple[str, float, float, int, int, float]] = []
-    for prev, frame in zip(frames, frames[1:]):
+    for prev, frame in zip(frames, frames[1:], strict=False):
         sums = np.load(args.data / frame["event_sums_path"])
         if abs(float(sums["t_start"]) - prev["timestamp"]) > 1e-3 or abs(float(sums["t_end"]) - frame["timestamp"]) > 1e-3:
             continue  # the window does not span these two frames

@@ -142,7 +142,7 @@ def reprojection_errors(
     other: CameraCalib,
     maps: Tuple[np.ndarray, np.ndarray, np.ndarray],
     X_rgb: Float[np.ndarray, "n 3"],
-) -> Float[np.ndarray, "m"]:
+) -> Float[np.ndarray, " m"]:
     """Pixel distance, in the aligned image, between where 3D points (RGB camera frame) appear in the RGB frame
     and where the warped other frame shows them. Points outside either image are skipped."""
     X_rgb = X_rgb[X_rgb[:, 2] > 1e-6]

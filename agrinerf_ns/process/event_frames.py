@@ -49,8 +49,8 @@ class EventFrameConfig:
 
 
 def event_windows(
-    frame_times: Float[np.ndarray, "n"], config: EventFrameConfig
-) -> Tuple[Float[np.ndarray, "n"], Float[np.ndarray, "n"], float]:
+    frame_times: Float[np.ndarray, " n"], config: EventFrameConfig
+) -> Tuple[Float[np.ndarray, " n"], Float[np.ndarray, " n"], float]:
     """Window start and end times in seconds for each frame, and the window length used."""
     if config.window_s is not None:
         window = float(config.window_s)
@@ -69,8 +69,8 @@ def event_windows(
 
 def accumulate_windows(
     chunks: Iterable[EventChunk],
-    t_start_s: Float[np.ndarray, "n"],
-    t_end_s: Float[np.ndarray, "n"],
+    t_start_s: Float[np.ndarray, " n"],
+    t_end_s: Float[np.ndarray, " n"],
     width: int,
     height: int,
 ) -> Iterator[Tuple[int, Int32[np.ndarray, "h w"], Int32[np.ndarray, "h w"]]]:

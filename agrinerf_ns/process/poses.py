@@ -25,7 +25,7 @@ def opencv_to_opengl(c2w: Float[np.ndarray, "*b 4 4"]) -> Float[np.ndarray, "*b 
 
 
 def match_times(
-    query: Float[np.ndarray, "n"], ref: Float[np.ndarray, "m"], tol: float
+    query: Float[np.ndarray, " n"], ref: Float[np.ndarray, " m"], tol: float
 ) -> np.ndarray:
     """Index into ``ref`` of the nearest time to each query time, or -1 when farther than ``tol``."""
     idx = np.clip(np.searchsorted(ref, query), 1, max(1, len(ref) - 1))
@@ -40,7 +40,7 @@ def match_times(
 
 
 def poses_from_odometry(
-    odometry: Path, rgb_times: Float[np.ndarray, "n"], tol: float
+    odometry: Path, rgb_times: Float[np.ndarray, " n"], tol: float
 ) -> Tuple[Float[np.ndarray, "n 4 4"], np.ndarray]:
     """RGB camera-to-world (OpenCV axes) per RGB frame from a TUM file; second value: bool, frame has a pose."""
     t, c2w = read_tum(odometry)

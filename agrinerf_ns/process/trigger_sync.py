@@ -31,7 +31,7 @@ class TriggerSync:
     residual_rms_us: float
     residual_max_us: float
 
-    def apply(self, t: Float[np.ndarray, "n"]) -> Float[np.ndarray, "n"]:
+    def apply(self, t: Float[np.ndarray, " n"]) -> Float[np.ndarray, " n"]:
         return self.scale * np.asarray(t, np.float64) + self.offset_s
 
     def as_dict(self) -> Dict:
@@ -46,7 +46,7 @@ def _match(frames: np.ndarray, edges: np.ndarray, tol: float) -> np.ndarray:
 
 
 def fit_trigger_sync(
-    frame_times_s: Float[np.ndarray, "n"],
+    frame_times_s: Float[np.ndarray, " n"],
     triggers: TriggerEvents,
     source: Path,
     edge: Literal["rising", "falling"] = "rising",
