@@ -1,4 +1,14 @@
-"""The sensor modalities a reconstruction can model, and the paper's Table IV combinations of them."""
+"""The sensor modalities a reconstruction can model, and the paper's Table IV combinations of them.
+
+This is the one definition of :data:`Modality`; the config (``--pipeline.model.modalities``,
+``--pipeline.datamanager.dataparser.modalities``), the dataset's ``agrinerf.modalities`` block and the dataparser's
+``metadata["modalities"]`` all use it. Spelling: the modality is the stream, ``"events"`` (plural); the names of one
+frame's data are singular, ``event``: the per-frame keys of ``transforms.json`` (``event_file_path``,
+``event_mask_path``, ``event_sums_path``), the dataparser metadata (``event_filenames``, ``event_mask_filenames``)
+and the training batch (``batch["event"]``, ``batch["event_mask"]``), as ``thermal`` / ``thermal_mask`` and
+``image`` are one frame's data of the other two. :func:`normalise_modalities` accepts ``"event"`` for ``"events"``.
+The detector's input (RGB or thermal) is a different notion: ``agrinerf_ns.detect.evaluate.DetectorInput``.
+"""
 
 from __future__ import annotations
 

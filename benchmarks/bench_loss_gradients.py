@@ -24,8 +24,8 @@ from typing import Dict, List, Tuple
 import torch
 import tyro
 
-from agrinerf_ns.bench.cli import device_name
 from agrinerf_ns.bench.stepper import MethodStepper
+from agrinerf_ns.machine import device_name
 from agrinerf_ns.model.gradients import parameter_groups, term_gradients
 from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES
 

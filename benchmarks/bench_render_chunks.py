@@ -28,6 +28,8 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 import tyro
 
+from agrinerf_ns.run_order import rotated
+
 
 @dataclass
 class Args:
@@ -98,7 +100,7 @@ def _run_child(args: Args, chunk: int, round_index: int) -> Dict[str, object]:
 
 def main(args: Args) -> List[Dict[str, object]]:
     """Run every (round, chunk size) process; write the CSV and the Markdown table; return the rows."""
-    from agrinerf_ns.bench.cli import device_name
+    from agrinerf_ns.machine import device_name
 
     if args.child is not None:
         print(json.dumps(render_in_process(args.config, args.child, args.views, args.out)))
@@ -107,8 +109,7 @@ def main(args: Args) -> List[Dict[str, object]]:
         raise FileNotFoundError(f"{args.config}: no such run config")
     rows: List[Dict[str, object]] = []
     for r in range(args.rounds):
-        shift = r % len(args.chunks)
-        for chunk in args.chunks[shift:] + args.chunks[:shift]:
+        for chunk in rotated(args.chunks, r):
             result = _run_child(args, chunk, r)
             rows.append({"round": r, "chunk": chunk, **result})
             print(f"round {r} chunk {chunk}: {result['seconds']:.1f} s, peak {result['peak_mib']:.0f} MiB")

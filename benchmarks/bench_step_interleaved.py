@@ -23,9 +23,10 @@ from typing import Dict, List, Tuple
 import torch
 import tyro
 
-from agrinerf_ns.bench.cli import device_name
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.bench.stepper import MethodStepper
+from agrinerf_ns.machine import device_name
+from agrinerf_ns.run_order import rotated
 
 
 @dataclass
@@ -54,8 +55,7 @@ def main(args: Args) -> None:
     steppers = {key: MethodStepper(key, args.data, args.rays_per_batch) for key in args.methods}
     rows: List[Dict[str, object]] = []
     for round_ in range(args.warmup + args.steps):
-        shift = round_ % len(args.methods)
-        for key in list(args.methods[shift:]) + list(args.methods[:shift]):
+        for key in rotated(args.methods, round_):
             seconds = steppers[key].step(round_)
             if round_ >= args.warmup:
                 rows.append({"round": round_ - args.warmup, "method": key, "seconds": seconds})

@@ -21,9 +21,10 @@ from typing import Dict, List, Tuple
 
 import tyro
 
-from agrinerf_ns.bench.cli import device_name
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.bench.ns_commands import ns_train
+from agrinerf_ns.machine import device_name
+from agrinerf_ns.run_order import rotated
 
 
 @dataclass
@@ -50,8 +51,7 @@ def main(args: Args) -> None:
     device = device_name()
     rows: List[Dict[str, object]] = []
     for repeat in range(args.repeats):
-        order = list(args.methods[repeat % len(args.methods) :]) + list(args.methods[: repeat % len(args.methods)])
-        for key in order:
+        for key in rotated(args.methods, repeat):
             method = METHODS[key]
             run = ns_train(
                 method.ns_method, args.data / method.data_file, args.out / "runs" / f"r{repeat}", key,

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Literal, Optional, Tuple, Type
+from typing import Any, Dict, List, Optional, Tuple, Type
 
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
@@ -38,10 +38,8 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from PIL import Image
 
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, read_transforms
+from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
-
-Modality = Literal["rgb", "thermal", "events"]
-ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
 
 # (modality, per-frame key in transforms.json, metadata key in DataparserOutputs, is_mask)
 FRAME_KEYS: Tuple[Tuple[Modality, str, str, bool], ...] = (

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from agrinerf_ns.images import to_uint8
 from agrinerf_ns.process.event_frames import (
     EventFrameConfig,
     accumulate_windows,
     event_windows,
-    to_png8,
     to_unit_frame,
 )
 from agrinerf_ns.process.readers import EventChunk
@@ -50,7 +50,7 @@ def test_signed_representation_and_png_encoding():
     value = np.array([[-10.0, -2.0, 0.0, 2.0, 10.0]])
     unit = to_unit_frame(value, 4.0, "signed")
     np.testing.assert_allclose(unit, [[0.0, 0.25, 0.5, 0.75, 1.0]])
-    np.testing.assert_array_equal(to_png8(unit), [[0, 64, 128, 191, 255]])
+    np.testing.assert_array_equal(to_uint8(unit), [[0, 64, 128, 191, 255]])
     count = to_unit_frame(np.array([[0.0, 2.0, 9.0]]), 4.0, "count")
     np.testing.assert_allclose(count, [[0.0, 0.5, 1.0]])
 

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import platform
 import shutil
 import sys
 from dataclasses import asdict, dataclass
@@ -25,6 +23,7 @@ from agrinerf_ns.bench import results
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
+from agrinerf_ns.machine import device_name
 
 if TYPE_CHECKING:
     from agrinerf_ns.synth import SynthConfig
@@ -53,23 +52,6 @@ class BenchConfig:
     """Where results are appended; None: OUT/results.csv."""
     report_only: bool = False
     """Train nothing: rewrite results.md and tradeoff.png from the rows already in the CSV."""
-
-
-def device_name() -> str:
-    """The accelerator, or the CPU model and core count."""
-    import torch
-
-    if torch.cuda.is_available():
-        return torch.cuda.get_device_name(0)
-    model = platform.processor() or "CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model} ({os.cpu_count()} cores, CPU)"
 
 
 def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tuple[Path, Path]:

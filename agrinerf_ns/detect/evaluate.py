@@ -31,9 +31,12 @@ from agrinerf_ns.detect.yolo_data import (
     subsample,
     write_yolo_dataset,
 )
+from agrinerf_ns.machine import device_name, software_versions
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
-Modality = Literal["rgb", "thermal"]
+DetectorInput = Literal["rgb", "thermal"]
+"""Which trained detector scores a view: the RGB one or the thermal one (a detector input, not a reconstruction
+modality of :mod:`agrinerf_ns.modalities`)."""
 
 
 @dataclass
@@ -48,11 +51,11 @@ class MethodSpec:
     """Nerfstudio run config (outputs/.../config.yml) to render from."""
     renders: Optional[Path] = None
     """Or: a folder of already rendered held-out views named <frame>.png."""
-    detector: Optional[Modality] = None
+    detector: Optional[DetectorInput] = None
     """Detector to use; default "thermal" for output "thermal", else "rgb" (Nerfacto (Thermal): output rgb, detector
     thermal)."""
 
-    def detector_modality(self) -> Modality:
+    def detector_modality(self) -> DetectorInput:
         return self.detector or ("thermal" if self.output == "thermal" else "rgb")
 
 
@@ -141,7 +144,7 @@ def load_plan(path: Path) -> List[SceneSpec]:
     return scenes
 
 
-BENCH_METHODS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
+BENCH_METHODS: Dict[str, List[Tuple[str, Output, Optional[DetectorInput]]]] = {
     "nerfacto": [("Nerfacto (RGB)", "rgb", None)],
     "nerfacto-thermal": [("Nerfacto (Thermal)", "rgb", "thermal")],
     "tensorf": [("TensoRF (RGB)", "rgb", None)],
@@ -150,7 +153,7 @@ BENCH_METHODS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
 }
 """agrinerf-bench method key -> the detection rows it gives (label, rendered output, detector)."""
 
-BENCH_ABLATIONS: Dict[str, List[Tuple[str, Output, Optional[Modality]]]] = {
+BENCH_ABLATIONS: Dict[str, List[Tuple[str, Output, Optional[DetectorInput]]]] = {
     **{
         key: [(f"Ours ({name})", "thermal" if "thermal" in TABLE_IV_ABLATIONS[name] else "rgb", None)]
         for key, name in ABLATIONS.items()
@@ -260,7 +263,7 @@ def _render(
 
 def train_scene_detector(
     scene: SceneSpec,
-    modality: Modality,
+    modality: DetectorInput,
     exclude: List[str],
     cross_spectral: List[Path],
     work: Path,
@@ -309,15 +312,15 @@ def train_scene_detector(
 
 def train_scene_detectors(
     scene: SceneSpec,
-    modalities: Set[Modality],
+    modalities: Set[DetectorInput],
     exclude: List[str],
     cross_spectral: List[Path],
     work: Path,
     settings: EvalSettings,
-) -> Dict[Modality, Path]:
+) -> Dict[DetectorInput, Path]:
     """The detectors a scene's methods need; with ``thermal_init`` "rgb" the RGB one is trained first (even when no
     method uses it) and the thermal one starts from its weights."""
-    weights: Dict[Modality, Path] = {}
+    weights: Dict[DetectorInput, Path] = {}
     if "rgb" in modalities or ("thermal" in modalities and settings.thermal_init == "rgb"):
         weights["rgb"] = train_scene_detector(scene, "rgb", exclude, cross_spectral, work, settings)
     if "thermal" in modalities:
@@ -332,12 +335,12 @@ def train_scene_detectors(
 
 
 def trained_scene_detectors(
-    folder: Path, modalities: Set[Modality], held_out: List[str], min_box_pixels: int
-) -> Dict[Modality, Path]:
+    folder: Path, modalities: Set[DetectorInput], held_out: List[str], min_box_pixels: int
+) -> Dict[DetectorInput, Path]:
     """The detectors an earlier evaluation trained for a scene (``folder`` = its ``work/<scene>_<lighting>``), checked
     against their records: none may have trained on a held-out view, and their labels must have left out the same
     small fruit the scoring ignores."""
-    weights: Dict[Modality, Path] = {}
+    weights: Dict[DetectorInput, Path] = {}
     for modality in sorted(modalities):
         run_dir = Path(folder) / f"detector_{modality}"
         record_path = run_dir / "agrinerf_detect.json"
@@ -422,18 +425,15 @@ def evaluate_scene(
 
 def machine_note(command: str) -> str:
     """Footer for the tables: the command and the machine."""
-    import torch
-
     try:
         import ultralytics
 
         yolo = ultralytics.__version__
     except ImportError:  # pragma: no cover - the detector needs it anyway
         yolo = "absent"
-    device = "CUDA " + torch.cuda.get_device_name(0) if torch.cuda.is_available() else "CPU"
     return (
-        f"Command: `{command}`  \nMachine: {platform.machine()}, {platform.processor() or 'cpu'}, {device}; "
-        f"Python {platform.python_version()}, torch {torch.__version__}, ultralytics {yolo}. "
+        f"Command: `{command}`  \nMachine: {platform.machine()}, {device_name()}; "
+        f"{software_versions()}, ultralytics {yolo}. "
         "mAPs x100, COCO 101-point interpolation; precision/recall/F1 at IoU 0.5."
     )
 

@@ -14,9 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, List, Literal, Optional
 
-import numpy as np
-from jaxtyping import Float, UInt8
-
+from agrinerf_ns.images import to_uint8
 from agrinerf_ns.views import evenly_spaced, rays_per_chunk
 
 Output = Literal["rgb", "thermal"]
@@ -36,12 +34,6 @@ class LoadedRun:
     pipeline: Any
     checkpoint: Path
     step: int
-
-
-def to_uint8(image: Float[np.ndarray, "h w c"]) -> UInt8[np.ndarray, "h w c"]:
-    """[0, 1] floats -> 8-bit, NaN/Inf mapped to 0/1 first."""
-    image = np.nan_to_num(np.asarray(image, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -> LoadedRun:

@@ -14,7 +14,6 @@ import json
 from pathlib import Path
 from typing import Dict, List, Optional
 
-import cv2
 import numpy as np
 from jaxtyping import Float
 
@@ -30,14 +29,6 @@ def check_output(raw: Path, out: Path, overwrite: bool) -> None:
         raise OutputExistsError(f"{out}: exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise OutputExistsError(f"{out}: folder exists and is not empty (pass --overwrite to replace it)")
-
-
-def write_png(path: Path, image: np.ndarray, rgb: bool = False) -> None:
-    """Write an 8-bit PNG (``rgb``: 3-channel input in RGB order)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    img = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if rgb else image
-    if not cv2.imwrite(str(path), img):
-        raise OSError(f"{path}: could not write image")
 
 
 def intrinsics_block(K: Float[np.ndarray, "3 3"], width: int, height: int) -> Dict:

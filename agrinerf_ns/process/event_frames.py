@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 from typing import Dict, Iterable, Iterator, Literal, Optional, Tuple
 
 import numpy as np
-from jaxtyping import Float, Int32, UInt8
+from jaxtyping import Float, Int32
 
 from agrinerf_ns.process.readers import EventChunk
 
@@ -146,6 +146,3 @@ def to_unit_frame(
     return np.clip(value / scale, 0.0, 1.0)
 
 
-def to_png8(unit: Float[np.ndarray, "h w"]) -> UInt8[np.ndarray, "h w"]:
-    """[0, 1] -> uint8 as round(255 * v)."""
-    return np.clip(np.round(unit * 255.0), 0, 255).astype(np.uint8)

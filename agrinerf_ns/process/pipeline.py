@@ -12,6 +12,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from agrinerf_ns.images import to_uint8, write_png
 from agrinerf_ns.process import align, event_frames, exposure, readers
 from agrinerf_ns.process import poses as pose_utils
 from agrinerf_ns.process.dataset_writer import (
@@ -19,7 +20,6 @@ from agrinerf_ns.process.dataset_writer import (
     check_output,
     intrinsics_block,
     remove_files,
-    write_png,
     write_trajectory,
     write_transforms,
 )
@@ -211,7 +211,7 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
             import cv2
 
             img = cv2.remap(img, und[0], und[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        write_png(tmp / frames[i]["file_path"], img, rgb=True)
+        write_png(tmp / frames[i]["file_path"], img)
         progress.advance(task)
 
     # --- thermal: pair, rescale with sequence statistics, warp into the RGB camera
@@ -362,7 +362,7 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
         with np.load(tmp / frames[k]["event_sums_path"]) as z:
             value = event_frames.frame_value(z["pos"].astype(np.float32), z["neg"].astype(np.float32),
                                              ecfg.representation)
-        png = event_frames.to_png8(event_frames.to_unit_frame(value, scale, ecfg.representation))
+        png = to_uint8(event_frames.to_unit_frame(value, scale, ecfg.representation))
         frames[k]["event_file_path"] = f"events/{names[k]}.png"
         frames[k]["event_mask_path"] = f"event_masks/{names[k]}.png"
         write_png(tmp / frames[k]["event_file_path"], png)

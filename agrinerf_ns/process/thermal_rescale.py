@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 from jaxtyping import Float, UInt8, UInt16
 
+from agrinerf_ns.images import to_uint8
+
 
 @dataclass
 class ThermalRescaleConfig:
@@ -129,7 +131,7 @@ class ThermalRescaler:
         out = rescale_with_fields(f, lo, hi, self.min_range if cfg.method == "fieldscale" else 1.0)
         if cfg.gamma != 1.0:
             out = np.power(out, cfg.gamma)
-        img = np.clip(np.round(out * 255.0), 0, 255).astype(np.uint8)
+        img = to_uint8(out)
         if cfg.clahe:
             img = cv2.createCLAHE(clipLimit=cfg.clahe_clip, tileGridSize=tuple(cfg.grid)).apply(img)
         return img

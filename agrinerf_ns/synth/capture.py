@@ -10,6 +10,7 @@ from typing import List, Optional, Tuple, Union
 import numpy as np
 from jaxtyping import Float, Int
 
+from agrinerf_ns.images import write_png
 from agrinerf_ns.synth import writer as W
 from agrinerf_ns.synth.config import MAX_SUBFRAMES, SynthConfig, check_output_dir
 from agrinerf_ns.synth.motion_blur import blur_lengths_px, exposure_average, subframe_count
@@ -172,12 +173,12 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             subframes.append(k if exposure > 0 else 1)
             rad_cam = exposure_average(lambda tj: render_radiance(scene, cam_rgb, rig.pose(tj), light, s)[0],
                                        rad, float(t), exposure, subframes[-1])  # fmt: skip
-            W.write_png(dirs["rgb"] / names[i], noisy_rgb(rad_cam, gain, rng_rgb))
-            W.write_png(dirs["truth/rgb_clean"] / names[i], clean_rgb(rad, truth_gain))
+            write_png(dirs["rgb"] / names[i], noisy_rgb(rad_cam, gain, rng_rgb))
+            write_png(dirs["truth/rgb_clean"] / names[i], clean_rgb(rad, truth_gain))
             np.save(dirs["truth/depth"] / names[i].replace(".png", ".npy"),
                     hits.zdepth.reshape(H, Wd).astype(np.float32))
             ids = fruit_ids(scene, hits).reshape(H, Wd)
-            W.write_png(dirs["truth/fruit_ids"] / names[i], (ids + 1).astype(np.uint16))
+            write_png(dirs["truth/fruit_ids"] / names[i], (ids + 1).astype(np.uint16))
             boxes = fruit_boxes(ids, config.min_box_pixels)
             boxes_all.append(boxes)
             (dirs["truth/boxes_yolo"] / names[i].replace(".png", ".txt")).write_text(W.yolo_lines(boxes, Wd, H))
@@ -188,7 +189,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             T_th = rig.pose(float(t) + THERMAL_DELAY, "thermal")
             hth = cast(scene.prims, cam_th.scaled(THERMAL_SUPERSAMPLE), T_th)
             temp = temperature(scene, hth).reshape(cam_th.height * THERMAL_SUPERSAMPLE, -1)
-            W.write_png(dirs["thermal"] / names[i], thermal.counts(temp, THERMAL_SUPERSAMPLE, rng_th))
+            write_png(dirs["thermal"] / names[i], thermal.counts(temp, THERMAL_SUPERSAMPLE, rng_th))
             if prog is not None:
                 prog.advance(prog.task_ids[-1])
 
@@ -206,7 +207,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             rad, hits = render_radiance(scene, cam_rgb, T, light, s)
             if s > 1:
                 hits = cast(scene.prims, cam_rgb, T)
-            W.write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, truth_gain))
+            write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, truth_gain))
             boxes = fruit_boxes(fruit_ids(scene, hits).reshape(H, Wd), config.min_box_pixels)
             ho_boxes.append(boxes)
             (dirs["truth/heldout/boxes_yolo"] / ho_names[k].replace(".png", ".txt")).write_text(

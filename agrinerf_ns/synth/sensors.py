@@ -9,6 +9,8 @@ import numpy as np
 from jaxtyping import Float, Int64, UInt8, UInt16
 from scipy.ndimage import gaussian_filter
 
+from agrinerf_ns.images import to_uint8
+
 FULL_WELL_E = 8000.0
 """Electrons at linear level 1.0 (saturation) of the RGB sensor."""
 READ_NOISE_E = 4.0
@@ -28,10 +30,6 @@ def gamma_encode(lin: np.ndarray) -> np.ndarray:
     """sRGB transfer curve."""
     lin = np.clip(lin, 0.0, 1.0)
     return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * np.power(lin, 1 / 2.4) - 0.055)
-
-
-def to_uint8(img: Float[np.ndarray, "h w c"]) -> UInt8[np.ndarray, "h w c"]:
-    return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
 
 
 def clean_rgb(radiance: Float[np.ndarray, "h w 3"], gain: float) -> UInt8[np.ndarray, "h w 3"]:

@@ -9,7 +9,6 @@ from typing import ContextManager, Dict, List, Sequence, Tuple, Union
 import h5py
 import numpy as np
 import yaml
-from PIL import Image
 
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.synth.raycast import PinholeRadtan
@@ -18,16 +17,6 @@ from agrinerf_ns.synth.rig import quat_from_R
 
 def frame_name(i: int) -> str:
     return f"{i:06d}.png"
-
-
-def write_png(path: Path, img: np.ndarray) -> None:
-    """8-bit RGB/gray or 16-bit gray PNG with no time or text chunks."""
-    if img.dtype == np.uint16:
-        Image.fromarray(np.ascontiguousarray(img)).save(path, format="PNG")
-    elif img.dtype == np.uint8:
-        Image.fromarray(img).save(path, format="PNG")
-    else:
-        raise TypeError(f"cannot write {img.dtype} image to {path}")
 
 
 def write_timestamps(path: Path, names: Sequence[str], times: Union[np.ndarray, Sequence[float]]) -> None:

@@ -1,0 +1,31 @@
+"""The machine a measurement ran on, in one line, for the reports of the benchmarks and the detection tables."""
+
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+
+
+def device_name() -> str:
+    """The CUDA device's name, or the CPU model and core count (``/proc/cpuinfo``'s "model name", as ``lscpu``)."""
+    import torch
+
+    if torch.cuda.is_available():
+        return torch.cuda.get_device_name(0)
+    model = platform.processor() or "CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model} ({os.cpu_count()} cores, CPU)"
+
+
+def software_versions() -> str:
+    """Python and torch versions, e.g. "Python 3.10.12, torch 2.5.1"."""
+    import torch
+
+    return f"Python {platform.python_version()}, torch {torch.__version__}"
