@@ -23,7 +23,7 @@ SMALL = dict(
     init_resolution=8, final_resolution=12, upsampling_iters=(3,), num_coarse_samples=8, num_fine_samples=8,
     num_density_components=3, num_rgb_components=4, rgb_appearance_dim=4, num_thermal_components=2,
     thermal_appearance_dim=3, mlp_width=16, thermal_mlp_width=8, occupancy_resolution=8, density_shift=0.0,
-    event_threshold=C,
+    event_threshold=C, event_rays_per_batch=16,
 )  # fmt: skip
 
 

@@ -80,15 +80,22 @@ def _reached(norms: Dict[str, Dict[str, float]]) -> Dict[str, set]:
     return {term: {group for group, n in groups.items() if n > 0.0} for term, groups in norms.items()}
 
 
-def test_default_routing_keeps_cross_spectral_terms_off_the_density() -> None:
+def test_default_routing_leaves_the_geometry_to_the_rgb_frames() -> None:
     reached = _reached(_norms(_model()))
     assert reached == {
         "rgb_loss": {"density", "rgb_volume", "rgb_mlp"},
-        "thermal_camera_loss": {"density", "thermal_volume", "thermal_mlp"},
+        "thermal_camera_loss": {"thermal_volume", "thermal_mlp"},
         "thermal_loss": {"thermal_volume", "thermal_mlp"},
         "reg_rgb_loss": {"thermal_volume", "thermal_mlp"},
         "reg_event_loss": {"thermal_volume", "thermal_mlp"},
     }
+
+
+def test_the_thermal_camera_term_can_carry_geometry_without_the_cross_spectral_terms() -> None:
+    reached = _reached(_norms(_model(density_gradient_scales={"thermal_camera_loss": 1.0, "thermal_loss": 0.0,
+                                                              "reg_rgb_loss": 0.0, "reg_event_loss": 0.0})))  # fmt: skip
+    assert reached["thermal_camera_loss"] == {"density", "thermal_volume", "thermal_mlp"}
+    assert all("density" not in reached[t] for t in ("thermal_loss", "reg_rgb_loss", "reg_event_loss"))
 
 
 def test_paper_routing_sends_every_term_into_the_density() -> None:
@@ -107,8 +114,8 @@ def test_rgb_and_events_without_thermal_frames_leave_the_geometry_to_rgb() -> No
 
 @pytest.mark.parametrize("scale", [0.5, 0.1])
 def test_a_fractional_scale_scales_the_density_gradient_and_nothing_else(scale: float) -> None:
-    full = _norms(_model(density_gradient_scales={"thermal_loss": 1.0}))["thermal_loss"]
-    part = _norms(_model(density_gradient_scales={"thermal_loss": scale}))["thermal_loss"]
+    full = _norms(_model(density_gradient_scales={"thermal_loss": 1.0, "thermal_camera_loss": 0.0}))["thermal_loss"]
+    part = _norms(_model(density_gradient_scales={"thermal_loss": scale, "thermal_camera_loss": 0.0}))["thermal_loss"]
     assert part["density"] == pytest.approx(scale * full["density"], rel=1e-4)
     assert part["thermal_volume"] == pytest.approx(full["thermal_volume"], rel=1e-6)
     assert part["thermal_mlp"] == pytest.approx(full["thermal_mlp"], rel=1e-6)

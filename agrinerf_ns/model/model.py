@@ -93,21 +93,22 @@ class AgriNeRFModelConfig(ModelConfig):
     """Give MLP_THERMAL a second channel, the output `thermal_camera`, fit to the thermal frames alone by
     `thermal_camera_loss` (built only when the scene has thermal frames). The cross-spectral `thermal` output cannot
     match thermal frames, RGB luma and event frames at once, so its residual never falls; this channel's target can be
-    met, so it is the thermal term that carries geometry (`density_gradient_scales`; docs/model.md, Loss routing)."""
+    met, so it is the thermal term that can carry geometry (`density_gradient_scales`; docs/model.md, Loss routing)."""
     density_gradient_scales: Dict[str, float] = to_immutable_dict(
         {
             "rgb_loss": 1.0,
             "thermal_loss": 0.0,
             "reg_rgb_loss": 0.0,
             "reg_event_loss": 0.0,
-            "thermal_camera_loss": 1.0,
+            "thermal_camera_loss": 0.0,
         }
     )
     """How strongly each data term's gradient reaches the shared density through the rendering weights (1: fully,
-    0: not at all; the term still trains its head's appearance volume and MLP either way). Default: the RGB and the
-    thermal-camera terms shape the geometry, and the cross-spectral terms (L_th and L_reg on `thermal`) only the
-    thermal appearance. All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of
-    the dict counts as 1."""
+    0: not at all; the term still trains its head's appearance volume and MLP either way). Default: only the RGB
+    frames shape the geometry; the thermal terms (L_th, L_reg, the thermal-camera term) train the thermal appearance
+    on it, since every thermal route into the density measured lowered the RGB reconstruction (docs/model.md, Loss
+    routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
+    counts as 1."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB (TensoRF's)."""
     thermal_mlp_width: int = 64
@@ -158,9 +159,9 @@ class AgriNeRFModelConfig(ModelConfig):
     own pose only (no blur model). Evaluation always renders the sharp frame pose."""
     blur_start_step: int = 0
     """Training step from which the blur model runs (EvDeblurNeRF starts it after about 1200 steps)."""
-    event_rays_per_batch: int = 256
+    event_rays_per_batch: int = 0
     """Pixels per batch for the event loss (the first of the batch's random pixels), each rendered at the start and
-    end of its frame's event window; 0: no event loss."""
+    end of its frame's event window; 0: no event loss (the default: docs/model.md says what it measured)."""
     event_threshold: float = 0.2
     """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
     synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
