@@ -8,10 +8,8 @@ import numpy as np
 
 CPU_RAYS_PER_CHUNK = 1024
 """Rays rendered at once when a whole view is rendered for evaluation on a CPU (``eval_num_rays_per_chunk``; the image
-does not depend on it). 2-core CPU, one 320x240 view (``python benchmarks/bench_render_chunks.py``,
-results/render-chunks/README.md, paired ratios): Nerfacto 0.72-0.77x the time of 4096, which takes 0.49x that of its
-config's 32768, peak RSS 1.8 GB instead of 3.0 and 11.8; AgriNeRF 0.80x the time of 4096, which takes 1.18x that of
-its config's 8192."""
+does not depend on it): smaller than the configs' GPU-sized chunks because on a CPU it renders faster and with far
+less memory (measured with ``benchmarks/bench_render_chunks.py``: results/render-chunks/README.md)."""
 
 
 def rays_per_chunk(requested: Optional[int] = None) -> Optional[int]:

@@ -35,10 +35,8 @@ class BenchProfile:
 
 
 PROFILES: Dict[str, BenchProfile] = {
-    # CPU, 2 cores, both scenes in about 30 minutes (measured 31 min 41 s with ~25% of the CPU stolen by the host):
-    # about 2 minutes of training per method and scene (steady state on a quiet 2-core machine, dark orchard:
-    # agrinerf-lite 0.22, agrinerf 0.70, tensorf 0.58, nerfacto 2.4 s per step at 1024 rays; budgets of
-    # 1200/300/90/90/200 steps took 47 minutes for both scenes).
+    # A 2-core CPU: both orchards in about half an hour, budgets of about equal training time per method
+    # (measurements: docs/bench_profiles.md).
     "quick": BenchProfile(
         views=16, width=96, height=72,
         steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
@@ -51,22 +49,17 @@ PROFILES: Dict[str, BenchProfile] = {
                "tensorf": 30000},
         evaluations=6, rays_per_batch=1024,
     ),
-    # Downstream detection on a CPU (agrinerf-detect evaluate --bench): the dark garden at 320x240, so that fruits are
-    # about 10 px wide in RGB and 5 px in the 160x128 thermal frames; 5-13 minutes of training per method on the 2-core
-    # CPU (docs/detect_results/garden_60views/bench_results.md).
-    # 60 views: 24 (21 training frames) left the thermal detector too few images to learn from
-    # (docs/detect_results/garden_dark_plane1.57); it now also starts from the RGB detector. Thermal frames are warped
-    # at 1.57 m, near the fruit the views show: `python -m agrinerf_ns.process.evaluate` gives visible_fruit_depth_m
-    # median 1.48 m (quartiles 1.36-1.56, 804 boxes of >= 30 pixels; 0.7 px of parallax from 1.57 m). At infinity the
-    # thermal camera's 7 cm baseline (f = 246 px) put fruit 11 px beside their boxes. Three held-out views per
-    # checkpoint: the detection evaluation renders its own views, and Nerfacto takes 2-3.5 min a 320x240 view here.
+    # Downstream detection on a CPU (agrinerf-detect evaluate --bench): the dark garden at a size where fruit are a few
+    # pixels wide in the thermal frames, enough training views for the thermal detector, thermal frames warped at the
+    # depth of the visible fruit, and few held-out views per checkpoint (the detection evaluation renders its own).
+    # Why these numbers: docs/bench_profiles.md.
     "detect": BenchProfile(
         views=60, width=320, height=240,
         steps={"agrinerf-lite": 1500, "agrinerf": 500, "nerfacto": 150, "nerfacto-thermal": 110, "tensorf": 400},
         evaluations=1, eval_views=3, rays_per_batch=1024, scenes=("garden-dark",), plane_depth=1.57,
     ),
-    # Table IV in PSNR (modality ablations of AgriNeRF-lite at equal steps), every lighting of both scenes: 32 views
-    # with every 4th held out give 8 held-out views per run, enough for paired per-view intervals.
+    # Table IV in PSNR (modality ablations of AgriNeRF-lite at equal steps), every lighting of both scenes; enough
+    # held-out views per run for paired per-view intervals.
     "ablation": BenchProfile(
         views=32, width=96, height=72,
         steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
