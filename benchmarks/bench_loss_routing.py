@@ -62,6 +62,8 @@ class Args:
     profile: str = "ablation"
     """Scene size, held-out views and step budget (``agrinerf_ns.bench.profiles``)."""
     seed: int = 0
+    report_only: bool = False
+    """Train nothing: write routing.md from the rows already in results.csv."""
 
 
 def method(routing: str, modality_set: str) -> Tuple[str, BenchMethod]:
@@ -87,7 +89,9 @@ def main(args: Args) -> None:
     csv_path = args.out / "results.csv"
     device = device_name()
     plan = [("-", "rgb")] + [(r, s) for s in args.sets for r in args.routings]
-    prepared = {scene: prepare_scene(scene, profile, args.seed, args.out / "scenes") for scene in args.scenes}
+    prepared = (
+        {} if args.report_only else {s: prepare_scene(s, profile, args.seed, args.out / "scenes") for s in args.scenes}
+    )
     for scene, (raw, data) in prepared.items():
         done = results.done_runs(results.read_rows(csv_path))
         for routing, modality_set in plan:
