@@ -29,12 +29,14 @@ from agrinerf_ns.machine import device_name
 from agrinerf_ns.model.gradients import parameter_groups, term_gradients
 from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES
 
+CAMERA_SCALES = {**PAPER_DENSITY_GRADIENT_SCALES, "thermal_loss": 0.0, "reg_rgb_loss": 0.0, "reg_event_loss": 0.0}
 ROUTINGS: Dict[str, Dict[str, object]] = {
     "paper": {"density_gradient_scales": dict(PAPER_DENSITY_GRADIENT_SCALES), "thermal_camera_output": False},
-    "camera": {},  # the model's defaults
+    "camera": {"density_gradient_scales": CAMERA_SCALES},
+    "default": {},
 }
-"""paper: every term moves the density, one thermal output (the loss as written). camera: the defaults (the
-thermal-camera channel moves the density, the cross-spectral terms do not)."""
+"""paper: every term moves the density, one thermal output (the loss as written). camera: the thermal-camera channel
+moves the density, the cross-spectral terms do not. default: the model's defaults (only L_rgb moves it)."""
 
 
 @dataclass
@@ -42,7 +44,7 @@ class Args:
     data: Path
     """A processed dataset folder."""
     out: Path = Path("outputs/gradients")
-    routings: Tuple[str, ...] = ("paper", "camera")
+    routings: Tuple[str, ...] = ("paper", "camera", "default")
     modalities: Tuple[str, ...] = ("rgb", "thermal", "events")
     steps: int = 500
     every: int = 25
