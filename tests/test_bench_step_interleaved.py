@@ -7,7 +7,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
-from model_scene import write_model_scene
+from helpers.model_scene import write_model_scene
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_step_interleaved.py"
 

@@ -9,7 +9,7 @@ from typing import Optional
 import numpy as np
 import pytest
 import torch
-from dataset_fixtures import edit_transforms, write_tridata
+from helpers.dataset_fixtures import edit_transforms, write_tridata
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from PIL import Image

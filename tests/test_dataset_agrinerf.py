@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from dataset_fixtures import HEIGHT, WIDTH, assert_batch_matches_dataset, write_tridata
+from helpers.dataset_fixtures import HEIGHT, WIDTH, assert_batch_matches_dataset, write_tridata
 from nerfstudio.data.datamanagers.base_datamanager import VanillaDataManager
 from nerfstudio.data.datamanagers.parallel_datamanager import ParallelDataManager
 from PIL import Image

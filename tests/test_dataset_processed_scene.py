@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from dataset_fixtures import assert_batch_matches_dataset
+from helpers.dataset_fixtures import assert_batch_matches_dataset
 from PIL import Image
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig

@@ -16,7 +16,7 @@ from typing import Dict
 import numpy as np
 import pytest
 import torch
-from model_scene import tiny_trainer_config, write_model_scene
+from helpers.model_scene import tiny_trainer_config, write_model_scene
 from nerfstudio.utils.eval_utils import eval_setup
 
 from agrinerf_ns.model.model import AgriNeRFModel

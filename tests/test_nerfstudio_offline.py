@@ -6,7 +6,7 @@ import math
 from pathlib import Path
 
 import pytest
-from tiny_scene import write_tiny_scene
+from helpers.tiny_scene import write_tiny_scene
 
 from agrinerf_ns.bench.ns_commands import ns_eval, ns_render_dataset, ns_train
 

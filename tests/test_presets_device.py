@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from model_scene import write_model_scene
+from helpers.model_scene import write_model_scene
 
 pytestmark = pytest.mark.slow
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from process_raw_fixture import FRUIT_UV, make_raw_capture
+from helpers.process_raw_fixture import FRUIT_UV, make_raw_capture
 
 from agrinerf_ns.process import align, readers
 from agrinerf_ns.process.readers import CameraCalib

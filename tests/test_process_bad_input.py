@@ -7,7 +7,7 @@ import h5py
 import numpy as np
 import pytest
 import yaml
-from process_raw_fixture import make_raw_capture, write_events
+from helpers.process_raw_fixture import make_raw_capture, write_events
 
 from agrinerf_ns.process import ProcessConfig, RawInputError, process_capture
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from helpers.process_raw_fixture import make_raw_capture
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.data.datasets.base_dataset import InputDataset
-from process_raw_fixture import make_raw_capture
 
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.process.cli import ProcessArgs, main

@@ -10,7 +10,7 @@ import cv2
 import h5py
 import numpy as np
 import pytest
-from process_raw_fixture import RGB_K, make_raw_capture
+from helpers.process_raw_fixture import RGB_K, make_raw_capture
 from scipy.spatial.transform import Rotation
 
 from agrinerf_ns.process import ProcessConfig, process_capture, readers

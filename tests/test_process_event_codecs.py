@@ -268,7 +268,7 @@ def test_evt3_encoder_round_trips_through_the_reader(evt3_raw: Path, tmp_path: P
 
 def test_capture_with_events_raw_gives_the_dataset_of_events_h5(tmp_path: Path):
     import h5py
-    from process_raw_fixture import make_raw_capture
+    from helpers.process_raw_fixture import make_raw_capture
 
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.process.event_codecs import Evt3Encoder, evt3_header

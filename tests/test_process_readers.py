@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import tifffile
 import yaml
-from process_raw_fixture import DATA, make_raw_capture, rig, write_events
+from helpers.process_raw_fixture import DATA, make_raw_capture, rig, write_events
 
 from agrinerf_ns.process import readers
 from agrinerf_ns.process.readers import RawInputError

@@ -8,7 +8,7 @@ Measures (agrinerf_ns.process.thermal_rescale):
 
 import numpy as np
 import pytest
-from process_raw_fixture import DATA
+from helpers.process_raw_fixture import DATA
 
 from agrinerf_ns.process.readers import read_thermal
 from agrinerf_ns.process.thermal_rescale import (

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from process_raw_fixture import make_raw_capture
+from helpers.process_raw_fixture import make_raw_capture
 
 from agrinerf_ns.process import ProcessConfig, process_capture, readers
 from agrinerf_ns.process.readers import RawInputError

@@ -14,8 +14,9 @@ from typing import Any, Callable, Dict, Iterable, Optional, Sequence
 import numpy as np
 import torch
 from PIL import Image
-from tiny_scene import look_at as _look_at
-from tiny_scene import write_transforms
+
+from helpers.tiny_scene import look_at as _look_at
+from helpers.tiny_scene import write_transforms
 
 WIDTH, HEIGHT = 64, 48
 

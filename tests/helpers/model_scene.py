@@ -2,7 +2,8 @@
 
 RGB: a checker-textured sphere; thermal: a warm sphere (warmer at the top) in a cold sky; event frames: the
 sphere's silhouette edges (0.5 = no change, as a signed polarity frame), masks valid except a left strip of the
-thermal frame (what the thermal camera did not see). Written as docs/formats.md describes the dataset folder.
+thermal frame (what the thermal camera did not see). Written as docs/formats.md describes the dataset folder; the sphere and its rays are
+``tiny_scene``'s.
 """
 
 from __future__ import annotations
@@ -12,8 +13,8 @@ from typing import Dict, Optional, Sequence
 
 import numpy as np
 from PIL import Image
-from tiny_scene import look_at as _look_at
-from tiny_scene import write_transforms
+
+from helpers.tiny_scene import cast_sphere_view, sphere_rgb, write_transforms
 
 
 def _save(path: Path, values: np.ndarray) -> None:
@@ -43,23 +44,11 @@ def write_model_scene(
     focal = 0.9 * width
     frames = []
     for i in range(views):
-        angle = 2 * np.pi * i / views
-        c2w = _look_at(np.array([3.0 * np.cos(angle), 3.0 * np.sin(angle), 0.8]))
-        u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-        dirs = np.stack([(u - width / 2) / focal, -(v - height / 2) / focal, -np.ones_like(u)], -1) @ c2w[:3, :3].T
-        dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-        origin = c2w[:3, 3]
-        b = dirs @ origin
-        disc = b**2 - (origin @ origin - 1.0)
-        hit = disc > 0
-        points = origin + (-b - np.sqrt(np.clip(disc, 0, None)))[..., None] * dirs
-        checker = (np.floor(points[..., 0] * 4) + np.floor(points[..., 1] * 4) + np.floor(points[..., 2] * 4)) % 2
-        sphere = np.stack([0.2 + 0.7 * checker, 0.3 + 0.2 * (1 - checker), 0.2 + 0.1 * points[..., 2]], -1)
-        sky = np.stack([0.5 + 0.3 * dirs[..., 2], 0.6 + 0.2 * dirs[..., 2], np.full_like(u, 0.9)], -1)
-        rgb = np.where(hit[..., None], sphere, sky)
+        view = cast_sphere_view(i, views, width, height, focal)
+        hit, points, rgb = view.hit, view.points, sphere_rgb(view)
         name = f"frame_{i:05d}.png"
         _save(root / "images" / name, np.full_like(rgb, constant["rgb"]) if "rgb" in constant else rgb)
-        frame = {"file_path": f"images/{name}", "transform_matrix": c2w.tolist()}
+        frame = {"file_path": f"images/{name}", "transform_matrix": view.c2w.tolist()}
         if "thermal" in modalities:
             thermal = np.where(hit, 0.6 + 0.3 * points[..., 2], 0.1)
             thermal = np.full_like(thermal, constant["thermal"]) if "thermal" in constant else thermal
@@ -69,7 +58,7 @@ def write_model_scene(
             _save(root / "thermal_masks" / name, mask)
             frame.update(thermal_file_path=f"thermal/{name}", thermal_mask_path=f"thermal_masks/{name}")
         if "events" in modalities:
-            edge = np.zeros_like(u, dtype=bool)
+            edge = np.zeros_like(hit)
             edge[:, 1:] |= hit[:, 1:] != hit[:, :-1]
             edge[1:, :] |= hit[1:, :] != hit[:-1, :]
             event = np.where(edge, 1.0, 0.5)

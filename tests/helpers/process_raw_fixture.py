@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 import yaml
 
-DATA = Path(__file__).parent / "data" / "fieldscale-thermal"
+DATA = Path(__file__).parents[1] / "data" / "fieldscale-thermal"
 
 RGB_K = np.array([[80.0, 0, 31.5], [0, 80.0, 23.5], [0, 0, 1]])
 TH_K = np.array([[50.0, 0, 19.5], [0, 50.0, 15.5], [0, 0, 1]])

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
-from model_scene import tiny_trainer_config, write_model_scene
+
+from helpers.model_scene import tiny_trainer_config, write_model_scene
 
 
 def train_tiny_run(root: Path, steps: int = 20) -> Path:
