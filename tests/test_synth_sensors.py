@@ -13,7 +13,7 @@ from agrinerf_ns.synth import SynthConfig, generate_capture
 from agrinerf_ns.synth.capture import event_times, make_scene
 from agrinerf_ns.synth.raycast import cast
 from agrinerf_ns.synth.rig import THERMAL_DELAY, frame_times
-from agrinerf_ns.synth.scene import FRUIT, LEAF, LIGHTING_PRESETS, SKY, luminance, material_of, radiance
+from agrinerf_ns.synth.scene import FRUIT, LEAF, LIGHTING_PRESETS, SKY, material_of, radiance, rec709_luminance
 from agrinerf_ns.synth.sensors import EventSimulator
 
 LIGHTINGS = ("bright", "shadowed", "dusk", "dark")
@@ -164,7 +164,9 @@ def test_event_polarity_follows_log_intensity_change(event_capture: Path) -> Non
     agree = total = 0
     for k in range(2, len(times) - 1, 3):
         ta, tb = float(times[k]), float(times[k + 1])
-        la, lb = (luminance(radiance(scene, cast(scene.prims, cam, rig.pose(tt, "event")), light)) for tt in (ta, tb))
+        la, lb = (
+            rec709_luminance(radiance(scene, cast(scene.prims, cam, rig.pose(tt, "event")), light)) for tt in (ta, tb)
+        )
         dlog = np.log(lb + 1e-6) - np.log(la + 1e-6)
         m = (t > round(ta * 1e6)) & (t <= round(tb * 1e6))
         net = np.zeros(cam.width * cam.height)

@@ -22,8 +22,8 @@ from agrinerf_ns.synth.scene import (
     Scene,
     build_scene,
     fruit_ids,
-    luminance,
     radiance,
+    rec709_luminance,
     temperature,
 )
 from agrinerf_ns.synth.sensors import EventSimulator, ThermalSensor, clean_rgb, exposure_gains, noisy_rgb
@@ -92,7 +92,7 @@ def simulate_events(
     times = event_times(config)
     for k, t in enumerate(times):
         hits = cast(scene.prims, cam, rig.pose(float(t), "event"))
-        lum = luminance(radiance(scene, hits, light))
+        lum = rec709_luminance(radiance(scene, hits, light))
         if k == 0:
             sim.reset(lum, float(t))
         else:
@@ -135,8 +135,8 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
     # exposure from the first frame: the truth is auto-exposed, the camera is capped (dark stays dark)
     rad0, _ = render_radiance(scene, cam_rgb, rig.pose(float(times[0])), light, s)
     rad0_bright, _ = render_radiance(scene, cam_rgb, rig.pose(float(times[0])), LIGHTING_PRESETS["bright"], s)
-    gain, truth_gain = exposure_gains(float(luminance(rad0.reshape(-1, 3)).mean()),
-                                      float(luminance(rad0_bright.reshape(-1, 3)).mean()))
+    gain, truth_gain = exposure_gains(float(rec709_luminance(rad0.reshape(-1, 3)).mean()),
+                                      float(rec709_luminance(rad0_bright.reshape(-1, 3)).mean()))
 
     exposure = config.rgb_exposure_s(light.exposure_s)
     rng_rgb = np.random.default_rng([config.seed, 41])

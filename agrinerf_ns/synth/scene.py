@@ -325,8 +325,9 @@ def radiance(scene: Scene, hits: Hits, light: Lighting) -> Float[np.ndarray, "n 
     return out
 
 
-def luminance(rgb: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, " n"]:
-    """Rec. 709 luminance of linear RGB."""
+def rec709_luminance(rgb: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, " n"]:
+    """Relative luminance Y = 0.2126 R + 0.7152 G + 0.0722 B of linear RGB (Rec. 709 primaries), what the simulated
+    event pixels respond to; not the BT.601 luma of gamma-encoded RGB of ``agrinerf_ns.model.losses.luminance``."""
     return rgb @ np.array([0.2126, 0.7152, 0.0722])
 
 
