@@ -35,9 +35,8 @@ from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
 from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.rich_utils import CONSOLE
-from PIL import Image
 
-from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, read_transforms
+from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 
@@ -283,13 +282,7 @@ def _check_aligned_frame(
     path: Path, frame: Dict[str, Any], meta: Dict[str, Any], frame_key: str, transforms_path: Path
 ) -> None:
     """Checks that a thermal/event frame or mask exists and has the RGB frame's full resolution (header read only)."""
-    if not path.is_file():
-        raise AgriNeRFDataError(f"{path}: file named by '{frame_key}' in {transforms_path} does not exist.")
-    try:
-        with Image.open(path) as image:
-            size = image.size
-    except Exception as error:  # PIL raises several types for unreadable files
-        raise AgriNeRFDataError(f"{path}: cannot read the image named by '{frame_key}': {error}") from error
+    size = image_size(path, f"'{frame_key}' in {transforms_path}")
     expected = _frame_size(frame, meta)
     if expected is not None and size != expected:
         raise AgriNeRFDataError(

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Tuple
 
 import numpy as np
 from PIL import Image
@@ -58,7 +58,7 @@ def check_transforms(meta: Dict[str, Any], path: Path) -> None:
         name = frame["file_path"]
         _check_pose(frame.get("transform_matrix"), f"{path}: frame {name}")
         _check_intrinsics(frame, meta, f"{path}: frame {name}")
-        _check_image(data_dir / name, frame, meta, f"{path}: frame {name}")
+        _check_image(data_dir / name, frame, meta, path)
 
 
 def _check_pose(matrix: Any, where: str) -> None:
@@ -100,17 +100,24 @@ def _check_intrinsics(frame: Dict[str, Any], meta: Dict[str, Any], where: str) -
             raise AgriNeRFDataError(f"{where}: intrinsic '{key}' = {value!r} (in {source}) must be {need}.")
 
 
-def _check_image(image_path: Path, frame: Dict[str, Any], meta: Dict[str, Any], where: str) -> None:
-    """The RGB image exists, is readable and (header only) has the frame's ``w`` x ``h`` when those are given."""
-    if not image_path.is_file():
-        raise AgriNeRFDataError(f"{where}: image {image_path} does not exist.")
+def image_size(path: Path, named_by: str) -> Tuple[int, int]:
+    """(width, height) of an image from its header; a missing or unreadable file raises naming it and ``named_by``
+    (what names it, e.g. "'thermal_file_path' in DATA/transforms.json")."""
+    if not path.is_file():
+        raise AgriNeRFDataError(f"{path}: file named by {named_by} does not exist.")
     try:
-        with Image.open(image_path) as image:
-            size = image.size
+        with Image.open(path) as image:
+            return image.size
     except Exception as error:  # PIL raises several types for unreadable files
-        raise AgriNeRFDataError(f"{where}: cannot read image {image_path}: {error}") from error
+        raise AgriNeRFDataError(f"{path}: cannot read the image named by {named_by}: {error}") from error
+
+
+def _check_image(image_path: Path, frame: Dict[str, Any], meta: Dict[str, Any], transforms_path: Path) -> None:
+    """The RGB image exists, is readable and (header only) has the frame's ``w`` x ``h`` when those are given."""
+    size = image_size(image_path, f"'file_path' in {transforms_path}")
     width, height = frame.get("w", meta.get("w")), frame.get("h", meta.get("h"))
     if width is not None and height is not None and size != (int(width), int(height)):
         raise AgriNeRFDataError(
-            f"{where}: image {image_path} is {size[0]}x{size[1]} but the file gives w x h = {int(width)}x{int(height)}."
+            f"{image_path}: image is {size[0]}x{size[1]} but {transforms_path} gives its frame w x h = "
+            f"{int(width)}x{int(height)}."
         )
