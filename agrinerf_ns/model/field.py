@@ -188,7 +188,7 @@ class AgriNeRFField(Field):
         inside = ((coords > -1.0) & (coords < 1.0)).all(dim=-1)
         return coords.clamp(-1.0, 1.0), inside
 
-    def occupied(self, coords: Float[Tensor, "n 3"]) -> Bool[Tensor, "n"]:
+    def occupied(self, coords: Float[Tensor, "n 3"]) -> Bool[Tensor, " n"]:
         """Whether each grid coordinate falls in a cell that the occupancy grid keeps."""
         if not self.occupancy_enabled or self.occupancy_all:
             return torch.ones(coords.shape[0], dtype=torch.bool, device=coords.device)

@@ -32,7 +32,7 @@ def parameter_groups(model: "AgriNeRFModel") -> Dict[str, List[Parameter]]:
 
 def term_gradients(
     terms: Mapping[str, Tensor], groups: Mapping[str, List[Parameter]]
-) -> Dict[str, Dict[str, Optional[Float[Tensor, "n"]]]]:
+) -> Dict[str, Dict[str, Optional[Float[Tensor, " n"]]]]:
     """Each (weighted) loss term's gradient on each parameter group, flattened: ``{term: {group: grad or None}}``.
 
     Each term is differentiated on its own (the graph is kept for the next); None where the term does not reach the

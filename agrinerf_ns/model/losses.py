@@ -149,16 +149,18 @@ def scale_gradient(values: Tensor, scale: float) -> Tensor:
 
 
 def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
-    """TensoRF L1 sparsity loss: mean |w| over all given factor tensors (TensoRF `density_L1`,
-    https://github.com/apchenstu/TensoRF/blob/main/models/tensoRF.py, `TensorVMSplit.density_L1`)."""
+    """L1 sparsity of VM factors: one mean |w| over every entry of all the given tensors (plane entries outnumber line
+    entries by the resolution, so the planes dominate). TensoRF's `TensorVMSplit.density_L1` instead sums one mean |w|
+    per factor, so a line weighs as much as a plane; the loss weight absorbs the difference in scale."""
     total = sum(t.abs().sum() for t in tensors)
     count = sum(t.numel() for t in tensors)
     return total / max(count, 1)
 
 
 def tv_plane_loss(planes: Float[Tensor, "3 c h w"]) -> Float[Tensor, ""]:
-    """Total variation of VM plane factors: mean squared difference of neighbours along both plane axes
-    (TensoRF `TV_loss_density` / `TV_loss_app`, https://github.com/apchenstu/TensoRF/blob/main/models/tensoRF.py)."""
+    """Total variation of stacked VM planes: the mean squared difference of row neighbours plus that of column
+    neighbours, each averaged over all planes and components: half of Nerfstudio's `tv_loss` on the same stack (TensoRF's
+    `TV_loss_density` / `TV_loss_app` sum a TV per plane with its own scale); the loss weights absorb the constant."""
     dh = (planes[..., 1:, :] - planes[..., :-1, :]).pow(2).mean()
     dw = (planes[..., :, 1:] - planes[..., :, :-1]).pow(2).mean()
     return dh + dw

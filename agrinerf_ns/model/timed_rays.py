@@ -30,7 +30,7 @@ def exposure_times(exposure: Float[Tensor, "n 2"], samples: int) -> Float[Tensor
 def reposed_rays(
     bundle: RayBundle,
     trajectory: "CameraTrajectory",
-    frame_times: Float[Tensor, "n"],
+    frame_times: Float[Tensor, " n"],
     times: Float[Tensor, "n k"],
     camera_centre: Optional[Float[Tensor, "3"]] = None,
     plane_depth: float = math.inf,

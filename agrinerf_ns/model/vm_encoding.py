@@ -84,7 +84,7 @@ class VMCorners:
         rows = self.rows
         return scatter_matrix(rows.line_index[:, 0], (0, 1), rows.line_weight, 3 * self.resolution)
 
-    def select(self, mask: Bool[Tensor, "n"]) -> "VMCorners":
+    def select(self, mask: Bool[Tensor, " n"]) -> "VMCorners":
         """The corners of the points where `mask` is True (these corners themselves when it selects every point)."""
         if bool(mask.all()):
             return self
@@ -138,7 +138,7 @@ def _corner_rows(clamped: Float[Tensor, "n 3"], res: int) -> CornerRows:
 
 
 def scatter_matrix(
-    base: Int[Tensor, "m"], offsets: Tuple[int, ...], weight: Float[Tensor, "m k"], rows: int
+    base: Int[Tensor, " m"], offsets: Tuple[int, ...], weight: Float[Tensor, "m k"], rows: int
 ) -> Tensor:
     """Sparse CSR matrix `S` (rows x m) with `S[base[i] + offsets[k], i] = weight[i, k]`: `S @ g` adds row `i` of `g`,
     weighted, into table rows `base[i] + offsets[k]` (the transpose of a `k`-corner lookup).
