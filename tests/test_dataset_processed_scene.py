@@ -39,8 +39,12 @@ def test_processed_scene_batches(processed_scene: Path) -> None:
     assert [f"images/{p.name}" for p in val.image_filenames] == meta["val_filenames"]
 
     _, batch = datamanager.next_train(0)
-    assert set(batch) == {"image", "indices", *EXTRA}
-    assert_batch_matches_dataset(batch, train, ("image", *EXTRA))
+    counts = ("event_on", "event_off")  # the event loss's ON/OFF counts per pixel of the frame's window
+    assert set(batch) == {"image", "indices", *EXTRA, *counts}
+    assert_batch_matches_dataset(batch, train, ("image", *EXTRA, *counts))
+    for key in counts:
+        assert batch[key].shape == (256, 1) and batch[key].min() >= 0 and torch.equal(batch[key], batch[key].round())
+    assert float((batch["event_on"] + batch["event_off"]).sum()) > 0  # the scene moved: some pixels fired
     for key in EXTRA:
         assert batch[key].shape == (256, 1) and 0.0 <= batch[key].min() and batch[key].max() <= 1.0
     for key in ("thermal_mask", "event_mask"):
