@@ -8,6 +8,7 @@ from typing import Dict
 import numpy as np
 import pytest
 import torch
+from helpers.small_model import SMALL_MODEL
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
@@ -19,12 +20,7 @@ from agrinerf_ns.trajectory import CameraTrajectory
 
 C = 0.2
 
-SMALL = dict(
-    init_resolution=8, final_resolution=12, upsampling_iters=(3,), num_coarse_samples=8, num_fine_samples=8,
-    num_density_components=3, num_rgb_components=4, rgb_appearance_dim=4, num_thermal_components=2,
-    thermal_appearance_dim=3, mlp_width=16, thermal_mlp_width=8, occupancy_resolution=8, density_shift=0.0,
-    event_threshold=C, event_rays_per_batch=16,
-)  # fmt: skip
+SMALL = {**SMALL_MODEL, "density_shift": 0.0, "event_threshold": C, "event_rays_per_batch": 16}
 
 
 # ----------------------------------------------------------------------------- the loss on hand-made cases

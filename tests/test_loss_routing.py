@@ -11,6 +11,7 @@ from typing import Dict
 
 import pytest
 import torch
+from helpers.small_model import SMALL_MODEL
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
@@ -18,22 +19,7 @@ from agrinerf_ns.model.gradients import parameter_groups, term_gradient_norms
 from agrinerf_ns.model.losses import scale_gradient
 from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES, AgriNeRFModel, AgriNeRFModelConfig
 
-SMALL = dict(
-    init_resolution=8,
-    final_resolution=12,
-    upsampling_iters=(3,),
-    num_coarse_samples=8,
-    num_fine_samples=8,
-    num_density_components=3,
-    num_rgb_components=4,
-    rgb_appearance_dim=4,
-    num_thermal_components=2,
-    thermal_appearance_dim=3,
-    mlp_width=16,
-    thermal_mlp_width=8,
-    occupancy_resolution=8,
-    density_shift=0.0,  # dense enough at initialisation that every ray has weight to route
-)
+SMALL = {**SMALL_MODEL, "density_shift": 0.0}  # dense enough at initialisation that every ray has weight to route
 
 
 def _model(modalities=("rgb", "thermal", "events"), **kw) -> AgriNeRFModel:

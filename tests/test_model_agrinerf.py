@@ -7,6 +7,7 @@ from typing import Dict, Tuple
 
 import pytest
 import torch
+from helpers.small_model import SMALL_MODEL
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
@@ -16,21 +17,7 @@ from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
 
 compat.activate()  # as every ns-* command does through the entry points (offline LPIPS)
 
-SMALL = dict(
-    init_resolution=8,
-    final_resolution=12,
-    upsampling_iters=(3,),
-    num_coarse_samples=8,
-    num_fine_samples=8,
-    num_density_components=3,
-    num_rgb_components=4,
-    rgb_appearance_dim=4,
-    num_thermal_components=2,
-    thermal_appearance_dim=3,
-    mlp_width=16,
-    thermal_mlp_width=8,
-    occupancy_resolution=8,
-)
+SMALL = SMALL_MODEL
 
 
 def _model(modalities=("rgb", "thermal", "events"), dataset=("rgb", "thermal", "events"), **kw) -> AgriNeRFModel:
