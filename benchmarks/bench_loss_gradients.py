@@ -109,11 +109,6 @@ def report(rows: List[Row], args: Args, device: str) -> str:
         for term in sorted({str(r["term"]) for r in mine}):
             early_t = [r for r in mine if r["term"] == term and float(r["step"]) < third]  # type: ignore[arg-type]
             late_t = [r for r in late if r["term"] == term]
-
-            def med(sel: List[Row], key: str) -> float:
-                values = [float(r[key]) for r in sel if key in r and math.isfinite(float(r[key]))]  # type: ignore
-                return statistics.median(values) if values else math.nan
-
             share = sum(float(r["density"]) for r in late_t) / total_late if total_late else math.nan  # type: ignore
             cells = [term, f"{med(late_t, 'loss'):.3g}", f"{med(early_t, 'density'):.3g} / {med(late_t, 'density'):.3g}",
                      f"{share:.0%}", _fmt(med(late_t, "cos_rgb_density"))]  # fmt: skip
@@ -121,6 +116,12 @@ def report(rows: List[Row], args: Args, device: str) -> str:
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
+
+
+def med(rows: List[Row], key: str) -> float:
+    """Median of the finite values of `key` in `rows` (NaN when there are none)."""
+    values = [float(r[key]) for r in rows if key in r and math.isfinite(float(r[key]))]  # type: ignore[arg-type]
+    return statistics.median(values) if values else math.nan
 
 
 def _fmt(value: float, pattern: str = "{:+.2f}") -> str:

@@ -142,8 +142,8 @@ def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
 def _event_camera(
     block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any]
 ) -> Optional[Dict[str, Any]]:
-    """Where the event frames' rays start: ``centre``, the event camera's centre in the RGB camera's frame (OpenGL
-    axes, this parser's scale, float64 [3]), and ``plane_depth``, the depth (same scale) of the plane the frames were
+    """Where the event frames' rays start: ``camera_centre``, the event camera's centre in the RGB camera's frame
+    (OpenGL axes, this parser's scale, float64 [3]), and ``plane_depth``, the depth (same scale) of the plane the frames were
     warped into the RGB camera at (inf: at infinity). None when the calibration has no event camera."""
     import numpy as np
     import torch
@@ -156,7 +156,7 @@ def _event_camera(
     scale = float(outputs.dataparser_scale) / float(meta.get("applied_scale", 1.0))
     depth = float((block.get("alignment") or {}).get("plane_depth", "inf"))
     centre_gl = np.array([centre_cv[0], -centre_cv[1], -centre_cv[2]]) * scale
-    return {"centre": torch.from_numpy(centre_gl), "plane_depth": depth * scale}
+    return {"camera_centre": torch.from_numpy(centre_gl), "plane_depth": depth * scale}
 
 
 TRAJECTORY_CHECK_TOL = 1e-4

@@ -109,10 +109,14 @@ def agrinerf_trainer_config(
     )
 
 
-PAPER_TIMED: Dict[str, Any] = dict(blur_samples=5, blur_start_step=1200, event_rays_per_batch=1024)
-"""EvDeblurNeRF's RGB module (which AgriNeRF extends): the blur model from step 1200 and the event loss. EvDeblurNeRF
-itself renders 10 rays per blurred pixel and 2048-4096 event pixels per batch. The agrinerf presets leave the event
-loss off until it is measured to help (docs/model.md, Event loss and blur model); the evdeblurnerf presets have it."""
+PAPER_BLUR: Dict[str, Any] = dict(blur_samples=5, blur_start_step=1200)
+"""The paper preset's blur model, EvDeblurNeRF's (which AgriNeRF extends), from step 1200; EvDeblurNeRF itself renders
+10 rays per blurred pixel."""
+
+EVDEBLURNERF: Dict[str, Any] = dict(modalities=("rgb", "events"), cross_spectral_output=False)
+"""The EvDeblurNeRF baseline's scene: RGB and events, no thermal head. Its presets also turn the event loss on
+(EvDeblurNeRF uses 2048-4096 event pixels per batch); the agrinerf presets leave it off until it is measured to help
+(docs/model.md, Event loss and blur model)."""
 
 LITE: Dict[str, Any] = dict(
     max_num_iterations=2000,
@@ -135,7 +139,7 @@ LITE: Dict[str, Any] = dict(
 """The CPU preset: small grids and MLPs, 32 + 32 samples, 2k steps, no blur model, no event loss."""
 
 agrinerf = MethodSpecification(
-    config=agrinerf_trainer_config("agrinerf", max_num_iterations=30000, **{**PAPER_TIMED, "event_rays_per_batch": 0}),
+    config=agrinerf_trainer_config("agrinerf", max_num_iterations=30000, **PAPER_BLUR),
     description="AgriNeRF (paper settings): RGB + thermal + event TensoRF NeRF, 64+64 samples, 30k steps.",
 )
 
@@ -146,21 +150,14 @@ agrinerf_lite = MethodSpecification(
 
 evdeblurnerf = MethodSpecification(
     config=agrinerf_trainer_config(
-        "evdeblurnerf",
-        max_num_iterations=30000,
-        modalities=("rgb", "events"),
-        cross_spectral_output=False,
-        **PAPER_TIMED,
+        "evdeblurnerf", max_num_iterations=30000, event_rays_per_batch=1024, **PAPER_BLUR, **EVDEBLURNERF
     ),
     description="EvDeblurNeRF-style baseline: the RGB TensoRF with the event loss and blur model, no thermal head.",
 )
 
 evdeblurnerf_lite = MethodSpecification(
     config=agrinerf_trainer_config(
-        "evdeblurnerf-lite",
-        modalities=("rgb", "events"),
-        cross_spectral_output=False,
-        **{**LITE, "blur_samples": 3, "event_rays_per_batch": 256},
+        "evdeblurnerf-lite", blur_samples=3, event_rays_per_batch=256, **LITE, **EVDEBLURNERF
     ),
     description="EvDeblurNeRF-style baseline, CPU preset: AgriNeRF-lite's RGB module with the event loss and a 3-ray "
     "blur model, no thermal head.",

@@ -14,7 +14,7 @@ if os.environ.get("PATH", "").split(os.pathsep)[0] != _BIN:
 
 @pytest.fixture(scope="session")
 def tiny_run_config(tmp_path_factory) -> Path:
-    """config.yml of a tiny trained AgriNeRF run (20 steps of the shrunk agrinerf-lite; ~30 s on 2 cores), shared by
+    """config.yml of a tiny trained AgriNeRF run (20 steps of the shrunk agrinerf-lite), shared by
     the tests of the commands that load a run (ns-export, ns-render, ns-viewer)."""
     from helpers.tiny_run import train_tiny_run
 

@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow
 
 ENV = {**os.environ, "PYTHONWARNINGS": "ignore"}
 STARTUP_S = 300
-"""How long ns-viewer may take to load the run and serve the page (about 40 s on 2 busy cores)."""
+"""How long ns-viewer may take to load the run and serve the page on a busy 2-core CI machine."""
 
 
 def _chromium() -> str:

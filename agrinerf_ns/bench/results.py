@@ -148,7 +148,8 @@ def per_view(row: Row, key: str = "psnr_clean_per_view") -> List[float]:
 
 
 def paired_difference(mine: Sequence[float], base: Sequence[float], confidence: float = 0.95) -> Tuple[float, float]:
-    """Mean of the per-view differences ``mine - base`` and the half-width of its Student-t confidence interval.
+    """Mean of the per-view differences ``mine - base`` and the half-width of its confidence interval (scipy's paired
+    t-test, ``ttest_rel``).
 
     Views are paired (the same held-out view rendered by both runs), so view-to-view variation in difficulty cancels;
     the interval is NaN with fewer than two views.
@@ -157,13 +158,13 @@ def paired_difference(mine: Sequence[float], base: Sequence[float], confidence: 
 
     if len(mine) != len(base):
         raise ValueError(f"paired views differ in number: {len(mine)} and {len(base)}")
-    diffs = [a - b for a, b in zip(mine, base, strict=True)]
-    n = len(diffs)
-    mean = sum(diffs) / n if n else math.nan
-    if n < 2:
+    if not mine:
+        return math.nan, math.nan
+    mean = sum(a - b for a, b in zip(mine, base, strict=True)) / len(mine)
+    if len(mine) < 2:
         return mean, math.nan
-    sd = math.sqrt(sum((d - mean) ** 2 for d in diffs) / (n - 1))
-    return mean, float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * sd / math.sqrt(n)
+    low, high = stats.ttest_rel(mine, base).confidence_interval(confidence)
+    return mean, float(high - low) / 2.0
 
 
 def final_rows(rows: Sequence[Row]) -> Dict[Tuple[str, str], Row]:

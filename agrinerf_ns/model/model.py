@@ -106,8 +106,8 @@ class AgriNeRFModelConfig(ModelConfig):
     """How strongly each data term's gradient reaches the shared density through the rendering weights (1: fully,
     0: not at all; the term still trains its head's appearance volume and MLP either way). Default: only the RGB
     frames shape the geometry; the thermal terms (L_th, L_reg, the thermal-camera term) train the thermal appearance
-    on it, since every thermal route into the density measured lowered the RGB reconstruction (docs/model.md, Loss
-    routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
+    on it, since the thermal routes into the density lowered the RGB reconstruction in most scenes measured
+    (docs/model.md, Loss routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
     counts as 1."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB (TensoRF's)."""
@@ -197,6 +197,7 @@ class AgriNeRFModel(Model):
         self.exposure: Optional[Tensor] = metadata.get("exposure")
         self.trajectory = metadata.get("trajectory")
         self.event_windows: Optional[Tensor] = metadata.get("event_windows")
+        # the event camera's `camera_centre` and `plane_depth` (timed_rays.reposed_rays), where the dataset records them
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
@@ -433,10 +434,7 @@ class AgriNeRFModel(Model):
         assert self.event_windows is not None
         m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
         head = bundle[:m]
-        camera: Dict[str, Any] = {}
-        if self.event_camera:
-            camera = {"camera_centre": self.event_camera["centre"], "plane_depth": self.event_camera["plane_depth"]}
-        renders = self._render_at(head, self.event_windows[camera_rows(head)].double(), **camera)
+        renders = self._render_at(head, self.event_windows[camera_rows(head)].double(), **self.event_camera)
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]
 
@@ -481,10 +479,13 @@ class AgriNeRFModel(Model):
                 if self.has_thermal_camera:
                     dense["thermal_camera"] = full[..., 1:2]
 
+        accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
         # "rgb" first: the viewer shows the first output when it opens
-        outputs: Dict[str, Tensor] = {name: self._composite(weights, values) for name, values in dense.items()}
+        outputs: Dict[str, Tensor] = {
+            name: self._composite(weights, accumulation, values) for name, values in dense.items()
+        }
         outputs["depth"] = self.renderer_depth(weights, samples)
-        outputs["accumulation"] = self.renderer_accumulation(weights).clamp(0.0, 1.0)
+        outputs["accumulation"] = accumulation
         if routed and self.training and torch.is_grad_enabled():
             outputs.update(self._routed_outputs(weights, dense))
         if not self.training:
@@ -493,10 +494,13 @@ class AgriNeRFModel(Model):
         return outputs
 
     def _composite(
-        self, weights: Float[Tensor, "rays samples 1"], values: Float[Tensor, "rays samples c"]
+        self,
+        weights: Float[Tensor, "rays samples 1"],
+        accumulation: Float[Tensor, "rays 1"],
+        values: Float[Tensor, "rays samples c"],
     ) -> Float[Tensor, "rays c"]:
-        """Alpha compositing of per-sample values, with the background behind the last sample."""
-        accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
+        """Alpha compositing of per-sample values (`accumulation`: of these `weights`, clamped to [0, 1]), with the
+        background behind the last sample."""
         return (weights * values).sum(dim=-2) + self._background(values) * (1.0 - accumulation)
 
     def density_gradient_scale(self, term: str) -> float:
@@ -507,14 +511,18 @@ class AgriNeRFModel(Model):
         """Training only: for each data term whose density gradient scale is not 1, its output composited with weights
         whose gradient is scaled (same values), under the key "<output>/<term>"."""
         routed: Dict[str, Tensor] = {}
-        by_scale: Dict[Tuple[str, float], Tensor] = {}
+        scaled: Dict[float, Tuple[Tensor, Tensor]] = {}  # scale -> (weights, their accumulation)
+        composites: Dict[Tuple[str, float], Tensor] = {}
         for term, name in TERM_OUTPUTS.items():
             scale = self.density_gradient_scale(term)
             if name not in dense or scale == 1.0:
                 continue
-            if (name, scale) not in by_scale:
-                by_scale[(name, scale)] = self._composite(losses.scale_gradient(weights, scale), dense[name])
-            routed[f"{name}/{term}"] = by_scale[(name, scale)]
+            if scale not in scaled:
+                w = losses.scale_gradient(weights, scale)
+                scaled[scale] = (w, self.renderer_accumulation(w).clamp(0.0, 1.0))
+            if (name, scale) not in composites:
+                composites[(name, scale)] = self._composite(*scaled[scale], dense[name])
+            routed[f"{name}/{term}"] = composites[(name, scale)]
         return routed
 
     # --------------------------------------------------------------- losses
@@ -550,12 +558,10 @@ class AgriNeRFModel(Model):
         if not self.has_thermal_head:
             return terms
         if self.use_thermal and "thermal" in batch:
-            thermal = batch["thermal"].to(self.device)
-            terms["thermal_loss"] = losses.thermal_loss(pred("thermal_loss"), thermal, optional("thermal_mask"))
+            thermal, thermal_mask = batch["thermal"].to(self.device), optional("thermal_mask")
+            terms["thermal_loss"] = losses.thermal_loss(pred("thermal_loss"), thermal, thermal_mask)
             if self.has_thermal_camera:
-                terms["thermal_camera_loss"] = losses.thermal_loss(
-                    pred("thermal_camera_loss"), thermal, optional("thermal_mask")
-                )
+                terms["thermal_camera_loss"] = losses.thermal_loss(pred("thermal_camera_loss"), thermal, thermal_mask)
         if self.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
             terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)
         if self.use_events and "event" in batch and coef.get("reg_event_loss", 0.0) > 0:
