@@ -15,7 +15,6 @@ file is checked before anything is written; the output is written to a temporary
 
 from __future__ import annotations
 
-import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 import tyro
 import yaml
 
+from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.process import readers
 from agrinerf_ns.process.event_h5 import EventH5Writer
 from agrinerf_ns.process.readers import RawInputError
@@ -77,15 +77,14 @@ def read_ecd_images(ecd: Path) -> Tuple[List[Path], np.ndarray]:
 
 
 def interpolate_poses(gt_t: np.ndarray, gt_c2w: np.ndarray, times: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """Camera-to-world at ``times`` (linear position, slerp rotation) and which times lie inside the ground truth."""
-    from scipy.spatial.transform import Rotation, Slerp
+    """Camera-to-world at ``times`` (linear position, slerp rotation: :class:`agrinerf_ns.trajectory.CameraTrajectory`)
+    and which times lie inside the ground truth; identity outside it."""
+    from agrinerf_ns.trajectory import CameraTrajectory
 
     inside = (times >= gt_t[0]) & (times <= gt_t[-1])
     out = np.tile(np.eye(4), (len(times), 1, 1))
     if inside.any():
-        q = times[inside]
-        out[inside, :3, :3] = Slerp(gt_t, Rotation.from_matrix(gt_c2w[:, :3, :3]))(q).as_matrix()
-        out[inside, :3, 3] = np.stack([np.interp(q, gt_t, gt_c2w[:, k, 3]) for k in range(3)], 1)
+        out[inside, :3, :4] = CameraTrajectory(gt_t, gt_c2w).poses_at(times[inside])
     return out, inside
 
 
@@ -116,10 +115,8 @@ def ecd_to_raw(ecd: Path, out: Path, chunk_size: int = 2_000_000) -> Path:
             f"{ecd / 'groundtruth.txt'}: ground truth {gt_t[0]:.3f}..{gt_t[-1]:.3f} s covers none of the image times "
             f"{times[0]:.3f}..{times[-1]:.3f} s"
         )
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    (tmp / "rgb").mkdir(parents=True)
-    try:
+    with atomic_output_dir(out, overwrite=False) as tmp:
+        (tmp / "rgb").mkdir()
         cam = {
             "camera_model": "pinhole",
             "intrinsics": [float(v) for v in intr],
@@ -150,12 +147,6 @@ def ecd_to_raw(ecd: Path, out: Path, chunk_size: int = 2_000_000) -> Path:
         sink.close(0, {"clock": "ecd", "source": "events.txt"})
         if sink.n == 0:
             raise RawInputError(f"{ecd / 'events.txt'}: no events")
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        out.rmdir()
-    tmp.rename(out)
     return out
 
 

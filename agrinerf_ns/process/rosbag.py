@@ -17,7 +17,6 @@ sibling and renamed into place.
 
 from __future__ import annotations
 
-import os
 import shutil
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -28,6 +27,7 @@ import cv2
 import numpy as np
 import tyro
 
+from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.process.event_h5 import EventH5Writer
 from agrinerf_ns.process.readers import RawInputError, read_calibration
 
@@ -163,17 +163,8 @@ def bag_to_raw(
         for kind, topic in (("RGB", topics.rgb), ("thermal", topics.thermal), ("event", topics.events)):
             if topic is not None and topic not in found:
                 raise RawInputError(f"{bag}: no {kind} topic {topic!r}; topics in the bag: {listing}")
-        tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        try:
+        with atomic_output_dir(out, overwrite=False) as tmp:
             _convert(bag, tmp, reader, deserialize, conns, wanted, calib, odometry, event_chunk, event_clock)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-    if out.exists():
-        out.rmdir()
-    tmp.rename(out)
     return out
 
 
