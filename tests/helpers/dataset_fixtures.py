@@ -16,7 +16,7 @@ import torch
 from PIL import Image
 
 from helpers.tiny_scene import look_at as _look_at
-from helpers.tiny_scene import write_transforms
+from helpers.tiny_scene import make_dataset_folders, write_transforms
 
 WIDTH, HEIGHT = 64, 48
 
@@ -50,13 +50,7 @@ def write_tridata(
     """
     rng = np.random.default_rng(seed)
     fill = fill or {}
-    folders = ["images"] + [f"images_{n}" for n in downscaled_images]
-    if "thermal" in modalities:
-        folders += ["thermal", "thermal_masks"]
-    if "events" in modalities:
-        folders += ["events", "event_masks"]
-    for folder in folders:
-        (root / folder).mkdir(parents=True, exist_ok=True)
+    make_dataset_folders(root, modalities, ["images"] + [f"images_{n}" for n in downscaled_images])
 
     frames = []
     for i in range(num_frames):

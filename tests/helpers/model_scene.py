@@ -14,7 +14,7 @@ from typing import Dict, Optional, Sequence
 import numpy as np
 from PIL import Image
 
-from helpers.tiny_scene import cast_sphere_view, sphere_rgb, write_transforms
+from helpers.tiny_scene import cast_sphere_view, make_dataset_folders, sphere_rgb, write_transforms
 
 
 def _save(path: Path, values: np.ndarray) -> None:
@@ -34,13 +34,7 @@ def write_model_scene(
     `constant` replaces a stream by a constant value in [0, 1] (keys "rgb", "thermal", "event") for extreme tests.
     """
     constant = constant or {}
-    folders = ["images"]
-    if "thermal" in modalities:
-        folders += ["thermal", "thermal_masks"]
-    if "events" in modalities:
-        folders += ["events", "event_masks"]
-    for folder in folders:
-        (root / folder).mkdir(parents=True, exist_ok=True)
+    make_dataset_folders(root, modalities)
     focal = 0.9 * width
     frames = []
     for i in range(views):

@@ -104,3 +104,15 @@ def write_transforms(
         }
     (root / "transforms.json").write_text(json.dumps(meta, indent=2))
     return root
+
+
+def make_dataset_folders(root: Path, modalities: Sequence[str], image_folders: Sequence[str] = ("images",)) -> None:
+    """The folders of a tri-modal dataset under `root`: the image folders, then thermal/ and thermal_masks/, events/
+    and event_masks/ for the modalities given."""
+    folders = list(image_folders)
+    if "thermal" in modalities:
+        folders += ["thermal", "thermal_masks"]
+    if "events" in modalities:
+        folders += ["events", "event_masks"]
+    for folder in folders:
+        (root / folder).mkdir(parents=True, exist_ok=True)
