@@ -98,6 +98,9 @@ class AgriNeRFDataParser(Nerfstudio):
             camera = _event_camera(block, outputs, meta)
             if camera is not None:
                 metadata["event_camera"] = camera
+            stream = _event_stream(block, outputs, meta, data_dir, transforms_path)
+            if stream is not None:
+                metadata["event_stream"] = stream
 
         sizes = {_frame_size(frame, meta) for frame in kept}
         if len(sizes) > 1 and any(key in metadata for _, _, key, _ in FRAME_KEYS):
@@ -157,6 +160,33 @@ def _event_camera(
     depth = float((block.get("alignment") or {}).get("plane_depth", "inf"))
     centre_gl = np.array([centre_cv[0], -centre_cv[1], -centre_cv[2]]) * scale
     return {"camera_centre": torch.from_numpy(centre_gl), "plane_depth": depth * scale}
+
+
+def _event_stream(
+    block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any], data_dir: Path, transforms_path: Path
+) -> Optional[Dict[str, Any]]:
+    """The event camera at its own pixels, for the event loss (``agrinerf_ns.model.event_stream``): ``path`` (the
+    dataset's ``events/stream.h5``), ``width``, ``height``, ``directions`` (float64 [h * w, 3], each pixel's ray in the
+    event camera's OpenCV frame), ``rotation`` (float64 [3, 3], those directions into the RGB camera's OpenGL frame)
+    and ``centre`` (float64 [3], the event camera's centre there, this parser's scale). None when the dataset has no
+    stream or no event calibration."""
+    import numpy as np
+
+    from agrinerf_ns.model.event_stream import pixel_directions, rig_offset
+
+    name = (block.get("events") or {}).get("stream")
+    calib = (block.get("calibration") or {}).get("event")
+    if not name or not calib or "T_cam_rgb" not in calib:
+        return None
+    path = data_dir / name
+    if not path.exists():
+        raise AgriNeRFDataError(f"{transforms_path}: agrinerf.events.stream names {path}, which does not exist")
+    width, height = (int(v) for v in calib["resolution"])
+    scale = float(outputs.dataparser_scale) / float(meta.get("applied_scale", 1.0))
+    rotation, centre = rig_offset(np.asarray(calib["T_cam_rgb"], dtype=np.float64), scale)
+    directions = pixel_directions(tuple(calib["intrinsics"]), tuple(calib.get("distortion_coeffs", ())), width, height)
+    return {"path": path, "width": width, "height": height, "directions": directions, "rotation": rotation,
+            "centre": centre}  # fmt: skip
 
 
 TRAJECTORY_CHECK_TOL = 1e-4

@@ -63,7 +63,7 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
     scene, _, lighting = name.partition("-")
     raw, data = root / name / "raw", root / name / "data"
     config = SynthConfig(scene=scene, lighting=lighting, seed=seed, views=profile.views, width=profile.width,
-                         height=profile.height)  # fmt: skip
+                         height=profile.height, **profile.synth)  # fmt: skip
     if not _same_capture(raw, config):
         if raw.exists():
             shutil.rmtree(raw)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Optional, Tuple
+from typing import Any, Dict, Optional, Tuple
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,8 @@ class BenchProfile:
     """Depth (m, RGB camera frame) of the plane the thermal and event frames are warped at (``agrinerf-process
     --plane-depth``): objects at that depth land on their RGB pixels, others shift by the parallax of the cameras'
     baseline."""
+    synth: Dict[str, Any] = field(default_factory=dict)
+    """Further ``SynthConfig`` fields of the scenes (e.g. ``speed``)."""
 
 
 PROFILES: Dict[str, BenchProfile] = {
@@ -65,6 +67,13 @@ PROFILES: Dict[str, BenchProfile] = {
         steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
         evaluations=1, eval_every=4,
         scenes=tuple(f"{s}-{light}" for s in ("orchard", "garden") for light in ("bright", "shadowed", "dusk", "dark")),
+    ),
+    # Motion blur that events can remove (EvDeblurNeRF's setting, Tables I/II): a rig at tractor speed (2 m/s, 7 km/h)
+    # in dim light, so that the RGB frames' motion blur is several pixels at a CPU's image size.
+    "deblur": BenchProfile(
+        views=32, width=128, height=96,
+        steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
+        evaluations=1, eval_every=4, scenes=("orchard-dusk", "orchard-dark", "garden-dusk"), synth={"speed": 2.0},
     ),
     # The machinery end to end in a test: minutes on a CPU.
     "tiny": BenchProfile(

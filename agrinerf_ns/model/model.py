@@ -28,6 +28,7 @@ from torch.nn import Parameter
 
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
 from agrinerf_ns.model import losses
+from agrinerf_ns.model.event_stream import EventStream
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.vm_encoding import VMLookup
 
@@ -165,6 +166,13 @@ class AgriNeRFModelConfig(ModelConfig):
     event_threshold: float = 0.2
     """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
     synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
+    event_supervision: Literal["stream", "frames"] = "stream"
+    """What the event loss reads. stream: the events at the event camera's own pixels, each pixel rendered along its
+    own ray from the event camera (the dataset's ``events/stream.h5``; datasets without one fall back to frames).
+    frames: the per-frame counts warped into the RGB pixels, on the batch's RGB pixels."""
+    event_window_min_fraction: float = 0.25
+    """stream: each event pixel's window is a random sub-window of its frame's event window, its length uniform in
+    [this, 1] of the window (1: whole frame windows)."""
     event_log_eps: float = 1.0e-4
     """Offset of the event response log(Y + eps), in the linear units of the rendered colour."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
@@ -199,6 +207,7 @@ class AgriNeRFModel(Model):
         self.event_windows: Optional[Tensor] = metadata.get("event_windows")
         # the event camera's `camera_centre` and `plane_depth` (timed_rays.reposed_rays), where the dataset records them
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
+        self.event_stream_meta: Optional[Dict[str, Any]] = metadata.get("event_stream")
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
         self.use_event_loss = (
@@ -209,6 +218,10 @@ class AgriNeRFModel(Model):
             and config.event_rays_per_batch > 0
             and config.loss_coefficients.get("event_loss", 0.0) > 0
         )
+        self.event_stream: Optional[EventStream] = None
+        if self.use_event_loss and config.event_supervision == "stream" and self.event_stream_meta is not None:
+            meta = self.event_stream_meta
+            self.event_stream = EventStream.from_h5(meta["path"], meta["width"], meta["height"])
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         if not (self.use_rgb or self.use_thermal):
             raise ValueError(
@@ -402,7 +415,9 @@ class AgriNeRFModel(Model):
         if self.training and torch.is_grad_enabled():
             if self.use_blur and self.step >= self.config.blur_start_step:
                 outputs["rgb_blurred"] = self._blurred_rgb(ray_bundle)
-            if self.use_event_loss:
+            if self.use_event_loss and self.event_stream is not None:
+                outputs.update(self._stream_event_logs(ray_bundle))
+            elif self.use_event_loss:
                 outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
         return outputs
 
@@ -425,6 +440,30 @@ class AgriNeRFModel(Model):
         times = exposure_times(self.exposure[camera_rows(bundle)], self.config.blur_samples)
         renders = self._render_at(bundle, times)
         return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
+
+    def _stream_event_logs(self, like: RayBundle) -> Dict[str, Tensor]:
+        """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
+        rendered along the event camera's rays at both ends: their log luminance and their ON / OFF counts."""
+        from agrinerf_ns.model.event_stream import event_rays, sample_windows
+
+        assert self.event_stream is not None and self.event_windows is not None and self.trajectory is not None
+        meta, m = self.event_stream_meta or {}, self.config.event_rays_per_batch
+        frames = torch.randint(0, self.event_windows.shape[0], (m,))
+        t0, t1 = sample_windows(self.event_windows, frames, self.config.event_window_min_fraction, None)
+        pixel = torch.randint(0, self.event_stream.width * self.event_stream.height, (m,))
+        on, off = self.event_stream.counts(pixel, t0, t1)
+        origins, directions = event_rays(self.trajectory, meta, pixel, torch.stack([t0, t1], -1).double() * 1e-6)
+        device, dtype = like.origins.device, like.origins.dtype
+        bundle = RayBundle(
+            origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
+            camera_indices=frames.repeat_interleave(2)[:, None].to(device),
+        )
+        rgb = self._render(self.collider(bundle), routed=False)["rgb"].reshape(m, 2, 3)
+        logs = losses.log_luminance(rgb, self.config.event_log_eps)
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
+                "event_off": off.to(device)}  # fmt: skip
 
     def _event_window_logs(self, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
         """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows, seen
@@ -543,7 +582,16 @@ class AgriNeRFModel(Model):
         image = batch["image"][..., :3].to(self.device) if "image" in batch else None
         if self.use_rgb and image is not None:
             terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", outputs["rgb"]), image)
-        if "event_log_start" in outputs and "event_on" in batch:
+        if "event_on" in outputs:  # the stream's event pixels carry their own counts
+            terms["event_loss"] = losses.event_loss(
+                outputs["event_log_start"],
+                outputs["event_log_end"],
+                outputs["event_on"],
+                outputs["event_off"],
+                self.config.event_threshold,
+                self.config.event_threshold,
+            )
+        elif "event_log_start" in outputs and "event_on" in batch:
             m = outputs["event_log_start"].shape[0]
             mask = optional("event_mask")
             terms["event_loss"] = losses.event_loss(

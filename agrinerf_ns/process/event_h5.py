@@ -9,11 +9,11 @@ import numpy as np
 
 
 class EventH5Writer:
-    """Writes events (and trigger events) to ``folder/events.h5`` in chunks (the raw capture's event layout,
+    """Writes events (and trigger events) to ``folder/name`` in chunks (the raw capture's event layout,
     docs/formats.md); the file is created on the first write."""
 
-    def __init__(self, folder: Path, chunk: int) -> None:
-        self.folder, self.chunk, self.h5 = folder, chunk, None
+    def __init__(self, folder: Path, chunk: int, name: str = "events.h5") -> None:
+        self.folder, self.chunk, self.name, self.h5 = folder, chunk, name, None
         self.buf: Dict[str, List[np.ndarray]] = {k: [] for k in "xytp"}
         self.trig: Dict[str, List[np.ndarray]] = {k: [] for k in ("t", "p", "id")}
         self.n = 0
@@ -34,7 +34,7 @@ class EventH5Writer:
 
         if self.h5 is None:
             self.folder.mkdir(exist_ok=True)
-            self.h5 = h5py.File(self.folder / "events.h5", "w")
+            self.h5 = h5py.File(self.folder / self.name, "w")
             g = self.h5.create_group("events")
             for k, dt in (("x", np.uint16), ("y", np.uint16), ("t", np.int64), ("p", np.uint8)):
                 g.create_dataset(k, shape=(0,), maxshape=(None,), dtype=dt, chunks=(1 << 16,))

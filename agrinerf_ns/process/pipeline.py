@@ -24,6 +24,7 @@ from agrinerf_ns.process.dataset_writer import (
     write_transforms,
 )
 from agrinerf_ns.process.event_frames import EventFrameConfig
+from agrinerf_ns.process.event_h5 import EventH5Writer
 from agrinerf_ns.process.readers import RawInputError
 from agrinerf_ns.process.thermal_rescale import ThermalRescaleConfig, ThermalRescaler
 from agrinerf_ns.process.trigger_sync import TriggerSync, fit_trigger_sync
@@ -325,15 +326,23 @@ class _ThermalFrames:
 def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frames, progress) -> Dict:
     ev_cam, rgb_cam = cap.calib.event, cap.calib.rgb
     ecfg = config.events
-    frame_times = cap.sync.apply(cap.rgb.times) if cap.sync is not None else cap.rgb.times
-    t_start, t_end, window = event_frames.event_windows(frame_times, ecfg)
+    # windows in the frames' clock (what the dataset and the trajectory use), read in the event camera's
+    t_start, t_end, window = event_frames.event_windows(cap.rgb.times, ecfg)
+    to_event_clock = cap.sync.apply if cap.sync is not None else (lambda t: np.asarray(t, np.float64))
     maps = align.warp_maps(rgb_cam, ev_cam, config.plane_depth)
     mask8 = (maps[2] * 255).astype(np.uint8)
-    chunks = readers.iter_event_chunks(cap.event_file, ecfg.chunk_size, sensor_wh=(ev_cam.width, ev_cam.height))
+    stream = EventH5Writer(tmp / "events", ecfg.chunk_size, STREAM_FILE)
+    chunks = _stream_copy(
+        readers.iter_event_chunks(cap.event_file, ecfg.chunk_size, sensor_wh=(ev_cam.width, ev_cam.height)),
+        stream, cap.sync, float(to_event_clock(t_start[:1])[0]), float(to_event_clock(t_end[-1:])[0]),
+    )
     task = progress.add_task("event windows", total=len(names))
     percentiles = []
     total_in_windows = 0
-    for k, pos, neg in event_frames.accumulate_windows(chunks, t_start, t_end, ev_cam.width, ev_cam.height):
+    windows = event_frames.accumulate_windows(
+        chunks, to_event_clock(t_start), to_event_clock(t_end), ev_cam.width, ev_cam.height
+    )
+    for k, pos, neg in windows:
         total_in_windows += int(pos.sum() + neg.sum())
         pos_al = align.warp_image(pos.astype(np.float32), maps, nearest=True)
         neg_al = align.warp_image(neg.astype(np.float32), maps, nearest=True)
@@ -351,6 +360,7 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
         )
         frames[k]["event_sums_path"] = rel
         progress.advance(task)
+    stream.close(0, {"clock": "frame", "width": ev_cam.width, "height": ev_cam.height})
     if total_in_windows == 0:
         raise RawInputError(
             f"{cap.event_file}: none of its {cap.num_events} events falls in a window of the RGB frames "
@@ -380,8 +390,28 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
         else {"method": "recorded"},
         "png_encoding": "value = png / 255; signed: 0.5 (png 128) = no change",
         "sums": "event_sums_path: npz with pos, neg (uint16 ON/OFF counts in RGB pixels, nearest warp), mask, "
-                "t_start, t_end (s)",
+                "t_start, t_end (s, frame clock)",
+        "stream": f"events/{STREAM_FILE}",
     }
+
+
+STREAM_FILE = "stream.h5"
+"""The dataset's copy of the events inside the frames' windows, at the event camera's pixels, times in microseconds of
+the frames' clock (the event loss reads it: ``agrinerf_ns.model.event_stream``)."""
+
+
+def _stream_copy(chunks, sink: EventH5Writer, sync, start_s: float, end_s: float):
+    """Pass the chunks through, writing their events in ``[start_s, end_s)`` (event clock) to `sink` with times
+    moved into the frames' clock."""
+    lo, hi = round(start_s * 1e6), round(end_s * 1e6)
+    for chunk in chunks:
+        a, b = np.searchsorted(chunk.t, [lo, hi], side="left")
+        if b > a:
+            t = chunk.t[a:b].astype(np.float64) * 1e-6
+            if sync is not None:
+                t = (t - sync.offset_s) / sync.scale
+            sink.add(chunk.x[a:b], chunk.y[a:b], np.round(t * 1e6).astype(np.int64), chunk.p[a:b])
+        yield chunk
 
 
 def _estimate_poses(raw, tmp, cap: _Capture, config: ProcessConfig, frames, keep, progress):
