@@ -158,9 +158,9 @@ def checkpoint_globals() -> List[Any]:
     import numpy as np
 
     try:
-        from numpy.core.multiarray import scalar
+        from numpy.core.multiarray import scalar  # type: ignore[attr-defined]
     except ImportError:  # numpy >= 2 keeps it under numpy._core
-        from numpy._core.multiarray import scalar  # type: ignore[no-redef]
+        from numpy._core.multiarray import scalar  # type: ignore[attr-defined, no-redef]
     return [scalar, np.dtype, type(np.dtype("float64"))]
 
 

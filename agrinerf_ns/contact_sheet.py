@@ -133,6 +133,7 @@ def write_contact_sheet(
     """Draw the sheet to ``out`` (PNG, written atomically) and its layout to ``out`` with suffix ``.json``; each row
     is labelled ``row_prefix`` above its view's name."""
     from matplotlib import colormaps
+    from matplotlib.axes import Axes
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
@@ -145,8 +146,8 @@ def write_contact_sheet(
         if len(column.images) != len(views):
             raise ValueError(f"column {column.title!r} has {len(column.images)} images for {len(views)} views")
     height, width = np.asarray(columns[0].images[0]).shape[:2]
-    scale = tile_scale(width, min_tile_px)
-    tile_w, tile_h = width * scale, height * scale
+    zoom = tile_scale(width, min_tile_px)
+    tile_w, tile_h = width * zoom, height * zoom
     chars = max(12, int(tile_w / (0.55 * FONT_PT * DPI / 72)))
     titles = [textwrap.fill(c.title, chars) for c in columns]
     title_px = LINE_PX * max(t.count("\n") + 1 for t in titles) + 4
@@ -163,7 +164,7 @@ def write_contact_sheet(
     fig = Figure(figsize=(fig_w / DPI, fig_h / DPI), dpi=DPI)
     FigureCanvasAgg(fig)
 
-    def axes_at(x: int, y: int, w: int, h: int):
+    def axes_at(x: int, y: int, w: int, h: int) -> Axes:
         """Axes at pixel box (x, y, w, h) measured from the top left."""
         ax = fig.add_axes((x / fig_w, 1.0 - (y + h) / fig_h, w / fig_w, h / fig_h))
         ax.set_axis_off()
@@ -172,7 +173,7 @@ def write_contact_sheet(
     if title:
         fig.text(MARGIN_PX / fig_w, 1.0 - (MARGIN_PX + 2) / fig_h, title, fontsize=FONT_PT + 2, weight="bold", va="top")
     top = MARGIN_PX + header_px + title_px
-    placed: List[Tuple[object, str, str]] = []
+    placed: List[Tuple[Axes, str, str]] = []
     for c, column in enumerate(columns):
         x = MARGIN_PX + LABEL_PX + c * (tile_w + GAP_PX)
         fig.text((x + tile_w / 2) / fig_w, 1.0 - (top - 4) / fig_h, titles[c], fontsize=FONT_PT, ha="center",
@@ -203,9 +204,11 @@ def write_contact_sheet(
         bar.ax.tick_params(labelsize=FONT_PT - 1, length=2, pad=1)
         placed.append((cax, scale.label, ""))
     for r, view in enumerate(views):
-        y = top + r * (tile_h + GAP_PX) + tile_h / 2
+        y_mid = top + r * (tile_h + GAP_PX) + tile_h / 2
         label = f"{row_prefix}\n{view}" if row_prefix else view
-        fig.text((MARGIN_PX + LABEL_PX - 8) / fig_w, 1.0 - y / fig_h, label, fontsize=FONT_PT, ha="right", va="center")
+        fig.text(
+            (MARGIN_PX + LABEL_PX - 8) / fig_w, 1.0 - y_mid / fig_h, label, fontsize=FONT_PT, ha="right", va="center"
+        )
     if caption_lines:
         fig.text(MARGIN_PX / fig_w, (MARGIN_PX + LINE_PX * len(caption_lines)) / fig_h, "\n".join(caption_lines),
                  fontsize=FONT_PT, va="top", linespacing=1.15)  # fmt: skip

@@ -161,8 +161,9 @@ def sheet_columns(views: Sequence[HeldOutView], found: Optional[Mapping[str, Seq
         Column("AgriNeRF RGB render, exposure-aligned to the clean truth", aligned, boxes=boxes),
         Column("clean truth (synthetic, never trained on)", [v.truth for v in views]),
     ]
-    if all(v.thermal_frame is not None for v in views):
-        frames = [255.0 * v.thermal_frame for v in views]  # type: ignore[operator]
+    thermal_frames = [v.thermal_frame for v in views if v.thermal_frame is not None]
+    if len(thermal_frames) == len(views):
+        frames = [255.0 * frame for frame in thermal_frames]
         columns.append(Column("thermal frame (captured, rescaled; grey: outside its view)", frames, THERMAL_SCALE))
     for key, title in OPTIONAL_OUTPUTS:
         if all(key in v.outputs for v in views):

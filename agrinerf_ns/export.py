@@ -127,7 +127,9 @@ def export_point_cloud_command() -> type:
             o3d = import_open3d()
             self.output_dir.mkdir(parents=True, exist_ok=True)
             _, pipeline, _, _ = eval_setup(self.load_config)
-            pipeline.datamanager.train_pixel_sampler.num_rays_per_batch = self.num_rays_per_batch
+            # the datamanager is an nn.Module, so mypy types its attributes Tensor | Module
+            sampler = pipeline.datamanager.train_pixel_sampler
+            sampler.num_rays_per_batch = self.num_rays_per_batch  # type: ignore[union-attr]
             crop_obb = None
             if self.obb_center is not None and self.obb_rotation is not None and self.obb_scale is not None:
                 crop_obb = OrientedBox.from_params(self.obb_center, self.obb_rotation, self.obb_scale)

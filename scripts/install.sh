@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install agrinerf-ns and everything it needs into ./.venv (created if absent), from nothing but Python 3.11 and pip.
 #   bash scripts/install.sh            the plugin, as a user gets it (non-editable)
-#   bash scripts/install.sh --dev      plus pytest, ruff, beartype, and the [detect] extra (what the tests need)
+#   bash scripts/install.sh --dev      plus pytest, ruff, mypy, beartype, and the [detect] extra (what the tests need)
 #   bash scripts/install.sh --editable install the plugin editable (for development); combine with --dev
 # Environment: TORCH_SPEC overrides the torch/torchvision pair (default: the pair tested here, see README).
 set -euo pipefail

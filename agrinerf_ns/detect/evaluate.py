@@ -124,8 +124,11 @@ def load_plan(path: Path) -> List[SceneSpec]:
         raise ValueError(f"{path}: cannot read the plan: {err}") from err
     base = path.parent
 
+    def required(value: str) -> Path:
+        return Path(value) if Path(value).is_absolute() else base / value
+
     def p(value: Optional[str]) -> Optional[Path]:
-        return None if value is None else (base / value if not Path(value).is_absolute() else Path(value))
+        return None if value is None else required(value)
 
     scenes = []
     for i, s in enumerate(data.get("scenes", [])):
@@ -136,7 +139,7 @@ def load_plan(path: Path) -> List[SceneSpec]:
                 )
                 for m in s["methods"]
             ]
-            scenes.append(SceneSpec(s["name"], s["lighting"], p(s["raw"]), p(s.get("dataset")), methods))
+            scenes.append(SceneSpec(s["name"], s["lighting"], required(s["raw"]), p(s.get("dataset")), methods))
         except KeyError as err:
             raise ValueError(f"{path}: scene {i} lacks the key {err}") from err
     if not scenes:

@@ -30,7 +30,8 @@ class LoadedRun:
     """A trained run loaded for rendering."""
 
     config_path: Path
-    method: str
+    method: Optional[str]
+    """The config's ``method_name`` (Nerfstudio types it optional)."""
     pipeline: Any
     checkpoint: Path
     step: int

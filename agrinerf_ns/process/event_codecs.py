@@ -27,13 +27,13 @@ class DecodedEvents:
     """CD events (x, y, t in microseconds, p 0 = OFF / 1 = ON) and external-trigger events (t, edge p: 1 rising,
     0 falling, channel id) of one decoded chunk, each in stream order."""
 
-    x: UInt16[np.ndarray, "n"]
-    y: UInt16[np.ndarray, "n"]
-    t: Int64[np.ndarray, "n"]
-    p: UInt8[np.ndarray, "n"]
-    trig_t: Int64[np.ndarray, "m"] = field(default_factory=lambda: np.zeros(0, np.int64))
-    trig_p: UInt8[np.ndarray, "m"] = field(default_factory=lambda: np.zeros(0, np.uint8))
-    trig_id: UInt8[np.ndarray, "m"] = field(default_factory=lambda: np.zeros(0, np.uint8))
+    x: UInt16[np.ndarray, " n"]
+    y: UInt16[np.ndarray, " n"]
+    t: Int64[np.ndarray, " n"]
+    p: UInt8[np.ndarray, " n"]
+    trig_t: Int64[np.ndarray, " m"] = field(default_factory=lambda: np.zeros(0, np.int64))
+    trig_p: UInt8[np.ndarray, " m"] = field(default_factory=lambda: np.zeros(0, np.uint8))
+    trig_id: UInt8[np.ndarray, " m"] = field(default_factory=lambda: np.zeros(0, np.uint8))
 
 
 def _ffill(mask: np.ndarray, values: np.ndarray, initial) -> np.ndarray:
@@ -312,11 +312,11 @@ class Evt3Encoder:
 
     def encode(
         self,
-        x: Integer[np.ndarray, "n"],
-        y: Integer[np.ndarray, "n"],
-        t: Integer[np.ndarray, "n"],
-        p: Integer[np.ndarray, "n"],
-    ) -> UInt16[np.ndarray, "m"]:
+        x: Integer[np.ndarray, " n"],
+        y: Integer[np.ndarray, " n"],
+        t: Integer[np.ndarray, " n"],
+        p: Integer[np.ndarray, " n"],
+    ) -> UInt16[np.ndarray, " m"]:
         t = np.asarray(t, np.int64)
         y = np.asarray(y, np.int64)
         prev_t = np.concatenate([[self.t], t[:-1]])

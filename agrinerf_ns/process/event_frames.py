@@ -127,7 +127,7 @@ def frame_value(
 def robust_scale(abs_values_percentiles: Iterable[float]) -> float:
     """Sequence normaliser from per-window 99th percentiles of |value| (median over windows, at least 1)."""
     vals = [v for v in abs_values_percentiles if v > 0]
-    return float(max(1.0, np.median(vals))) if vals else 1.0
+    return max(1.0, float(np.median(vals))) if vals else 1.0
 
 
 def window_percentile(value: Float[np.ndarray, "h w"], q: float = 99.0) -> float:

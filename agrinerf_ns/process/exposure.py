@@ -7,7 +7,7 @@ model renders sub-poses across that interval; a zero-length interval is an insta
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Dict, Literal, Optional, Tuple
+from typing import Any, Dict, Literal, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -71,7 +71,7 @@ def frame_exposures(
     from_file = read_exposures(Path(raw) / "rgb", frames)
     if exposure_time is not None:
         exp = exposures_from_time(frames.times, exposure_time, timestamp_at)
-        meta = {"source": "--exposure-time", "timestamp_at": timestamp_at}
+        meta: Dict[str, Any] = {"source": "--exposure-time", "timestamp_at": timestamp_at}
         if from_file is not None:
             meta["overrides"] = f"rgb/{EXPOSURES_FILE}"
     elif from_file is not None:

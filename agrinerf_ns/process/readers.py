@@ -30,7 +30,7 @@ class FrameList:
     """Frames of one sensor: file paths and times in seconds, sorted by time."""
 
     paths: List[Path]
-    times: Float[np.ndarray, "n"]
+    times: Float[np.ndarray, " n"]
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -229,10 +229,10 @@ def _parse_camera(path: Path, name: str, entry: Dict, T_cam_rgb: np.ndarray) -> 
 class EventChunk:
     """A slice of the event stream: pixel coordinates, time in microseconds, polarity 0 = OFF, 1 = ON."""
 
-    x: UInt16[np.ndarray, "n"]
-    y: UInt16[np.ndarray, "n"]
-    t: Int64[np.ndarray, "n"]
-    p: UInt8[np.ndarray, "n"]
+    x: UInt16[np.ndarray, " n"]
+    y: UInt16[np.ndarray, " n"]
+    t: Int64[np.ndarray, " n"]
+    p: UInt8[np.ndarray, " n"]
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -336,6 +336,12 @@ def _iter_h5(path: Path, chunk_size: int):
             yield grp["x"][s:e], grp["y"][s:e], grp["t"][s:e], grp["p"][s:e]
 
 
+def _npy_header(fh, version: Tuple[int, int]) -> Tuple[Tuple[int, ...], bool, np.dtype]:
+    """(shape, Fortran order, dtype) from an open .npy file after its magic: numpy's reader for every format version,
+    which numpy keeps private (its public readers each take one version)."""
+    return np.lib.format._read_array_header(fh, version)  # type: ignore[attr-defined]  # noqa: SLF001
+
+
 def _iter_npz(path: Path, chunk_size: int):
     """Read each array of an .npz member by member, ``chunk_size`` entries at a time (no full load)."""
     try:
@@ -349,7 +355,7 @@ def _iter_npz(path: Path, chunk_size: int):
                 raise RawInputError(f"{path}: array '{key}' missing")
             fh = zf.open(f"{key}.npy")
             version = np.lib.format.read_magic(fh)
-            shape, fortran, dtype = np.lib.format._read_array_header(fh, version)  # noqa: SLF001
+            shape, fortran, dtype = _npy_header(fh, version)
             if len(shape) != 1:
                 raise RawInputError(f"{path}: array '{key}' must be 1-D, got shape {shape}")
             members[key] = (fh, int(shape[0]), dtype)
@@ -404,9 +410,9 @@ def _iter_raw(path: Path, chunk_size: int):
 class TriggerEvents:
     """External-trigger events of an event camera: time (microseconds), edge (1 rising, 0 falling), channel id."""
 
-    t: Int64[np.ndarray, "n"]
-    p: UInt8[np.ndarray, "n"]
-    id: UInt8[np.ndarray, "n"]
+    t: Int64[np.ndarray, " n"]
+    p: UInt8[np.ndarray, " n"]
+    id: UInt8[np.ndarray, " n"]
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -457,7 +463,7 @@ def count_events(path: Path) -> int:
         with zipfile.ZipFile(path) as zf:
             fh = zf.open("t.npy")
             version = np.lib.format.read_magic(fh)
-            shape, _, _ = np.lib.format._read_array_header(fh, version)  # noqa: SLF001
+            shape, _, _ = _npy_header(fh, version)
             return int(shape[0])
     with open(path, "rb") as fh:
         return sum(1 for line in fh if line.strip() and not line.startswith(b"#"))
@@ -467,7 +473,7 @@ def count_events(path: Path) -> int:
 # odometry
 
 
-def read_tum(path: Path) -> Tuple[Float[np.ndarray, "n"], Float[np.ndarray, "n 4 4"]]:
+def read_tum(path: Path) -> Tuple[Float[np.ndarray, " n"], Float[np.ndarray, "n 4 4"]]:
     """Read a TUM trajectory "t tx ty tz qx qy qz qw" -> (times, 4x4 camera-to-world matrices)."""
     if not path.is_file():
         raise RawInputError(f"{path}: pose file missing")

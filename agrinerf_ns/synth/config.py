@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import tyro
 from typing_extensions import Annotated
@@ -82,7 +82,7 @@ class SynthConfig:
     @staticmethod
     def tiny(**overrides: object) -> "SynthConfig":
         """The tiny test scene: 8 frames, RGB 64x48, thermal 32x26, events 52x30."""
-        base = dict(views=8, width=64, height=48, heldout=2, event_substeps=4)
+        base: Dict[str, object] = dict(views=8, width=64, height=48, heldout=2, event_substeps=4)
         base.update(overrides)
         return SynthConfig(**base)  # type: ignore[arg-type]
 

@@ -20,7 +20,7 @@ def _read_times(path: Path) -> List[float]:
 def _tile(img: np.ndarray, height: int) -> Image.Image:
     im = Image.fromarray(img)
     w = max(1, round(im.width * height / im.height))
-    return im.resize((w, height), Image.NEAREST)
+    return im.resize((w, height), Image.Resampling.NEAREST)
 
 
 def contact_sheet(raw: Union[str, Path], out_png: Union[str, Path], rows: int = 4, tile_height: int = 120) -> Path:

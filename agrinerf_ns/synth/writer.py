@@ -107,7 +107,8 @@ def coco(
     boxes_per_image: List[List[Tuple[int, int, int, int, int, int]]], names: List[str], width: int, height: int
 ) -> dict:
     """COCO detection dict; bbox [x, y, w, h] in pixels with the top-left pixel corner at (0, 0)."""
-    images, anns = [], []
+    images: List[dict] = []
+    anns: List[dict] = []
     for i, (name, boxes) in enumerate(zip(names, boxes_per_image, strict=True)):
         images.append({"id": i, "file_name": name, "width": width, "height": height})
         for fid, x0, y0, x1, y1, npx in boxes:
