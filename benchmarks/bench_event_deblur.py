@@ -28,6 +28,7 @@ from agrinerf_ns.machine import device_name
 MODEL = "--pipeline.model."
 RGB = (f"{MODEL}modalities", "rgb")
 EVENTS = (f"{MODEL}modalities", "rgb", "events", f"{MODEL}cross-spectral-output", "False")
+NOISE = (f"{MODEL}event-loss-weighting", "noise")
 
 
 def _blur(k: int) -> Tuple[str, ...]:
@@ -49,7 +50,10 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     "events-whole": ("+ event loss, whole frame windows", (*EVENTS, *_events(256), *_window(1.0))),
     "events": ("+ event loss", (*EVENTS, *_events(256))),
     "events-w0.01": ("+ event loss at weight 0.01", (*EVENTS, *_events(256, 0.01))),
+    "events-w0.001": ("+ event loss at weight 0.001", (*EVENTS, *_events(256, 0.001))),
+    "events-noise": ("+ event loss, noise-balanced weight", (*EVENTS, *_events(256, 1.0), *NOISE)),
     "evdeblurnerf": ("EvDeblurNeRF (blur + events)", (*EVENTS, *_blur(3), *_events(256))),
+    "evdeblurnerf-w0.01": ("EvDeblurNeRF, event weight 0.01", (*EVENTS, *_blur(3), *_events(256, 0.01))),
     "agrinerf": ("Ours: All + blur + events", (*_blur(3), *_events(256))),
 }
 """Row key -> (label, ``ns-train agrinerf-lite`` options). The event loss takes 256 event pixels per batch at weight

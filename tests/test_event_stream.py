@@ -127,3 +127,53 @@ def test_event_pixel_rays_pass_through_what_the_synthetic_event_camera_saw(dusk_
             o, d = origins[i, j].numpy(), directions[i, j].numpy()
             off_ray = np.linalg.norm(np.cross(point - o, d)) / np.linalg.norm(point - o)  # radians
             assert off_ray < 0.05 / cam.fx  # a twentieth of an event pixel
+
+
+def _stream_model(outputs, **kw):
+    from helpers.small_model import SMALL_MODEL
+
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    torch.manual_seed(0)
+    config = AgriNeRFModelConfig(modalities=("rgb", "events"), cross_spectral_output=False, event_rays_per_batch=64,
+                                 **{**SMALL_MODEL, **kw})  # fmt: skip
+    model = config.setup(scene_box=outputs.scene_box, num_train_data=len(outputs.image_filenames),
+                         metadata=outputs.metadata)  # fmt: skip
+    model.train()
+    return model
+
+
+def _step(model, outputs):
+    rays = outputs.cameras.generate_rays(camera_indices=0).flatten()[:128]
+    out = model(rays)
+    batch = {"image": torch.rand(128, 3, generator=torch.Generator().manual_seed(0))}
+    metrics = model.get_metrics_dict(out, batch)
+    return out, metrics, model.get_loss_dict(out, batch, metrics)
+
+
+def test_the_stream_event_loss_renders_event_pixels_and_trains_density_and_rgb(dusk_capture) -> None:
+    from agrinerf_ns.model.gradients import parameter_groups, term_gradient_norms
+
+    outputs = AgriNeRFDataParserConfig(data=dusk_capture[2]).setup().get_dataparser_outputs("train")
+    model = _stream_model(outputs)
+    assert model.event_stream is not None and model.event_stream.num_events > 0
+    out, metrics, loss_dict = _step(model, outputs)
+    assert out["event_on"].shape == out["event_log_start"].shape == (64, 1)
+    assert float((out["event_on"] + out["event_off"]).sum()) > 0  # the dusk capture's events were found
+    assert torch.isfinite(loss_dict["event_loss"]) and float(loss_dict["event_loss"]) > 0
+    norms = term_gradient_norms({"event_loss": loss_dict["event_loss"]}, parameter_groups(model))["event_loss"]
+    assert norms["density"] > 0 and norms["rgb_volume"] > 0 and norms["rgb_mlp"] > 0
+
+
+def test_the_noise_weighting_balances_the_event_term_by_the_running_losses(dusk_capture) -> None:
+    outputs = AgriNeRFDataParserConfig(data=dusk_capture[2]).setup().get_dataparser_outputs("train")
+    model = _stream_model(outputs, event_loss_weighting="noise", loss_coefficients={"rgb_loss": 1.0, "event_loss": 1.0})
+    _, metrics, loss_dict = _step(model, outputs)
+    rgb, event = float(metrics["rgb_loss"]), float(metrics["event_loss"])
+    # the first step's running means are its own losses: weight (64 event pixels / 128 rays) x rgb / event, at most 1
+    want = event * 0.5 * min(rgb / event, 1.0)
+    assert float(loss_dict["event_loss"]) == pytest.approx(want, rel=1e-5)
+    first = model.event_weight
+    _, metrics2, _ = _step(model, outputs)
+    assert metrics2["event_loss_weight"] == pytest.approx(first)  # logged: the weight of the step before
+    assert 0 < model.event_weight <= 0.5

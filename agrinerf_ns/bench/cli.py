@@ -82,6 +82,11 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
     return raw, data
 
 
+def _extra_args(profile: BenchProfile, method_key: str, method: BenchMethod) -> Tuple[str, ...]:
+    """The profile's extra ``ns-train`` options for a bench key, else for its ``ns-train`` method."""
+    return profile.extra_args.get(method_key, profile.extra_args.get(method.ns_method, ()))
+
+
 def _same_split(data: Path, eval_every: int) -> bool:
     """Whether the dataset's held-out list is the one ``eval_every`` gives."""
     from agrinerf_ns.process.dataset_writer import split_names
@@ -121,7 +126,7 @@ def run_method(
     if run is None or not run.checkpoints():
         run = ns_train(method.ns_method, data / method.data_file, runs / scene, method_key, max_steps=steps,
                        rays_per_batch=profile.rays_per_batch,
-                       extra_args=(*method.train_args, *profile.extra_args.get(method_key, ())),
+                       extra_args=(*method.train_args, *_extra_args(profile, method_key, method)),
                        dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
         run.save(record)  # an interrupted evaluation resumes without retraining
     truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None

@@ -31,6 +31,7 @@ METHODS: Dict[str, BenchMethod] = {
     for m in (
         BenchMethod("AgriNeRF-lite", "agrinerf-lite", "transforms.json", "rgb"),
         BenchMethod("AgriNeRF", "agrinerf", "transforms.json", "rgb"),
+        BenchMethod("EvDeblurNeRF-lite", "evdeblurnerf-lite", "transforms.json", "rgb"),
         BenchMethod("Nerfacto (RGB)", "nerfacto", "transforms.json", "rgb"),
         BenchMethod("Nerfacto (Thermal)", "nerfacto", "transforms_thermal.json", "thermal"),
         BenchMethod("TensoRF", "tensorf", "transforms.json", "rgb", ("nerfstudio-data",)),

@@ -41,13 +41,13 @@ PROFILES: Dict[str, BenchProfile] = {
     # (measurements: docs/bench_profiles.md).
     "quick": BenchProfile(
         views=16, width=96, height=72,
-        steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
+        steps={"agrinerf-lite": 500, "evdeblurnerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
         evaluations=3, rays_per_batch=1024,
     ),
     # A GPU at the paper's settings: 30k steps of every method on the default scene size.
     "full": BenchProfile(
         views=40, width=160, height=120,
-        steps={"agrinerf-lite": 30000, "agrinerf": 30000, "nerfacto": 30000, "nerfacto-thermal": 30000,
+        steps={"agrinerf-lite": 30000, "evdeblurnerf-lite": 30000, "agrinerf": 30000, "nerfacto": 30000, "nerfacto-thermal": 30000,
                "tensorf": 30000},
         evaluations=6, rays_per_batch=1024,
     ),
@@ -57,28 +57,42 @@ PROFILES: Dict[str, BenchProfile] = {
     # Why these numbers: docs/bench_profiles.md.
     "detect": BenchProfile(
         views=60, width=320, height=240,
-        steps={"agrinerf-lite": 1500, "agrinerf": 500, "nerfacto": 150, "nerfacto-thermal": 110, "tensorf": 400},
+        steps={"agrinerf-lite": 1500, "evdeblurnerf-lite": 1500, "agrinerf": 500, "nerfacto": 150, "nerfacto-thermal": 110, "tensorf": 400},
         evaluations=1, eval_views=3, rays_per_batch=1024, scenes=("garden-dark",), plane_depth=1.57,
     ),
     # Table IV in PSNR (modality ablations of AgriNeRF-lite at equal steps), every lighting of both scenes; enough
     # held-out views per run for paired per-view intervals.
     "ablation": BenchProfile(
         views=32, width=96, height=72,
-        steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
+        steps={"agrinerf-lite": 500, "evdeblurnerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
         evaluations=1, eval_every=4,
         scenes=tuple(f"{s}-{light}" for s in ("orchard", "garden") for light in ("bright", "shadowed", "dusk", "dark")),
     ),
     # Motion blur that events can remove (EvDeblurNeRF's setting, Tables I/II): a rig at tractor speed (2 m/s, 7 km/h)
-    # in dim light, so that the RGB frames' motion blur is several pixels at a CPU's image size.
+    # in dim light, so that the RGB frames' motion blur is several pixels at a CPU's image size, and the lite model's
+    # grid at its final size early (by step 300, at 128 voxels a side), finer than the blur.
     "deblur": BenchProfile(
         views=32, width=128, height=96,
-        steps={"agrinerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
+        steps={"agrinerf-lite": 800, "evdeblurnerf-lite": 800, "agrinerf": 240, "nerfacto": 60, "nerfacto-thermal": 60, "tensorf": 250},
         evaluations=1, eval_every=4, scenes=("orchard-dusk", "orchard-dark", "garden-dusk"), synth={"speed": 2.0},
+        extra_args={"agrinerf-lite": ("--pipeline.model.upsampling-iters", "100", "200", "300",
+                                      "--pipeline.model.final-resolution", "128")},
+    ),
+    # The same with an ideal event camera (no refractory period, no noise events, one contrast threshold): what the
+    # event loss can do when its targets hold.
+    "deblur-ideal-events": BenchProfile(
+        views=32, width=128, height=96,
+        steps={"agrinerf-lite": 800, "evdeblurnerf-lite": 800, "agrinerf": 240, "nerfacto": 60, "nerfacto-thermal": 60,
+               "tensorf": 250},
+        evaluations=1, eval_every=4, scenes=("orchard-dusk",),
+        synth={"speed": 2.0, "event_refractory_us": 0, "event_noise_hz": 0.0, "event_threshold_sigma": 0.0},
+        extra_args={"agrinerf-lite": ("--pipeline.model.upsampling-iters", "100", "200", "300",
+                                      "--pipeline.model.final-resolution", "128")},
     ),
     # The machinery end to end in a test: minutes on a CPU.
     "tiny": BenchProfile(
         views=8, width=64, height=48,
-        steps={"agrinerf-lite": 8, "agrinerf": 4, "nerfacto": 4, "nerfacto-thermal": 4, "tensorf": 4},
+        steps={"agrinerf-lite": 8, "evdeblurnerf-lite": 8, "agrinerf": 4, "nerfacto": 4, "nerfacto-thermal": 4, "tensorf": 4},
         evaluations=2, rays_per_batch=128, scenes=("orchard-dark",),
     ),
 }  # fmt: skip

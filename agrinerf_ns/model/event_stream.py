@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Dict, Optional, Tuple
 
 import numpy as np
 import torch
-from jaxtyping import Float, Int
+from jaxtyping import Float, Int, Integer
 from torch import Tensor
 
 if TYPE_CHECKING:
@@ -44,10 +44,10 @@ class EventStream:
 
     def __init__(
         self,
-        x: Int[np.ndarray, " n"],
-        y: Int[np.ndarray, " n"],
-        t_us: Int[np.ndarray, " n"],
-        p: Int[np.ndarray, " n"],
+        x: Integer[np.ndarray, " n"],
+        y: Integer[np.ndarray, " n"],
+        t_us: Integer[np.ndarray, " n"],
+        p: Integer[np.ndarray, " n"],
         width: int,
         height: int,
     ) -> None:

@@ -6,6 +6,7 @@ Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Loss
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Literal, Optional, Tuple, Type
 
@@ -173,6 +174,12 @@ class AgriNeRFModelConfig(ModelConfig):
     event_window_min_fraction: float = 0.25
     """stream: each event pixel's window is a random sub-window of its frame's event window, its length uniform in
     [this, 1] of the window (1: whole frame windows)."""
+    event_loss_weighting: Literal["fixed", "noise"] = "fixed"
+    """fixed: the event term weighs loss_coefficients["event_loss"] (EvDeblurNeRF's 0.1). noise: that coefficient times
+    (event pixels / RGB rays) x (running mean RGB loss / running mean event loss), the maximum-likelihood balance of
+    two Gaussian terms whose variances are their running losses (at most 1: an event sample never counts more than an
+    RGB ray): noisy RGB (the dark) gives the events more weight, noisy events (refractory losses, noise events)
+    less."""
     event_log_eps: float = 1.0e-4
     """Offset of the event response log(Y + eps), in the linear units of the rendered colour."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
@@ -223,6 +230,8 @@ class AgriNeRFModel(Model):
             meta = self.event_stream_meta
             self.event_stream = EventStream.from_h5(meta["path"], meta["width"], meta["height"])
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
+        self._loss_means: Optional[Tuple[float, float]] = None  # running RGB and event losses (`noise` weighting)
+        self.event_weight = 0.0  # the `noise` weighting's last factor, logged as a metric
         if not (self.use_rgb or self.use_thermal):
             raise ValueError(
                 f"AgriNeRF needs RGB or thermal supervision: config modalities {wanted}, dataset modalities "
@@ -644,6 +653,8 @@ class AgriNeRFModel(Model):
                 metrics[name] = -10.0 * torch.log10(metrics[term].detach().clamp(min=1e-10))
         if self.training:
             metrics.update(self._regularisers())
+        if self.training and self._loss_means is not None:
+            metrics["event_loss_weight"] = self.event_weight
         self.camera_optimizer.get_metrics_dict(metrics)
         return metrics
 
@@ -657,8 +668,24 @@ class AgriNeRFModel(Model):
         coef = self.config.loss_coefficients
         # out of place (misc.scale_dict multiplies in place, which would also scale the raw terms in the metrics)
         loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
+        if "event_loss" in loss_dict and "rgb_loss" in raw and self.config.event_loss_weighting == "noise":
+            loss_dict["event_loss"] = loss_dict["event_loss"] * self._event_noise_weight(raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
         return loss_dict
+
+    def _event_noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
+        """The `noise` weighting's factor (config `event_loss_weighting`), from running means of the RGB and event
+        losses (updated in training; 0.99 per step)."""
+        rgb, event = float(raw["rgb_loss"].detach()), float(raw["event_loss"].detach())
+        if self.training and math.isfinite(rgb) and math.isfinite(event):
+            old = self._loss_means or (rgb, event)
+            self._loss_means = (0.99 * old[0] + 0.01 * rgb, 0.99 * old[1] + 0.01 * event)
+        if self._loss_means is None:
+            return 0.0
+        mean_rgb, mean_event = self._loss_means
+        samples = outputs["event_log_start"].shape[0] / outputs["rgb"].shape[0]
+        self.event_weight = samples * min(mean_rgb / max(mean_event, 1e-12), 1.0)  # never above an RGB ray's
+        return self.event_weight
 
     # ----------------------------------------------------------- evaluation
     @property
