@@ -13,7 +13,7 @@ PSNR table and the step time of each row as a ratio to ``rgb``'s, both runs on t
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Dict, Tuple
 
@@ -22,7 +22,7 @@ import tyro
 from agrinerf_ns.bench import results
 from agrinerf_ns.bench.cli import prepare_scene, run_method
 from agrinerf_ns.bench.methods import BenchMethod
-from agrinerf_ns.bench.profiles import PROFILES
+from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
 from agrinerf_ns.machine import device_name
 
 MODEL = "--pipeline.model."
@@ -54,11 +54,28 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     "events-noise": ("+ event loss, noise-balanced weight", (*EVENTS, *_events(256, 1.0), *NOISE)),
     "evdeblurnerf": ("EvDeblurNeRF (blur + events)", (*EVENTS, *_blur(3), *_events(256))),
     "evdeblurnerf-w0.01": ("EvDeblurNeRF, event weight 0.01", (*EVENTS, *_blur(3), *_events(256, 0.01))),
-    "agrinerf": ("Ours: All + blur + events", (*_blur(3), *_events(256))),
+    "blur-events-noise": (
+        "Ours (RGB module): blur + noise-balanced events",
+        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE),
+    ),
+    "blur-events-learnt": (
+        "blur + noise-balanced events, learnt thresholds",
+        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, f"{MODEL}event-threshold-learnt", "True"),
+    ),
+    "events-learnt": (
+        "+ noise-balanced event loss, learnt thresholds",
+        (*EVENTS, *_events(256, 1.0), *NOISE, f"{MODEL}event-threshold-learnt", "True"),
+    ),
+    "agrinerf": ("Ours: All + blur + noise-balanced events", (*_blur(3), *_events(256, 1.0), *NOISE)),
+    "rgb-long": ("RGB TensoRF, 4x the steps", RGB),
 }
 """Row key -> (label, ``ns-train agrinerf-lite`` options). The event loss takes 256 event pixels per batch at weight
 0.1 (EvDeblurNeRF's) from the event stream at the event camera's pixels in random sub-windows (the model's
 defaults), the blur model 3 renders per blurred pixel, unless the key says otherwise."""
+
+STEP_FACTORS: Dict[str, int] = {"rgb-long": 4}
+"""Rows trained for a multiple of the profile's steps: the RGB TensoRF at about the wall time of the blur model's rows
+(whose K = 3 extra renders per ray make a step about 4x as long)."""
 
 
 @dataclass
@@ -72,6 +89,12 @@ class Args:
     seed: int = 0
     report_only: bool = False
     """Train nothing: write deblur.md from the rows already in results.csv."""
+
+
+def row_profile(profile: BenchProfile, key: str) -> BenchProfile:
+    """The profile with this row's step budget."""
+    steps = profile.steps["agrinerf-lite"] * STEP_FACTORS.get(key, 1)
+    return replace(profile, steps={**profile.steps, key: steps})
 
 
 def method(key: str) -> BenchMethod:
@@ -111,7 +134,7 @@ def main(args: Args) -> None:
             if (scene, key) in done:
                 continue
             print(f"{scene}: {key}", flush=True)
-            rows = run_method(scene, key, method(key), raw, data, profile, args.out / "runs", device)
+            rows = run_method(scene, key, method(key), raw, data, row_profile(profile, key), args.out / "runs", device)
             results.append_rows(csv_path, rows)
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in args.scenes]
     labels = {k: ROWS[k][0] for k in keys}

@@ -9,7 +9,9 @@ C (ON - OFF), for each way the loss can read the events:
 - ``frames, RGB rays``: the frame-window counts warped into the RGB pixels, rendered along the RGB pixels' rays;
 - ``frames, event-camera rays``: the same counts, rendered from the event camera's centre (``event_camera``);
 - ``stream``: the event stream at the event camera's own pixels, each rendered along its own ray, whole frame windows;
-- ``stream, sub-windows``: the same in random sub-windows (``event_window_min_fraction``).
+- ``stream, sub-windows``: the same in random sub-windows (``event_window_min_fraction``);
+- with ``--truth-capture RAW`` (a synthetic capture): the stream against the scene's truth instead of the run, what
+  the targets are worth when the reconstruction is perfect.
 
 Per way: the correlation of prediction and target, the loss (MSE) of the prediction and of predicting no change,
 and the gain g minimising |g prediction - target|^2 (1 for a consistent response). Writes ``OUT/event_oracle.md``.
@@ -20,8 +22,9 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
+import numpy as np
 import torch
 import tyro
 
@@ -43,6 +46,9 @@ class Args:
     min_fraction: float = 0.25
     """Shortest sub-window, as a fraction of the frame window."""
     seed: int = 0
+    truth_capture: Optional[Path] = None
+    """The run's raw synthetic capture (``agrinerf-synth`` output): also judge the events by the scene's truth, the
+    synthetic renderer's log luminance at the event camera (whole event frames, every third training window)."""
 
 
 def _stats(pred: torch.Tensor, target: torch.Tensor) -> Tuple[float, float, float, float]:
@@ -57,6 +63,42 @@ def _render_logs(model, bundle, eps: float) -> torch.Tensor:
     for s in range(0, len(bundle), 4096):
         out.append(losses.log_luminance(model._render(model.collider(bundle[s : s + 4096]), routed=False)["rgb"], eps))
     return torch.cat(out)
+
+
+def truth_rows(
+    raw: Path, stream: EventStream, windows: torch.Tensor, threshold: float, min_fraction: float
+) -> List[Tuple[str, Tuple[float, float, float, float]]]:
+    """The stream's targets against the synthetic scene's truth log-luminance change at the event camera."""
+    import dataclasses
+    import json
+
+    from agrinerf_ns.synth import SynthConfig
+    from agrinerf_ns.synth.capture import EVENT_EPS, make_scene
+    from agrinerf_ns.synth.raycast import cast
+    from agrinerf_ns.synth.scene import LIGHTING_PRESETS, radiance, rec709_luminance
+
+    written = json.loads((raw / "truth" / "scene.json").read_text())["config"]
+    fields = {f.name for f in dataclasses.fields(SynthConfig)}
+    config = SynthConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in written.items() if k in fields})
+    scene, rig = make_scene(config)
+    light, cam = LIGHTING_PRESETS[config.lighting], rig.cams["event"]
+
+    def log_lum(t_us: int) -> torch.Tensor:
+        hits = cast(scene.prims, cam, rig.pose(t_us * 1e-6, "event"))
+        return torch.from_numpy(np.log(rec709_luminance(radiance(scene, hits, light)) + EVENT_EPS))
+
+    pixel = torch.arange(cam.width * cam.height)
+    rows = []
+    for label, fraction in (("stream, synthetic truth", 1.0), ("stream, sub-windows, synthetic truth", min_fraction)):
+        frames = torch.arange(0, windows.shape[0], 3)
+        t0, t1 = sample_windows(windows, frames, fraction, torch.Generator().manual_seed(0))
+        pred, target = [], []
+        for a, b in zip(t0.tolist(), t1.tolist(), strict=True):
+            on, off = stream.counts(pixel, torch.full_like(pixel, a), torch.full_like(pixel, b))
+            pred.append(log_lum(b) - log_lum(a))
+            target.append(threshold * (on - off)[:, 0])
+        rows.append((label, _stats(torch.cat(pred), torch.cat(target))))
+    return rows
 
 
 def main(args: Args) -> None:
@@ -76,7 +118,9 @@ def main(args: Args) -> None:
         h, w = int(dataset.cameras.height[0]), int(dataset.cameras.width[0])
         ys, xs = torch.randint(0, h, (args.samples,)), torch.randint(0, w, (args.samples,))
         coords = torch.stack([frames, ys, xs], -1)
-        bundle = dataset.cameras.to("cpu").generate_rays(camera_indices=coords[:, :1], coords=coords[:, 1:].float() + 0.5)
+        bundle = dataset.cameras.to("cpu").generate_rays(
+            camera_indices=coords[:, :1], coords=coords[:, 1:].float() + 0.5
+        )
         bundle = bundle.flatten() if bundle.shape != (args.samples,) else bundle
         counts: Dict[str, List[torch.Tensor]] = {"on": [], "off": [], "mask": []}
         cache: Dict[int, Dict[str, torch.Tensor]] = {}
@@ -113,6 +157,8 @@ def main(args: Args) -> None:
                 )
                 logs = _render_logs(model, rays, eps).reshape(args.samples, 2)
                 rows.append((label, _stats(logs[:, 1] - logs[:, 0], args.threshold * (on - off)[:, 0])))
+        if meta is not None and args.truth_capture is not None:
+            rows += truth_rows(args.truth_capture, stream, windows, args.threshold, args.min_fraction)
     args.out.mkdir(parents=True, exist_ok=True)
     lines = [
         "# How well a trained reconstruction explains the event loss's targets",

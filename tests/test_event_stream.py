@@ -177,3 +177,19 @@ def test_the_noise_weighting_balances_the_event_term_by_the_running_losses(dusk_
     _, metrics2, _ = _step(model, outputs)
     assert metrics2["event_loss_weight"] == pytest.approx(first)  # logged: the weight of the step before
     assert 0 < model.event_weight <= 0.5
+
+
+def test_learnt_thresholds_are_trained_by_the_event_loss_and_absent_unless_asked(dusk_capture) -> None:
+    outputs = AgriNeRFDataParserConfig(data=dusk_capture[2]).setup().get_dataparser_outputs("train")
+    assert _stream_model(outputs).log_event_threshold is None
+    model = _stream_model(outputs, event_threshold_learnt=True, event_threshold=0.25)
+    threshold = model.log_event_threshold
+    assert threshold is not None and any(p is threshold for p in model.get_param_groups()["fields"])
+    _, metrics, loss_dict = _step(model, outputs)
+    assert float(metrics["event_threshold_on"]) == pytest.approx(0.25)
+    loss_dict["event_loss"].backward()
+    assert (
+        threshold.grad is not None
+        and bool(torch.isfinite(threshold.grad).all())
+        and float(threshold.grad.abs().sum()) > 0
+    )

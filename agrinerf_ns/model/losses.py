@@ -6,7 +6,7 @@ return a scalar tensor. Weights are applied by the model (`loss_coefficients`), 
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Optional, Union
 
 import torch
 from jaxtyping import Float
@@ -55,8 +55,8 @@ def event_loss(
     log_end: Float[Tensor, "*bs 1"],
     on_counts: Float[Tensor, "*bs 1"],
     off_counts: Float[Tensor, "*bs 1"],
-    c_on: float,
-    c_off: float,
+    c_on: Union[float, Float[Tensor, ""]],
+    c_off: Union[float, Float[Tensor, ""]],
     mask: Optional[Float[Tensor, "*bs 1"]] = None,
 ) -> Float[Tensor, ""]:
     """EvDeblurNeRF-style event loss: mean (log L(t_end) - log L(t_start) - (C_on N_on - C_off N_off))^2.
