@@ -26,7 +26,14 @@ from agrinerf_ns.synth.scene import (
     rec709_luminance,
     temperature,
 )
-from agrinerf_ns.synth.sensors import EventSimulator, ThermalSensor, clean_rgb, exposure_gains, noisy_rgb
+from agrinerf_ns.synth.sensors import (
+    RADIOMETRIC_CALIBRATION,
+    EventSimulator,
+    ThermalSensor,
+    clean_rgb,
+    exposure_gains,
+    noisy_rgb,
+)
 
 THERMAL_SUPERSAMPLE = 2
 EVENT_EPS = 1e-6
@@ -52,6 +59,14 @@ def render_radiance(
         s = supersample
         rad = rad.reshape(cam.height, s, cam.width, s, 3).mean(axis=(1, 3))
     return rad, hits
+
+
+def truth_temperature(scene: Scene, hits: Hits, cam: PinholeRadtan, supersample: int) -> Float[np.ndarray, "h w"]:
+    """Surface temperature (degrees C, float32) per pixel of ``cam``, the mean over the ``supersample``^2 rays of
+    ``hits`` (a render of ``cam.scaled(supersample)``): the sharp scene, no optics blur, no sensor."""
+    s = supersample
+    temp = temperature(scene, hits).reshape(cam.height, s, cam.width, s).mean(axis=(1, 3))
+    return temp.astype(np.float32)
 
 
 def fruit_boxes(ids: Int[np.ndarray, "h w"], min_pixels: int) -> List[BOX]:
@@ -153,7 +168,8 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         if prog is not None:
             prog.add_task(f"synth {config.scene}/{config.lighting}", total=n_steps)
         dirs = {d: tmp / d for d in ("rgb", "thermal", "events", "truth/rgb_clean", "truth/depth",
-                                     "truth/boxes_yolo", "truth/fruit_ids", "truth/heldout/boxes_yolo")}
+                                     "truth/boxes_yolo", "truth/fruit_ids", "truth/temperature",
+                                     "truth/heldout/boxes_yolo", "truth/heldout/temperature")}
         for d in dirs.values():
             d.mkdir(parents=True, exist_ok=True)
         names = [W.frame_name(i) for i in range(config.views)]
@@ -162,6 +178,8 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             T = rig.pose(float(t))
             poses.append(T)
             rad, hits = render_radiance(scene, cam_rgb, T, light, s)
+            np.save(dirs["truth/temperature"] / names[i].replace(".png", ".npy"),
+                    truth_temperature(scene, hits, cam_rgb, s))
             if s > 1:
                 hits = cast(scene.prims, cam_rgb, T)
             # the camera frame integrates the moving scene over its exposure; the truth stays the sharp frame at t
@@ -205,6 +223,8 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         ho_names = [W.frame_name(k) for k in range(config.num_heldout)]
         for k, (t, T) in enumerate(heldout_poses(rig, config)):
             rad, hits = render_radiance(scene, cam_rgb, T, light, s)
+            np.save(dirs["truth/heldout/temperature"] / ho_names[k].replace(".png", ".npy"),
+                    truth_temperature(scene, hits, cam_rgb, s))
             if s > 1:
                 hits = cast(scene.prims, cam_rgb, T)
             write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, truth_gain))
@@ -223,12 +243,13 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         ecam = rig.cams["event"]
         W.write_events(dirs["events"] / "events.h5", ex, ey, et, ep, ecam.width, ecam.height)
 
-        W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0))
+        W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION))
         W.write_json(tmp / "truth" / "fruits.json", scene.fruits)
         W.write_json(tmp / "truth" / "scene.json", {
             "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
             "temperatures_c": {k: round(v, 4) for k, v in scene.temps.items()},
-            "thermal_counts": {"offset_at_0c": 3500.0, "per_kelvin": 100.0},
+            "thermal_counts": {"offset_at_0c": RADIOMETRIC_CALIBRATION["counts_at_0c"],
+                               "per_kelvin": RADIOMETRIC_CALIBRATION["counts_per_kelvin"]},
             "rgb_gain": gain, "truth_gain": truth_gain, "num_events": int(et.size),
             "rgb_motion_blur": blur_summary(config.motion_blur, exposure, subframes, blur_px),
             "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",

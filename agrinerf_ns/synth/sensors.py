@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Tuple
+from typing import Any, Dict, Tuple
 
 import numpy as np
 from jaxtyping import Float, Int64, UInt8, UInt16
@@ -24,6 +24,13 @@ THERMAL_OFFSET = 3500.0
 """Thermal counts at 0 degrees Celsius."""
 THERMAL_GAIN = 100.0
 """Thermal counts per kelvin."""
+RADIOMETRIC_CALIBRATION: Dict[str, Any] = {
+    "model": "linear",
+    "counts_at_0c": THERMAL_OFFSET,
+    "counts_per_kelvin": THERMAL_GAIN,
+}
+"""The thermal camera's counts-to-temperature map as its calibration gives it (calib.yaml, cam1 ``radiometric``):
+``counts = counts_at_0c + counts_per_kelvin * T_celsius``. The fixed pattern and noise are what it does not know."""
 
 
 def gamma_encode(lin: np.ndarray) -> np.ndarray:
@@ -77,11 +84,6 @@ class ThermalSensor:
         pix = blurred.reshape(h, s, w, s).mean(axis=(1, 3))
         counts = THERMAL_OFFSET + THERMAL_GAIN * pix + self.fpn + rng.normal(0, 6.0, (h, w))
         return np.clip(np.round(counts), 0, 65535).astype(np.uint16)
-
-
-def counts_to_celsius(counts: np.ndarray) -> np.ndarray:
-    """Approximate inverse of the thermal calibration (ignores fixed-pattern offsets)."""
-    return (counts.astype(np.float64) - THERMAL_OFFSET) / THERMAL_GAIN
 
 
 class EventSimulator:

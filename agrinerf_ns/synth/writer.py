@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import ContextManager, Dict, List, Sequence, Tuple, Union
+from typing import Any, ContextManager, Dict, List, Optional, Sequence, Tuple, Union
 
 import h5py
 import numpy as np
@@ -67,8 +67,11 @@ def write_events(
         g.attrs["height"] = np.int64(height)
 
 
-def camchain(cams: Dict[str, PinholeRadtan], T_c_c0: Dict[str, np.ndarray]) -> dict:
-    """Kalibr camchain dict: cam0 rgb, cam1 thermal, cam2 event, T_cn_cnm1 chaining them."""
+def camchain(
+    cams: Dict[str, PinholeRadtan], T_c_c0: Dict[str, np.ndarray], radiometric: Optional[Dict[str, Any]] = None
+) -> dict:
+    """Kalibr camchain dict: cam0 rgb, cam1 thermal, cam2 event, T_cn_cnm1 chaining them; ``radiometric`` (the
+    thermal camera's counts-to-temperature calibration) goes into cam1's entry."""
     order = ["rgb", "thermal", "event"]
     out = {}
     for n, key in enumerate(order):
@@ -82,6 +85,8 @@ def camchain(cams: Dict[str, PinholeRadtan], T_c_c0: Dict[str, np.ndarray]) -> d
             "modality": key,
             "rostopic": f"/{key}/image_raw" if key != "event" else "/prophesee/events",
         }
+        if key == "thermal" and radiometric is not None:
+            entry["radiometric"] = dict(radiometric)
         if n > 0:
             T = T_c_c0[key] @ np.linalg.inv(T_c_c0[order[n - 1]])
             entry["T_cn_cnm1"] = [[round(float(v), 12) for v in row] for row in T]
