@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Literal, Optional
+from typing import Dict, List, Literal, Optional, Union
 
 import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from agrinerf_ns import temperature
 from agrinerf_ns.images import to_uint8, write_png
-from agrinerf_ns.process import align, event_frames, exposure, readers
+from agrinerf_ns.process import align, event_frames, exposure, radiometric, readers
 from agrinerf_ns.process import poses as pose_utils
 from agrinerf_ns.process.dataset_writer import (
     atomic_output_dir,
@@ -234,26 +236,40 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
         rescaler = ThermalRescaler(config.thermal).fit(_ThermalFrames(th.paths, hw, progress, task))
         maps = align.warp_maps(rgb_cam, th_cam, config.plane_depth)
         mask = (maps[2] * 255).astype(np.uint8)
+        # temperatures only where the capture gives a counts-to-temperature map (calib.yaml or FLIR JPEGs)
+        calibration = radiometric.capture_calibration(th_cam.radiometric, th.paths[0])
+        stats = _TemperatureStats()
         task = progress.add_task("thermal frames", total=n)
         for i in range(n):
             j = int(match[i])
             if j >= 0:
-                img8 = rescaler.apply(readers.read_thermal(th.paths[j], hw), j)
+                counts = readers.read_thermal(th.paths[j], hw)
+                img8 = rescaler.apply(counts, j)
                 frames[i]["thermal_file_path"] = f"thermal/{names[i]}.png"
                 frames[i]["thermal_mask_path"] = f"thermal_masks/{names[i]}.png"
                 frames[i]["raw_thermal"] = str(th.paths[j].relative_to(raw))
                 write_png(tmp / frames[i]["thermal_file_path"], align.warp_image(img8, maps))
                 write_png(tmp / frames[i]["thermal_mask_path"], mask)
+                if calibration is not None:
+                    frames[i]["thermal_temperature_path"] = f"thermal_temperature/{names[i]}.png"
+                    write_png(tmp / frames[i]["thermal_temperature_path"],
+                              stats.add(_temperature_image(calibration, counts, maps)))  # fmt: skip
             progress.advance(task)
         modalities.append("thermal")
+        if calibration is not None:
+            meta["thermal_radiometric"] = calibration.as_dict()
+            meta["thermal_temperature"] = {"encoding": temperature.ENCODING, "calibration": calibration.source,
+                                           **stats.as_dict()}  # fmt: skip
         meta["thermal_rescale"] = rescaler.params()
         if th.paths[0].suffix.lower() in (".jpg", ".jpeg"):
             from agrinerf_ns.process import flir
 
+            # the JPEG's camera info, and the map the temperatures use (the JPEG's, unless calib.yaml gives one)
             meta["thermal_radiometric"] = {
                 "source": "FLIR radiometric JPEG (first frame's camera info)",
                 "counts_to_kelvin": flir.MAP,
                 **flir.read_flir(th.paths[0]).metadata,
+                **(calibration.as_dict() if calibration is not None else {}),
             }
         meta["thermal_time_tolerance_s"] = tol
 
@@ -307,8 +323,44 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
     return out
 
 
-_FILE_KEYS = ("file_path", "thermal_file_path", "thermal_mask_path", "event_file_path", "event_mask_path",
-              "event_sums_path")
+_FILE_KEYS = ("file_path", "thermal_file_path", "thermal_mask_path", "thermal_temperature_path", "event_file_path",
+              "event_mask_path", "event_sums_path")
+
+
+def _temperature_image(calibration: radiometric.RadiometricCalibration, counts: np.ndarray, maps) -> np.ndarray:
+    """One raw thermal frame as the dataset's temperature PNG (centikelvin, agrinerf_ns.temperature), warped into the
+    RGB camera like the rescaled frame (bilinear in degrees C); 0 outside the thermal camera's view or where the
+    calibration cannot map the counts."""
+    celsius = align.warp_image(calibration.celsius(counts).astype(np.float32), maps)
+    png = temperature.encode_celsius(celsius)
+    png[~maps[2]] = 0
+    return png
+
+
+class _TemperatureStats:
+    """Mean, standard deviation and range (degrees C) of the valid pixels of the temperature images written."""
+
+    def __init__(self) -> None:
+        self.n, self.total, self.squares = 0, 0.0, 0.0
+        self.lo, self.hi = math.inf, -math.inf
+
+    def add(self, png: np.ndarray) -> np.ndarray:
+        celsius, valid = temperature.decode_celsius(png)
+        values = celsius[valid].astype(np.float64)
+        if values.size:
+            self.n += int(values.size)
+            self.total += float(values.sum())
+            self.squares += float(np.square(values).sum())
+            self.lo, self.hi = min(self.lo, float(values.min())), max(self.hi, float(values.max()))
+        return png
+
+    def as_dict(self) -> Dict[str, Union[int, float]]:
+        if self.n == 0:
+            return {"pixels": 0}
+        mean = self.total / self.n
+        std = math.sqrt(max(self.squares / self.n - mean * mean, 0.0))
+        return {"pixels": self.n, "mean_c": round(mean, 4), "std_c": round(std, 4), "min_c": round(self.lo, 2),
+                "max_c": round(self.hi, 2)}  # fmt: skip
 
 
 class _ThermalFrames:

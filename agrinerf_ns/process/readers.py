@@ -9,12 +9,15 @@ from __future__ import annotations
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional, Tuple
+from typing import TYPE_CHECKING, Dict, Iterator, List, Optional, Tuple
 
 import cv2
 import numpy as np
 import yaml
 from jaxtyping import Float, Int64, UInt8, UInt16
+
+if TYPE_CHECKING:
+    from agrinerf_ns.process.radiometric import RadiometricCalibration
 
 
 class RawInputError(ValueError):
@@ -135,8 +138,11 @@ class CameraCalib:
     width: int
     height: int
     T_cam_rgb: Float[np.ndarray, "4 4"] = field(default_factory=lambda: np.eye(4))
+    radiometric: Optional["RadiometricCalibration"] = None
+    """Counts-to-temperature map (a thermal camera's ``radiometric`` entry in calib.yaml), or None."""
 
     def as_dict(self) -> Dict:
+        extra = {"radiometric": self.radiometric.as_dict()} if self.radiometric is not None else {}
         return {
             "name": self.name,
             "modality": self.modality,
@@ -144,6 +150,7 @@ class CameraCalib:
             "distortion_coeffs": [float(x) for x in self.dist],
             "resolution": [self.width, self.height],
             "T_cam_rgb": self.T_cam_rgb.tolist(),
+            **extra,
         }
 
 
@@ -218,7 +225,14 @@ def _parse_camera(path: Path, name: str, entry: Dict, T_cam_rgb: np.ndarray) -> 
     if len(res) != 2 or int(res[0]) <= 0 or int(res[1]) <= 0:
         raise RawInputError(f"{path}: {name}.resolution must be [width, height]")
     K = np.array([[intr[0], 0, intr[2]], [0, intr[1], intr[3]], [0, 0, 1]], dtype=np.float64)
-    return CameraCalib(name, modality, K, dist, int(res[0]), int(res[1]), T_cam_rgb)
+    radiometric = None
+    if "radiometric" in entry:
+        if modality != "thermal":
+            raise RawInputError(f"{path}: {name}.radiometric is given, but {name} is not the thermal camera")
+        from agrinerf_ns.process.radiometric import parse_calibration
+
+        radiometric = parse_calibration(entry["radiometric"], path, name)
+    return CameraCalib(name, modality, K, dist, int(res[0]), int(res[1]), T_cam_rgb, radiometric)
 
 
 # ----------------------------------------------------------------------------------------------------------------
