@@ -11,6 +11,10 @@ the thermal and event frames (and their valid masks) and hands their paths to th
   (or the modality is not requested in ``modalities``).
 - ``"modalities"``: the tuple of modalities that are both present and requested, among ("rgb", "thermal", "events").
 - ``"agrinerf"``: the dataset's top-level ``agrinerf`` block (a dict; empty when the file has none).
+- ``"temperature_filenames"``: the frames' linear temperature images (``thermal_temperature_path``: 16-bit PNG in
+  centikelvin, ``agrinerf_ns.temperature``) and ``"temperature_stats"`` (dict of floats ``mean_c``, ``std_c``,
+  ``min_c``, ``max_c``, degrees C), only when the thermal frames are loaded and the dataset has temperatures (its
+  thermal camera had a radiometric calibration).
 - ``"times"``: float64 tensor [N], each image's ``timestamp`` (seconds, the capture's clock); ``"exposure"``: float64
   tensor [N, 2], its exposure interval (``exposure_start``, ``exposure_end``), or [t, t] (an instantaneous frame)
   when the dataset records no exposures; ``"trajectory"``: an :class:`agrinerf_ns.trajectory.CameraTrajectory`
@@ -93,6 +97,9 @@ class AgriNeRFDataParser(Nerfstudio):
                 _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
             metadata[metadata_key] = paths
 
+        if "thermal_filenames" in metadata:
+            metadata.update(_temperature(frames, kept, block, meta, data_dir, transforms_path))
+
         if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
             metadata.update(_event_sums(data_dir, kept))
             camera = _event_camera(block, outputs, meta)
@@ -120,6 +127,57 @@ class AgriNeRFDataParser(Nerfstudio):
         metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs
+
+
+TEMPERATURE_KEY = "thermal_temperature_path"
+"""Per-frame key of the linear temperature images (16-bit PNG in centikelvin, ``agrinerf_ns.temperature``)."""
+TEMPERATURE_STATS = ("mean_c", "std_c", "min_c", "max_c")
+
+
+def _temperature(
+    frames: List[Dict[str, Any]],
+    kept: List[Dict[str, Any]],
+    block: Dict[str, Any],
+    meta: Dict[str, Any],
+    data_dir: Path,
+    transforms_path: Path,
+) -> Dict[str, Any]:
+    """``temperature_filenames`` (the frames' temperature images, checked like the thermal frames) and
+    ``temperature_stats`` (mean_c, std_c, min_c, max_c: from ``agrinerf.thermal_temperature``, else from this split's
+    images); empty when the dataset has no temperature images (its thermal camera has no radiometric calibration)."""
+    import numpy as np
+
+    from agrinerf_ns.temperature import decode_celsius
+
+    given = [f for f in frames if TEMPERATURE_KEY in f]
+    if not given:
+        return {}
+    if len(given) != len(frames):
+        raise AgriNeRFDataError(
+            f"{transforms_path}: '{TEMPERATURE_KEY}' is given in {len(given)} of {len(frames)} frames; give it for "
+            "every frame or none."
+        )
+    paths = [data_dir / frame[TEMPERATURE_KEY] for frame in kept]
+    for frame, path in zip(kept, paths, strict=True):
+        _check_aligned_frame(path, frame, meta, TEMPERATURE_KEY, transforms_path)
+    recorded = block.get("thermal_temperature") or {}
+    if all(k in recorded for k in TEMPERATURE_STATS):
+        stats = {k: float(recorded[k]) for k in TEMPERATURE_STATS}
+    else:
+        from PIL import Image
+
+        values = []
+        for path in paths:
+            celsius, valid = decode_celsius(np.asarray(Image.open(path)))
+            values.append(celsius[valid])
+        flat = np.concatenate(values) if values else np.zeros(0)
+        if flat.size == 0:
+            raise AgriNeRFDataError(f"{transforms_path}: the '{TEMPERATURE_KEY}' images hold no valid temperature")
+        stats = {"mean_c": float(flat.mean()), "std_c": float(flat.std()), "min_c": float(flat.min()),
+                 "max_c": float(flat.max())}  # fmt: skip
+    if not all(np.isfinite(v) for v in stats.values()) or stats["max_c"] < stats["min_c"]:
+        raise AgriNeRFDataError(f"{transforms_path}: temperature statistics {stats} are not finite and ordered")
+    return {"temperature_filenames": paths, "temperature_stats": stats}
 
 
 def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:

@@ -40,7 +40,8 @@ def test_processed_scene_batches(processed_scene: Path) -> None:
 
     _, batch = datamanager.next_train(0)
     counts = ("event_on", "event_off")  # the event loss's ON/OFF counts per pixel of the frame's window
-    assert set(batch) == {"image", "indices", *EXTRA, *counts}
+    temperature = ("temperature", "temperature_mask")  # the synthetic thermal camera is radiometric
+    assert set(batch) == {"image", "indices", *EXTRA, *counts, *temperature}
     assert_batch_matches_dataset(batch, train, ("image", *EXTRA, *counts))
     for key in counts:
         assert batch[key].shape == (256, 1) and batch[key].min() >= 0 and torch.equal(batch[key], batch[key].round())

@@ -7,7 +7,9 @@ as RGB: a training batch carries ``batch["thermal"]`` of shape ``(num_rays, 1)``
 Keys returned by :meth:`AgriNeRFDataset.get_metadata` (only for modalities the dataparser found):
 
 - ``"thermal"`` in [0, 1] and ``"thermal_mask"`` in {0, 1} (all ones when the dataset has no thermal masks);
-- ``"event"`` in [0, 1] (representation in ``metadata["agrinerf"]["events"]``) and ``"event_mask"`` in {0, 1}.
+- ``"event"`` in [0, 1] (representation in ``metadata["agrinerf"]["events"]``) and ``"event_mask"`` in {0, 1};
+- ``"temperature"`` in degrees C and ``"temperature_mask"`` in {0, 1} (the thermal mask, and the image has a value),
+  when the dataset has temperature images (``metadata["temperature_filenames"]``).
 
 Like ``"image"``, these keys stay on the CPU in the cached batch (``exclude_batch_keys_from_device``); a model
 moves them with ``batch["thermal"].to(self.device)`` as it does the image.
@@ -64,6 +66,34 @@ def load_aligned_frame(path: Path, height: int, width: int, is_mask: bool = Fals
     return torch.from_numpy(np.clip(frame, 0.0, 1.0).copy())[..., None]
 
 
+def load_temperature_frame(
+    path: Path, height: int, width: int
+) -> Tuple[Float[Tensor, "height width 1"], Float[Tensor, "height width 1"]]:
+    """A temperature image (16-bit centikelvin PNG, ``agrinerf_ns.temperature``) as float32 degrees C (H, W, 1) and its
+    valid mask (the pixel has a value), resized like the image (bilinear; after a resize a pixel is valid only if its
+    whole footprint was)."""
+    from agrinerf_ns.temperature import decode_celsius
+
+    try:
+        pil_image = Image.open(path)
+        pil_image.load()
+    except Exception as error:  # PIL raises several types for unreadable files
+        raise AgriNeRFDataError(f"{path}: cannot read image: {error}") from error
+    array = np.asarray(pil_image)
+    if array.ndim != 2 or array.dtype not in (np.uint16, np.int32, np.uint32):
+        raise AgriNeRFDataError(f"{path}: a temperature image is a 16-bit single-channel PNG, got mode {pil_image.mode}")
+    celsius, valid = decode_celsius(array.astype(np.uint16))
+    file_width, file_height = pil_image.size
+    if (file_height, file_width) != (height, width):
+        _check_same_aspect(path, file_height, file_width, height, width)
+        weight = valid.astype(np.float32)
+        resize = lambda a: np.asarray(Image.fromarray(a).resize((width, height), Image.Resampling.BILINEAR))  # noqa: E731
+        w = resize(weight)
+        celsius = np.where(w > 0, resize(celsius * weight) / np.maximum(w, 1e-6), 0.0).astype(np.float32)
+        valid = w >= 1.0 - 1e-3
+    return torch.from_numpy(celsius.copy())[..., None], torch.from_numpy(valid.astype(np.float32))[..., None]
+
+
 def load_event_counts(
     path: Path, height: int, width: int
 ) -> Tuple[Float[Tensor, "height width 1"], Float[Tensor, "height width 1"]]:
@@ -107,6 +137,8 @@ class AgriNeRFDataset(InputDataset):
         "event_mask",
         "event_on",
         "event_off",
+        "temperature",
+        "temperature_mask",
     ]
 
     def get_metadata(self, data: Dict) -> Dict[str, Any]:
@@ -124,6 +156,10 @@ class AgriNeRFDataset(InputDataset):
                 out[mask_key] = load_aligned_frame(mask_files[image_idx], height, width, is_mask=True)
             else:
                 out[mask_key] = torch.ones((height, width, 1), dtype=torch.float32)
+        temperature_files = self.metadata.get("temperature_filenames")
+        if temperature_files:
+            out["temperature"], valid = load_temperature_frame(temperature_files[image_idx], height, width)
+            out["temperature_mask"] = valid * out.get("thermal_mask", torch.ones_like(valid))
         sums_files = self.metadata.get("event_sums_filenames")
         if sums_files:
             out["event_on"], out["event_off"] = load_event_counts(sums_files[image_idx], height, width)
