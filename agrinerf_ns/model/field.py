@@ -2,7 +2,8 @@
 
 Each head is an appearance TensoRF (VM decomposition, Nerfstudio's `TensorVMEncoding`) followed by a small MLP:
 MLP_RGB (view dependent, 3 channels) and MLP_THERMAL (1 channel, view independent unless configured otherwise).
-A head that the scene does not need is not built at all (no volume, no MLP, no parameters).
+A head that the scene does not need is not built at all (no volume, no MLP, no parameters). A scene with temperatures
+(a radiometric thermal camera) also gets a temperature head on the thermal appearance (`TemperatureHead`).
 """
 
 from __future__ import annotations
@@ -73,17 +74,48 @@ class AppearanceHead(nn.Module):
     ) -> Float[Tensor, "n out_dim"]:
         """Value in [0, 1] at grid coordinates `coords` (in [-1, 1]) seen along unit `directions`; `corners` (of
         `coords`, at the volume's resolution) saves recomputing them."""
+        return self.mlp(self.mlp_input(coords, directions, corners))
+
+    def mlp_input(
+        self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"], corners: Optional[VMCorners] = None
+    ) -> Float[Tensor, "n d"]:
+        """What the MLP reads: the appearance feature, its encoding and (view dependent) the encoded direction."""
         if corners is None:
             corners = vm_corners(coords, self.encoding.resolution)
         features = self.basis(self.encoding.features(corners))
         parts = [features, self.feature_encoding(features)]
         if self.direction_encoding is not None:
             parts.append(self.direction_encoding(directions))
-        return self.mlp(torch.cat(parts, dim=-1))
+        return torch.cat(parts, dim=-1)
 
     def mlp_parameters(self) -> list:
         """Parameters of the basis and MLP (the "fields" optimizer group)."""
         return list(self.basis.parameters()) + list(self.mlp.parameters())
+
+
+class TemperatureHead(nn.Module):
+    """Temperature from the thermal appearance: a small MLP on MLP_THERMAL's input with a linear output, in the
+    normalised units (T - mean_c) / std_c of the dataset's temperatures (buffers, saved in checkpoints).
+
+    Its own parameters (``temperature_head.*``), built only for a scene with temperatures: the rescaled thermal outputs
+    stay in [0, 1] through their sigmoid, a temperature is unbounded and linear in the camera's calibrated values.
+    """
+
+    def __init__(self, in_dim: int, width: int, mean_c: float, std_c: float) -> None:
+        super().__init__()
+        self.mlp = MLP(in_dim=in_dim, num_layers=2, layer_width=width, out_dim=1, activation=nn.ReLU(),
+                       out_activation=None, implementation="torch")  # fmt: skip
+        self.register_buffer("mean_c", torch.tensor(float(mean_c)))
+        self.register_buffer("std_c", torch.tensor(max(float(std_c), 1e-3)))
+
+    def forward(self, mlp_input: Float[Tensor, "n d"]) -> Float[Tensor, "n 1"]:
+        return self.mlp(mlp_input)
+
+    def to_celsius(self, normalised: Tensor) -> Tensor:
+        return normalised * self.std_c + self.mean_c
+
+    def normalise(self, celsius: Tensor) -> Tensor:
+        return (celsius - self.mean_c) / self.std_c
 
 
 class AgriNeRFField(Field):
@@ -100,6 +132,9 @@ class AgriNeRFField(Field):
         num_thermal_components, thermal_appearance_dim: thermal appearance volume and basis size.
         thermal_view_dependent: feed the viewing direction to MLP_THERMAL (default: no, thermal is Lambertian enough).
         thermal_channels: outputs of MLP_THERMAL (1: the cross-spectral value; 2: also the thermal camera's value).
+        temperature_stats: (mean, std) in degrees C of the dataset's temperatures: builds the temperature head on the
+            thermal appearance (`TemperatureHead`); None (no radiometric calibration): no temperature parameters.
+        temperature_mlp_width: hidden width of the temperature head.
         mlp_width: hidden width of MLP_RGB.
         thermal_mlp_width: hidden width of MLP_THERMAL (one channel; defaults to `mlp_width`).
         density_shift: added before the softplus (TensoRF's `density_shift`).
@@ -124,6 +159,8 @@ class AgriNeRFField(Field):
         thermal_appearance_dim: int = 12,
         thermal_view_dependent: bool = False,
         thermal_channels: int = 1,
+        temperature_stats: Optional[Tuple[float, float]] = None,
+        temperature_mlp_width: int = 32,
         mlp_width: int = 128,
         thermal_mlp_width: Optional[int] = None,
         density_shift: float = -4.0,
@@ -157,6 +194,10 @@ class AgriNeRFField(Field):
             if with_thermal
             else None
         )
+        self.temperature_head: Optional[TemperatureHead] = None
+        if self.thermal_head is not None and temperature_stats is not None:
+            in_dim = self.thermal_head.mlp.in_dim
+            self.temperature_head = TemperatureHead(in_dim, temperature_mlp_width, *temperature_stats)
         self.density_shift = density_shift
         self.max_density = max_density
         occ_res = max(int(occupancy_resolution), 1)
@@ -240,7 +281,10 @@ class AgriNeRFField(Field):
         if self.rgb_head is not None:
             out[FieldHeadNames.RGB] = self.rgb_head(coords, directions, corners)
         if self.thermal_head is not None:
-            out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head(coords, directions, corners)
+            thermal_input = self.thermal_head.mlp_input(coords, directions, corners)
+            out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head.mlp(thermal_input)
+            if self.temperature_head is not None:
+                out[AgriNeRFFieldHeadNames.TEMPERATURE] = self.temperature_head(thermal_input)
         return out
 
     def get_outputs(
