@@ -101,6 +101,9 @@ class TemperatureHead(nn.Module):
     stay in [0, 1] through their sigmoid, a temperature is unbounded and linear in the camera's calibrated values.
     """
 
+    mean_c: Float[Tensor, ""]
+    std_c: Float[Tensor, ""]
+
     def __init__(self, in_dim: int, width: int, mean_c: float, std_c: float) -> None:
         super().__init__()
         self.mlp = MLP(in_dim=in_dim, num_layers=2, layer_width=width, out_dim=1, activation=nn.ReLU(),

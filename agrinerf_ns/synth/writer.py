@@ -76,7 +76,7 @@ def camchain(
     out = {}
     for n, key in enumerate(order):
         c = cams[key]
-        entry = {
+        entry: Dict[str, Any] = {
             "camera_model": "pinhole",
             "intrinsics": [float(c.fx), float(c.fy), float(c.cx), float(c.cy)],
             "distortion_model": "radtan",
