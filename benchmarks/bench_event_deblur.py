@@ -68,6 +68,7 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     ),
     "agrinerf": ("Ours: All + blur + noise-balanced events", (*_blur(3), *_events(256, 1.0), *NOISE)),
     "rgb-long": ("RGB TensoRF, 4x the steps", RGB),
+    "rgb-seed": ("RGB TensoRF, another seed", (*RGB, "--machine.seed", "43")),
 }
 """Row key -> (label, ``ns-train agrinerf-lite`` options). The event loss takes 256 event pixels per batch at weight
 0.1 (EvDeblurNeRF's) from the event stream at the event camera's pixels in random sub-windows (the model's

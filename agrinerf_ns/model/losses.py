@@ -152,7 +152,9 @@ def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
     """L1 sparsity of VM factors: one mean |w| over every entry of all the given tensors (plane entries outnumber line
     entries by the resolution, so the planes dominate). TensoRF's `TensorVMSplit.density_L1` instead sums one mean |w|
     per factor, so a line weighs as much as a plane; the loss weight absorbs the difference in scale."""
-    total = sum(t.abs().sum() for t in tensors)
+    if not tensors:
+        return torch.zeros(())
+    total = torch.stack([t.abs().sum() for t in tensors]).sum()
     count = sum(t.numel() for t in tensors)
     return total / max(count, 1)
 

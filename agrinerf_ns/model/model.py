@@ -31,6 +31,7 @@ from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalitie
 from agrinerf_ns.model import losses
 from agrinerf_ns.model.event_stream import EventStream
 from agrinerf_ns.model.field import AgriNeRFField
+from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.vm_encoding import VMLookup
 
 TERM_OUTPUTS: Dict[str, str] = {
@@ -40,6 +41,7 @@ TERM_OUTPUTS: Dict[str, str] = {
     "reg_event_loss": "thermal",
     "thermal_camera_loss": "thermal_camera",
     "event_loss": "rgb",
+    "temperature_loss": "temperature",
 }
 """Each data loss term and the output it compares with its target."""
 
@@ -103,6 +105,7 @@ class AgriNeRFModelConfig(ModelConfig):
             "reg_rgb_loss": 0.0,
             "reg_event_loss": 0.0,
             "thermal_camera_loss": 0.0,
+            "temperature_loss": 0.0,
         }
     )
     """How strongly each data term's gradient reaches the shared density through the rendering weights (1: fully,
@@ -111,6 +114,13 @@ class AgriNeRFModelConfig(ModelConfig):
     on it, since the thermal routes into the density lowered the RGB reconstruction in most scenes measured
     (docs/model.md, Loss routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
     counts as 1."""
+    temperature_output: bool = True
+    """A `temperature` output in degrees C, where the dataset has temperature images (its thermal camera has a
+    radiometric calibration): a small head on the thermal appearance (`temperature_head.*`, none without them), trained
+    by `temperature_loss` (MSE in units of the dataset's temperature standard deviation over the thermal mask), not by
+    L_reg, and by default not moving the density (docs/model.md)."""
+    temperature_mlp_width: int = 32
+    """Hidden width of the temperature head."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB (TensoRF's)."""
     thermal_mlp_width: int = 64
@@ -148,6 +158,7 @@ class AgriNeRFModelConfig(ModelConfig):
             "reg_event_loss": 1.0,
             "thermal_camera_loss": 1.0,
             "event_loss": 0.1,
+            "temperature_loss": 1.0,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
@@ -174,6 +185,11 @@ class AgriNeRFModelConfig(ModelConfig):
     event_window_min_fraction: float = 0.25
     """stream: each event pixel's window is a random sub-window of its frame's event window, its length uniform in
     [this, 1] of the window (1: whole frame windows)."""
+    event_threshold_learnt: bool = False
+    """Learn the contrast thresholds (one for ON, one for OFF, scene-wide, from `event_threshold`) with the field.
+    Where the sensor under-reports large changes (refractory period, bandwidth), fixed thresholds pull the
+    reconstruction towards less contrast; learnt ones follow the contrast the frames give, and the events then say
+    where and when the log luminance changes (E-NeRF and Robust e-NeRF treat unknown thresholds this way)."""
     event_loss_weighting: Literal["fixed", "noise"] = "fixed"
     """fixed: the event term weighs loss_coefficients["event_loss"] (EvDeblurNeRF's 0.1). noise: that coefficient times
     (event pixels / RGB rays) x (running mean RGB loss / running mean event loss), the maximum-likelihood balance of
@@ -207,6 +223,9 @@ class AgriNeRFModel(Model):
         self.use_events = "events" in self.modalities
         self.has_thermal_head = self.use_thermal or (self.use_events and config.cross_spectral_output)
         self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
+        # dataset temperatures in degrees C (mean_c, std_c, min_c, max_c): only with a radiometric calibration
+        self.temperature_stats: Optional[Dict[str, float]] = metadata.get("temperature_stats")
+        self.has_temperature = self.use_thermal and config.temperature_output and self.temperature_stats is not None
         # timing of the training frames (dataparser metadata): what the blur model and the event loss need
         self.frame_times: Optional[Tensor] = metadata.get("times")
         self.exposure: Optional[Tensor] = metadata.get("exposure")
@@ -258,6 +277,10 @@ class AgriNeRFModel(Model):
         super().populate_modules()
         cfg = self.config
 
+        self.log_event_threshold: Optional[Parameter] = None  # ON, OFF (config `event_threshold_learnt`)
+        if self.use_event_loss and cfg.event_threshold_learnt:
+            self.log_event_threshold = Parameter(torch.full((2,), math.log(cfg.event_threshold)))
+
         # fields
         self.field = AgriNeRFField(
             self.scene_box.aabb,
@@ -272,6 +295,10 @@ class AgriNeRFModel(Model):
             thermal_appearance_dim=cfg.thermal_appearance_dim,
             thermal_view_dependent=cfg.thermal_view_dependent,
             thermal_channels=2 if self.has_thermal_camera else 1,
+            temperature_stats=(self.temperature_stats["mean_c"], self.temperature_stats["std_c"])
+            if self.has_temperature and self.temperature_stats is not None
+            else None,
+            temperature_mlp_width=cfg.temperature_mlp_width,
             mlp_width=cfg.mlp_width,
             thermal_mlp_width=cfg.thermal_mlp_width,
             density_shift=cfg.density_shift,
@@ -317,9 +344,12 @@ class AgriNeRFModel(Model):
         """Groups "fields" (MLPs and bases) and "encodings" (every TensoRF volume), plus camera_opt when enabled."""
         heads = [h for h in (self.field.rgb_head, self.field.thermal_head) if h is not None]
         groups: Dict[str, List[Parameter]] = {
-            "fields": [p for h in heads for p in h.mlp_parameters()],
+            "fields": [p for h in heads for p in h.mlp_parameters()]
+            + (list(self.field.temperature_head.parameters()) if self.field.temperature_head is not None else []),
             "encodings": [p for vol in self.field.volumes().values() for p in vol.parameters()],
         }
+        if self.log_event_threshold is not None:
+            groups["fields"].append(self.log_event_threshold)
         self.camera_optimizer.get_param_groups(param_groups=groups)
         return groups
 
@@ -522,6 +552,9 @@ class AgriNeRFModel(Model):
                 full[selected] = values.to(full.dtype)
             if head == FieldHeadNames.RGB:
                 dense["rgb"] = full
+            elif head == AgriNeRFFieldHeadNames.TEMPERATURE:  # degrees C (an unselected sample: the dataset's mean)
+                assert self.field.temperature_head is not None
+                dense["temperature"] = self.field.temperature_head.to_celsius(full)
             else:
                 dense["thermal"] = full[..., :1]
                 if self.has_thermal_camera:
@@ -538,7 +571,8 @@ class AgriNeRFModel(Model):
             outputs.update(self._routed_outputs(weights, dense))
         if not self.training:
             for name in dense:
-                outputs[name] = outputs[name].clamp(0.0, 1.0)
+                if name != "temperature":
+                    outputs[name] = outputs[name].clamp(0.0, 1.0)
         return outputs
 
     def _composite(
@@ -597,8 +631,7 @@ class AgriNeRFModel(Model):
                 outputs["event_log_end"],
                 outputs["event_on"],
                 outputs["event_off"],
-                self.config.event_threshold,
-                self.config.event_threshold,
+                *self._event_thresholds(),
             )
         elif "event_log_start" in outputs and "event_on" in batch:
             m = outputs["event_log_start"].shape[0]
@@ -608,8 +641,7 @@ class AgriNeRFModel(Model):
                 outputs["event_log_end"],
                 batch["event_on"][:m].to(self.device),
                 batch["event_off"][:m].to(self.device),
-                self.config.event_threshold,
-                self.config.event_threshold,
+                *self._event_thresholds(),
                 None if mask is None else mask[:m],
             )
         if not self.has_thermal_head:
@@ -619,6 +651,14 @@ class AgriNeRFModel(Model):
             terms["thermal_loss"] = losses.thermal_loss(pred("thermal_loss"), thermal, thermal_mask)
             if self.has_thermal_camera:
                 terms["thermal_camera_loss"] = losses.thermal_loss(pred("thermal_camera_loss"), thermal, thermal_mask)
+        if self.has_temperature and "temperature" in batch:
+            head = self.field.temperature_head
+            assert head is not None
+            terms["temperature_loss"] = losses.thermal_loss(
+                head.normalise(pred("temperature_loss")),
+                head.normalise(batch["temperature"].to(self.device)),
+                optional("temperature_mask"),
+            )
         if self.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
             terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)
         if self.use_events and "event" in batch and coef.get("reg_event_loss", 0.0) > 0:
@@ -655,6 +695,8 @@ class AgriNeRFModel(Model):
             metrics.update(self._regularisers())
         if self.training and self._loss_means is not None:
             metrics["event_loss_weight"] = self.event_weight
+        if self.log_event_threshold is not None:
+            metrics["event_threshold_on"], metrics["event_threshold_off"] = self.log_event_threshold.detach().exp()
         self.camera_optimizer.get_metrics_dict(metrics)
         return metrics
 
@@ -672,6 +714,13 @@ class AgriNeRFModel(Model):
             loss_dict["event_loss"] = loss_dict["event_loss"] * self._event_noise_weight(raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
         return loss_dict
+
+    def _event_thresholds(self) -> Tuple[Any, Any]:
+        """C_on, C_off of the event loss: learnt (config `event_threshold_learnt`) or the configured one."""
+        if self.log_event_threshold is None:
+            return self.config.event_threshold, self.config.event_threshold
+        c = self.log_event_threshold.exp()
+        return c[0], c[1]
 
     def _event_noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
         """The `noise` weighting's factor (config `event_loss_weighting`), from running means of the RGB and event
@@ -727,6 +776,15 @@ class AgriNeRFModel(Model):
                     if name in outputs:
                         metrics.update(self._thermal_metrics(name, outputs[name], gt_th, mask))
                         images[name] = torch.cat([gt_th, outputs[name]], dim=1).expand(-1, -1, 3)
+        if "temperature" in outputs and "temperature" in batch:
+            gt_t = batch["temperature"].to(self.device).float()
+            mask_t = batch.get("temperature_mask")
+            mask_t = torch.ones_like(gt_t) if mask_t is None else (mask_t.to(self.device).float() > 0.5).float()
+            error = (outputs["temperature"] - gt_t).abs() * mask_t
+            metrics["temperature_mae"] = float((error.sum() / mask_t.sum().clamp(min=1.0)).item())
+            images["temperature"] = colormaps.apply_colormap(
+                self.temperature_unit(torch.cat([gt_t * mask_t, outputs["temperature"]], dim=1))
+            )
         self.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
         return metrics, images
 
@@ -747,6 +805,12 @@ class AgriNeRFModel(Model):
             f"{name}_ssim": float(ssim.item()),  # type: ignore[union-attr]
         }
 
+    def temperature_unit(self, celsius: Tensor) -> Tensor:
+        """Degrees C -> [0, 1] over the dataset's temperature range (colours of the `temperature` output)."""
+        stats = self.temperature_stats or {"min_c": 0.0, "max_c": 1.0}
+        low, high = stats["min_c"], max(stats["max_c"], stats["min_c"] + 1e-3)
+        return ((celsius - low) / (high - low)).clamp(0.0, 1.0)
+
     # ----------------------------------------------------------- exporters
     def get_rgba_image(self, outputs: Dict[str, Tensor], output_name: str = "rgb") -> Float[Tensor, "*bs 4"]:
         """RGB plus alpha of an output, for Nerfstudio's exporters (`ns-export pointcloud`, `tsdf`, `poisson`).
@@ -757,6 +821,8 @@ class AgriNeRFModel(Model):
         which reads a `renderer_rgb` this model does not have.
         """
         image = outputs[output_name]
+        if output_name == "temperature":
+            image = self.temperature_unit(image)
         if image.shape[-1] not in (1, 3):
             raise ValueError(f"Output '{output_name}' has {image.shape[-1]} channels; an RGBA export needs 1 or 3")
         colours = colormaps.apply_colormap(image.clamp(0.0, 1.0))

@@ -43,6 +43,7 @@ def reposed_rays(
     starts at that camera's centre and passes through the point of the original ray on the plane (at infinity: it
     keeps the original direction). This is how an event frame aligned to the RGB camera is seen from the event camera.
     """
+    assert bundle.camera_indices is not None, "training rays carry their camera indices"
     n, k = times.shape
     frame_pose = trajectory.poses_at_tensor(frame_times.double().cpu(), dtype=torch.float64)  # [n, 3, 4]
     new_pose = trajectory.poses_at_tensor(times.double().cpu(), dtype=torch.float64)  # [n, k, 3, 4]
