@@ -173,8 +173,8 @@ class AgriNeRFModelConfig(ModelConfig):
     blur_start_step: int = 0
     """Training step from which the blur model runs (EvDeblurNeRF starts it after about 1200 steps)."""
     event_rays_per_batch: int = 0
-    """Pixels per batch for the event loss (the first of the batch's random pixels), each rendered at the start and
-    end of its frame's event window; 0: no event loss (the default: docs/model.md says what it measured)."""
+    """Event samples per batch for the event loss (`event_supervision`), each rendered at the start and end of its
+    window; 0: no event loss (the default; the `agrinerf` and `evdeblurnerf` presets turn it on)."""
     event_threshold: float = 0.2
     """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
     synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
