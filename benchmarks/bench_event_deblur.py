@@ -118,6 +118,32 @@ def step_ratios(rows, keys) -> str:
     return "\n".join(lines) + "\n"
 
 
+def trade_plot(rows, keys, labels: Dict[str, str], path: Path) -> None:
+    """PSNR against step time (as a ratio to the RGB TensoRF's), one point per row and scene."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    last = results.final_rows(rows)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for scene in sorted({s for s, _ in last}):
+        base = results.as_float(last.get((scene, "rgb"), {}), "s_per_step")
+        for key in keys:
+            row = last.get((scene, key))
+            if row is None:
+                continue
+            x, y = results.as_float(row, "s_per_step") / base, results.as_float(row, "psnr_clean")
+            ax.scatter([x], [y])
+            ax.annotate(f"{scene}: {labels[key]}", (x, y), fontsize=7, xytext=(4, 2), textcoords="offset points")
+    ax.set_xlabel("seconds per step / RGB TensoRF's")
+    ax.set_ylabel("PSNR vs sharp clean truth (dB)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(args: Args) -> None:
     unknown = [r for r in args.rows if r not in ROWS]
     if unknown:
@@ -153,6 +179,7 @@ def main(args: Args) -> None:
         + step_ratios(rows, keys)
     )
     (args.out / "deblur.md").write_text(text)
+    trade_plot(rows, keys, labels, args.out / "deblur.png")
     print(text)
 
 
