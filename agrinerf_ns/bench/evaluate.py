@@ -71,7 +71,8 @@ def evaluate_checkpoint(
 
     Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
     LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the
-    rescaled thermal frames), ``thermal_camera_psnr`` (the thermal-camera output, where the model has one), and
+    rescaled thermal frames), ``thermal_camera_psnr`` (the thermal-camera output, where the model has one),
+    ``temperature_mae`` (degrees C, where the model has a temperature output), and
     ``psnr_clean_per_view`` (each rendered view's ``psnr_clean``, by held-out index, for paired comparisons).
     """
     from nerfstudio.utils.eval_utils import eval_setup
@@ -95,7 +96,7 @@ def evaluate_checkpoint(
         row = {
             k: float(v)
             for k, v in metrics.items()
-            if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim", "thermal_camera_psnr")
+            if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim", "thermal_camera_psnr", "temperature_mae")
         }
         if method.supervision == "thermal" and "psnr" in row:  # Nerfacto on thermal frames: its psnr is thermal
             row = {"thermal_psnr": row["psnr"], "thermal_ssim": row["ssim"]}

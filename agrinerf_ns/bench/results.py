@@ -11,7 +11,7 @@ from typing import Dict, Iterable, List, Sequence, Set, Tuple
 COLUMNS = (
     "scene", "method", "label", "step", "wall_s", "s_per_step", "peak_rss_mb", "device",
     "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim", "eval_views",
-    "thermal_camera_psnr", "psnr_clean_per_view",
+    "thermal_camera_psnr", "psnr_clean_per_view", "temperature_mae",
 )  # fmt: skip
 """One row per evaluated checkpoint."""
 
@@ -93,13 +93,13 @@ def time_to_quality(rows: Sequence[Row], method: str, scene: str, target: float,
 def markdown_table(rows: Sequence[Row]) -> str:
     """One line per evaluated checkpoint, grouped by scene and method."""
     header = ("| scene | method | step | wall s | s/step | peak RSS MiB | PSNR | SSIM | LPIPS | PSNR clean | "
-              "SSIM clean | thermal PSNR | thermal SSIM | views |")  # fmt: skip
+              "SSIM clean | thermal PSNR | thermal SSIM | temperature MAE C | views |")  # fmt: skip
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     for r in sorted(rows, key=lambda r: (r["scene"], r["method"], int(r["step"]))):
         cells = [r["scene"], r["label"], r["step"]]
         for key, digits in (("wall_s", 0), ("s_per_step", 3), ("peak_rss_mb", 0), ("psnr", 2), ("ssim", 3),
                             ("lpips", 3), ("psnr_clean", 2), ("ssim_clean", 3), ("thermal_psnr", 2),
-                            ("thermal_ssim", 3)):  # fmt: skip
+                            ("thermal_ssim", 3), ("temperature_mae", 2)):  # fmt: skip
             value = as_float(r, key)
             cells.append("-" if not math.isfinite(value) else f"{value:.{digits}f}")
         cells.append(r.get("eval_views") or "-")  # results written before the column: all held-out views
