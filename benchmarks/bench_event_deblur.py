@@ -175,7 +175,8 @@ def main(args: Args) -> None:
         "TensoRF alone and its 95% t-interval (* where the interval excludes 0). Rows: "
         "`benchmarks/bench_event_deblur.py` ROWS.\n\n"
         + results.ablation_table(rows, keys, "rgb", labels)
-        + "\nStep time (steady state, the same machine, one run after the other):\n\n"
+        + "\nStep time (steady state, the same machine, one run after the other, so under whatever else it ran: "
+        "`benchmarks/bench_event_speed.py` measures the parts side by side; `deblur.png` plots these):\n\n"
         + step_ratios(rows, keys)
     )
     (args.out / "deblur.md").write_text(text)
