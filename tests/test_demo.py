@@ -61,7 +61,8 @@ def test_contact_sheet_size_and_panels(demo: Dict) -> None:
     for prefix, title in zip(RGB_COLUMNS, layout.columns, strict=False):
         assert title.startswith(prefix), (prefix, title)
     assert "for display only" in layout.columns[1]
-    assert layout.columns[-1].startswith("AgriNeRF cross-spectral `thermal` output")
+    assert any(c.startswith("AgriNeRF cross-spectral `thermal` output") for c in layout.columns)
+    assert layout.columns[-1] == "AgriNeRF temperature (degrees C)"  # the synthetic capture is radiometric
     held_out = json.loads((demo["out"] / "orchard" / "transforms.json").read_text())["test_filenames"]
     assert layout.views == [Path(name).name for name in held_out] and len(layout.views) == 2
 
@@ -78,10 +79,11 @@ def test_contact_sheet_size_and_panels(demo: Dict) -> None:
         row = [boxes[(c, view)] for c in layout.columns]
         assert all(a[2] <= b[0] for a, b in zip(row, row[1:], strict=False))
 
-    assert list(layout.scales) == [THERMAL_SCALE.label]  # one bar under the adjacent thermal columns
+    # one bar under the adjacent thermal columns, one under the temperature column
+    assert list(layout.scales) == [THERMAL_SCALE.label, "temperature, degrees C"]
     bar = layout.scales[THERMAL_SCALE.label]
     thermal = [c for c in layout.columns if c.startswith(("thermal frame", "AgriNeRF thermal", "AgriNeRF cross"))]
-    assert thermal == layout.columns[4:]
+    assert thermal == layout.columns[4:-1]
     assert bar[1] >= max(b[3] for b in boxes.values())
     assert abs(bar[0] - boxes[(thermal[0], layout.views[0])][0]) <= 1
     assert abs(bar[2] - boxes[(thermal[-1], layout.views[0])][2]) <= 1

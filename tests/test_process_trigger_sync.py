@@ -68,12 +68,21 @@ def test_trigger_sync_maps_frames_onto_their_edges(bag_capture, tmp_path: Path):
     assert sync["method"] == "trigger" and sync["matched"] == sync["frames"] == 12
     assert sync["residual_rms_us"] < 2 * JITTER_S * 1e6 and abs(sync["scale"] - 1 / (1 + DRIFT)) < 5e-5
     assert ev["events_in_windows"] > 0
-    ends = []
+    starts, ends = [], []
     for f in meta["frames"]:
         with np.load(out / f["event_sums_path"]) as z:
+            starts.append(float(z["t_start"]))
             ends.append(float(z["t_end"]))
-    # every window ends at its frame's trigger edge (anchor end), not at the recorded stamp
-    np.testing.assert_allclose(ends, true_t, atol=3 * JITTER_S)
+    # windows are in the frames' clock (anchor end: they end at the frames' stamps) ...
+    np.testing.assert_allclose(ends, [f["timestamp"] for f in meta["frames"]])
+    # ... which the fitted sync maps onto each frame's trigger edge in the event clock
+    np.testing.assert_allclose(np.array(ends) * sync["scale"] + sync["offset_s"], true_t, atol=3 * JITTER_S)
+    # the event stream holds the windows' events, moved into the frames' clock
+    import h5py
+
+    with h5py.File(out / ev["stream"]) as f:
+        t = np.asarray(f["events"]["t"]) * 1e-6
+    assert t.size > 0 and t.min() >= min(starts) - 1e-6 and t.max() <= max(ends) + 1e-6
     # the recorded stamps are 500 s away from event time: no event falls in a window
     with pytest.raises(RawInputError, match="event and RGB timestamps do not overlap"):
         process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="given", show_progress=False))
