@@ -76,7 +76,7 @@ defaults), the blur model 3 renders per blurred pixel, unless the key says other
 
 STEP_FACTORS: Dict[str, int] = {"rgb-long": 4}
 """Rows trained for a multiple of the profile's steps: the RGB TensoRF at about the wall time of the blur model's rows
-(whose K = 3 extra renders per ray make a step about 4x as long)."""
+(their step times: ``benchmarks/bench_event_speed.py``)."""
 
 
 @dataclass

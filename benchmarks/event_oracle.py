@@ -142,7 +142,7 @@ def main(args: Args) -> None:
         # stream: random event pixels, whole frame windows and random sub-windows
         meta = metadata.get("event_stream")
         if meta is not None:
-            stream = EventStream.from_h5(meta["path"], meta["width"], meta["height"])
+            stream = meta.stream()
             for label, fraction in (("stream", 1.0), ("stream, sub-windows", args.min_fraction)):
                 frames = torch.randint(0, windows.shape[0], (args.samples,))
                 t0, t1 = sample_windows(windows, frames, fraction, None)

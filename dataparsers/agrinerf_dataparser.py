@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple, Type
+from typing import TYPE_CHECKING, Any, Dict, List, Optional, Tuple, Type
 
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
@@ -43,6 +43,9 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
+
+if TYPE_CHECKING:
+    from agrinerf_ns.model.event_stream import EventCamera
 
 # (modality, per-frame key in transforms.json, metadata key in DataparserOutputs, is_mask)
 FRAME_KEYS: Tuple[Tuple[Modality, str, str, bool], ...] = (
@@ -207,30 +210,27 @@ def _event_camera(
     (OpenGL axes, this parser's scale, float64 [3]), and ``plane_depth``, the depth (same scale) of the plane the frames were
     warped into the RGB camera at (inf: at infinity). None when the calibration has no event camera."""
     import numpy as np
-    import torch
+
+    from agrinerf_ns.model.event_stream import rig_offset
 
     calib = (block.get("calibration") or {}).get("event")
     if not calib or "T_cam_rgb" not in calib:
         return None
-    T = np.asarray(calib["T_cam_rgb"], dtype=np.float64)
-    centre_cv = -T[:3, :3].T @ T[:3, 3]  # the event camera's centre in the RGB camera's OpenCV frame
     scale = float(outputs.dataparser_scale) / float(meta.get("applied_scale", 1.0))
     depth = float((block.get("alignment") or {}).get("plane_depth", "inf"))
-    centre_gl = np.array([centre_cv[0], -centre_cv[1], -centre_cv[2]]) * scale
-    return {"camera_centre": torch.from_numpy(centre_gl), "plane_depth": depth * scale}
+    _, centre = rig_offset(np.asarray(calib["T_cam_rgb"], dtype=np.float64), scale)
+    return {"camera_centre": centre, "plane_depth": depth * scale}
 
 
 def _event_stream(
     block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any], data_dir: Path, transforms_path: Path
-) -> Optional[Dict[str, Any]]:
-    """The event camera at its own pixels, for the event loss (``agrinerf_ns.model.event_stream``): ``path`` (the
-    dataset's ``events/stream.h5``), ``width``, ``height``, ``directions`` (float64 [h * w, 3], each pixel's ray in the
-    event camera's OpenCV frame), ``rotation`` (float64 [3, 3], those directions into the RGB camera's OpenGL frame)
-    and ``centre`` (float64 [3], the event camera's centre there, this parser's scale). None when the dataset has no
-    stream or no event calibration."""
+) -> Optional["EventCamera"]:
+    """The event camera at its own pixels, for the event loss (:class:`agrinerf_ns.model.event_stream.EventCamera`:
+    the dataset's ``events/stream.h5``, the calibration, the rig offset in this parser's scale). None when the
+    dataset has no stream or no event calibration."""
     import numpy as np
 
-    from agrinerf_ns.model.event_stream import pixel_directions, rig_offset
+    from agrinerf_ns.model.event_stream import EventCamera, rig_offset
 
     name = (block.get("events") or {}).get("stream")
     calib = (block.get("calibration") or {}).get("event")
@@ -242,9 +242,9 @@ def _event_stream(
     width, height = (int(v) for v in calib["resolution"])
     scale = float(outputs.dataparser_scale) / float(meta.get("applied_scale", 1.0))
     rotation, centre = rig_offset(np.asarray(calib["T_cam_rgb"], dtype=np.float64), scale)
-    directions = pixel_directions(tuple(calib["intrinsics"]), tuple(calib.get("distortion_coeffs", ())), width, height)
-    return {"path": path, "width": width, "height": height, "directions": directions, "rotation": rotation,
-            "centre": centre}  # fmt: skip
+    fx, fy, cx, cy = (float(v) for v in calib["intrinsics"])
+    distortion = tuple(float(v) for v in calib.get("distortion_coeffs", ()))
+    return EventCamera(path, width, height, (fx, fy, cx, cy), distortion, rotation, centre)
 
 
 TRAJECTORY_CHECK_TOL = 1e-4

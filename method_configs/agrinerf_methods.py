@@ -144,9 +144,8 @@ PAPER_EVENTS: Dict[str, Any] = dict(
     loss_coefficients={**AgriNeRFModelConfig().loss_coefficients, "event_loss": 1.0},
 )
 """The paper preset's event loss (AgriNeRF is EvDeblurNeRF's RGB module plus the thermal head): 1024 event pixels per
-batch from the event stream, weighted by the events' noise (coefficient 1), not EvDeblurNeRF's fixed 0.1, which cost
-the dusk orchard 2.6 dB where the noise-balanced weight gained (docs/model.md, Event loss). Scenes without events get
-no event loss."""
+batch from the event stream, weighted by the events' noise (coefficient 1), not EvDeblurNeRF's fixed 0.1 (why:
+docs/model.md, Event loss). Scenes without events get no event loss."""
 
 agrinerf = MethodSpecification(
     config=agrinerf_trainer_config("agrinerf", max_num_iterations=30000, **PAPER_BLUR, **PAPER_EVENTS),

@@ -92,7 +92,7 @@ def test_the_dataset_stream_holds_the_raw_events_of_the_frame_windows_in_the_fra
         raw_x = np.asarray(f["events"]["x"])
     outputs = AgriNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
     meta = outputs.metadata["event_stream"]
-    with h5py.File(meta["path"]) as f:
+    with h5py.File(meta.path) as f:
         t, x = np.asarray(f["events"]["t"]), np.asarray(f["events"]["x"])
     windows = outputs.metadata["event_windows"].numpy()
     lo, hi = np.searchsorted(raw_t, [round(windows.min() * 1e6), round(windows.max() * 1e6)])

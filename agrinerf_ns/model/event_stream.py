@@ -13,8 +13,10 @@ int64 array per polarity), so the events of pixel ``p`` in ``[t0, t1)`` are the 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Dict, Optional, Tuple
+from typing import TYPE_CHECKING, Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -136,15 +138,42 @@ def rig_offset(T_cam_rgb: Float[np.ndarray, "4 4"], scale: float) -> Tuple[Float
     return torch.from_numpy(rotation), torch.from_numpy(centre)
 
 
+@dataclass
+class EventCamera:
+    """The event camera at its own pixels, as the dataparser gives it (metadata ``event_stream``)."""
+
+    path: Path
+    """The dataset's ``events/stream.h5``."""
+    width: int
+    height: int
+    intrinsics: Tuple[float, float, float, float]
+    """fx, fy, cx, cy (OpenCV: the centre of pixel column ``i`` is at ``u = i``)."""
+    distortion: Tuple[float, ...]
+    """OpenCV radial-tangential coefficients."""
+    rotation: Float[Tensor, "3 3"]
+    """The event camera's OpenCV ray directions into the RGB camera's OpenGL frame (:func:`rig_offset`)."""
+    centre: Float[Tensor, "3"]
+    """The event camera's centre in the RGB camera's OpenGL frame, in the dataparser's scale."""
+
+    @cached_property
+    def directions(self) -> Float[Tensor, "hw 3"]:
+        """Every pixel's ray in the event camera's OpenCV frame, computed on first use (only the event loss needs
+        them)."""
+        return pixel_directions(self.intrinsics, self.distortion, self.width, self.height)
+
+    def stream(self) -> EventStream:
+        """The events of :attr:`path`."""
+        return EventStream.from_h5(self.path, self.width, self.height)
+
+
 def event_rays(
-    trajectory: "CameraTrajectory", camera: Dict[str, Any], pixel: Int[Tensor, " n"], times_s: Float[Tensor, "n k"]
+    trajectory: "CameraTrajectory", camera: EventCamera, pixel: Int[Tensor, " n"], times_s: Float[Tensor, "n k"]
 ) -> Tuple[Float[Tensor, "n k 3"], Float[Tensor, "n k 3"]]:
     """Origins and unit directions (float64, the trajectory's frame) of event `pixel`s seen at `times_s`: the
-    trajectory's RGB pose there, moved to the event camera (`camera`: the dataparser's ``event_stream`` metadata,
-    its ``directions``, ``rotation`` and ``centre``)."""
+    trajectory's RGB pose there, moved to the event camera."""
     poses = trajectory.poses_at_tensor(times_s.double(), dtype=torch.float64)  # [n, k, 3, 4] RGB camera to world
     rotation = poses[..., :3]
-    local_d = camera["directions"][pixel].double() @ camera["rotation"].double().T  # [n, 3], RGB camera (OpenGL)
-    origins = poses[..., 3] + (rotation @ camera["centre"].double()[:, None])[..., 0]
+    local_d = camera.directions[pixel].double() @ camera.rotation.double().T  # [n, 3], RGB camera (OpenGL)
+    origins = poses[..., 3] + (rotation @ camera.centre.double()[:, None])[..., 0]
     directions = (rotation @ local_d[:, None, :, None])[..., 0]
     return origins, directions

@@ -29,7 +29,7 @@ from torch.nn import Parameter
 
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
 from agrinerf_ns.model import losses
-from agrinerf_ns.model.event_stream import EventStream
+from agrinerf_ns.model.event_stream import EventCamera, EventStream
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.vm_encoding import VMLookup
@@ -233,7 +233,7 @@ class AgriNeRFModel(Model):
         self.event_windows: Optional[Tensor] = metadata.get("event_windows")
         # the event camera's `camera_centre` and `plane_depth` (timed_rays.reposed_rays), where the dataset records them
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
-        self.event_stream_meta: Optional[Dict[str, Any]] = metadata.get("event_stream")
+        self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
         self.use_event_loss = (
@@ -245,9 +245,8 @@ class AgriNeRFModel(Model):
             and config.loss_coefficients.get("event_loss", 0.0) > 0
         )
         self.event_stream: Optional[EventStream] = None
-        if self.use_event_loss and config.event_supervision == "stream" and self.event_stream_meta is not None:
-            meta = self.event_stream_meta
-            self.event_stream = EventStream.from_h5(meta["path"], meta["width"], meta["height"])
+        if self.use_event_loss and config.event_supervision == "stream" and self.event_camera_native is not None:
+            self.event_stream = self.event_camera_native.stream()
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         self._loss_means: Optional[Tuple[float, float]] = None  # running RGB and event losses (`noise` weighting)
         self.event_weight = 0.0  # the `noise` weighting's last factor, logged as a metric
@@ -486,12 +485,13 @@ class AgriNeRFModel(Model):
         from agrinerf_ns.model.event_stream import event_rays, sample_windows
 
         assert self.event_stream is not None and self.event_windows is not None and self.trajectory is not None
-        meta, m = self.event_stream_meta or {}, self.config.event_rays_per_batch
+        assert self.event_camera_native is not None
+        m = self.config.event_rays_per_batch
         frames = torch.randint(0, self.event_windows.shape[0], (m,))
         t0, t1 = sample_windows(self.event_windows, frames, self.config.event_window_min_fraction, None)
         pixel = torch.randint(0, self.event_stream.width * self.event_stream.height, (m,))
         on, off = self.event_stream.counts(pixel, t0, t1)
-        origins, directions = event_rays(self.trajectory, meta, pixel, torch.stack([t0, t1], -1).double() * 1e-6)
+        origins, directions = event_rays(self.trajectory, self.event_camera_native, pixel, torch.stack([t0, t1], -1).double() * 1e-6)
         device, dtype = like.origins.device, like.origins.dtype
         bundle = RayBundle(
             origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
