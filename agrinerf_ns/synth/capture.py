@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from contextlib import nullcontext
 from pathlib import Path
 from typing import List, Optional, Tuple, Union
@@ -90,21 +91,37 @@ def fruit_boxes(ids: Int[np.ndarray, "h w"], min_pixels: int) -> List[BOX]:
             for f, a, b, c, d, n in zip(uniq, x0, y0, x1, y1, counts, strict=True) if n >= min_pixels]
 
 
-def event_times(config: SynthConfig) -> Float[np.ndarray, " n"]:
-    """Sample times of the event camera: the path from half a frame before the first frame to half after the last."""
-    n = config.views * config.event_substeps
-    return T0 - 0.5 / config.fps + np.arange(n + 1) / (config.fps * config.event_substeps)
+def event_substeps(config: SynthConfig, scene: Scene, rig: Rig) -> Tuple[int, float]:
+    """Event-camera renders per frame interval, and the image motion (pixels, 95th percentile over the event pixels)
+    between two of them. ``config.event_substeps`` when fixed; else the fewest that keep that motion at most
+    ``config.event_step_px``, measured over the first frame interval (the rig's speed is constant)."""
+    cam = rig.cams["event"]
+    T_a, T_b = rig.pose(T0, "event"), rig.pose(T0 + 1.0 / config.fps, "event")
+    motion = float(np.percentile(blur_lengths_px(cam, cast(scene.prims, cam, T_a), T_a, T_b), 95))
+    n = config.event_substeps or max(1, math.ceil(motion / config.event_step_px - 1e-9))
+    return int(n), motion / n
+
+
+def event_times(config: SynthConfig, substeps: Optional[int] = None) -> Float[np.ndarray, " n"]:
+    """Sample times of the event camera, ``substeps`` per frame interval (default ``config.event_substeps``): the
+    path from half a frame before the first frame to half after the last."""
+    k = substeps or config.event_substeps
+    if not k:
+        raise ValueError("event_times: pass substeps when config.event_substeps is None (see event_substeps())")
+    n = config.views * k
+    return T0 - 0.5 / config.fps + np.arange(n + 1) / (config.fps * k)
 
 
 def simulate_events(
-    config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, progress: Optional[object] = None
+    config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, substeps: int, progress: Optional[object] = None
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Events (x, y, t_us, p) of the event camera along the continuous path."""
+    """Events (x, y, t_us, p) of the event camera along the continuous path, rendered ``substeps`` times per frame
+    interval."""
     cam = rig.cams["event"]
     rng = np.random.default_rng([config.seed, 47])
     sim = EventSimulator(cam.width, cam.height, config.event_threshold, config.event_threshold_sigma,
                          config.event_refractory_us, EVENT_EPS, rng)
-    times = event_times(config)
+    times = event_times(config, substeps)
     for k, t in enumerate(times):
         hits = cast(scene.prims, cam, rig.pose(float(t), "event"))
         lum = rec709_luminance(radiance(scene, hits, light))
@@ -157,7 +174,8 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
     rng_rgb = np.random.default_rng([config.seed, 41])
     rng_th = np.random.default_rng([config.seed, 43])
     thermal = ThermalSensor.create(cam_th.width, cam_th.height, np.random.default_rng([config.seed, 44]))
-    n_steps = 2 * config.views + config.num_heldout + len(event_times(config))
+    ev_substeps, ev_step_px = event_substeps(config, scene, rig)
+    n_steps = 2 * config.views + config.num_heldout + len(event_times(config, ev_substeps))
 
     if progress:
         from rich.progress import Progress
@@ -239,7 +257,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         W.write_tum(tmp / "truth" / "heldout" / "poses.txt", ho_times, ho_poses)
         W.write_json(tmp / "truth" / "heldout" / "boxes_coco.json", W.coco(ho_boxes, ho_names, Wd, H))
 
-        ex, ey, et, ep = simulate_events(config, scene, rig, light, prog)
+        ex, ey, et, ep = simulate_events(config, scene, rig, light, ev_substeps, prog)
         ecam = rig.cams["event"]
         W.write_events(dirs["events"] / "events.h5", ex, ey, et, ep, ecam.width, ecam.height)
 
@@ -251,6 +269,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             "thermal_counts": {"offset_at_0c": RADIOMETRIC_CALIBRATION["counts_at_0c"],
                                "per_kelvin": RADIOMETRIC_CALIBRATION["counts_per_kelvin"]},
             "rgb_gain": gain, "truth_gain": truth_gain, "num_events": int(et.size),
+            "event_sampling": {"substeps_per_frame": ev_substeps, "step_px_p95": round(ev_step_px, 4)},
             "rgb_motion_blur": blur_summary(config.motion_blur, exposure, subframes, blur_px),
             "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
             "world": "x along the row, y across it away from the rig, z up; metres",

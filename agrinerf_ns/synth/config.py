@@ -49,8 +49,12 @@ class SynthConfig:
     """Rig speed along the row in m/s."""
     heldout: Optional[int] = None
     """Number of held-out truth views off the path; None gives max(2, views // 5)."""
-    event_substeps: int = 6
-    """Event-camera renders per frame interval (the continuous path is sampled this densely)."""
+    event_substeps: Optional[int] = None
+    """Event-camera renders per frame interval, fixed; None chooses them from ``event_step_px``."""
+    event_step_px: float = 0.1
+    """Largest image motion of the event camera between two of its renders (pixels, 95th percentile over its pixels).
+    The simulator interpolates each pixel's log intensity linearly between renders, so a coarser step misses texture
+    that crosses a pixel between two renders and under-reports the change (docs/synth.md, Events)."""
     event_threshold: float = 0.2
     """Mean log-intensity contrast threshold of the event pixels."""
     event_threshold_sigma: float = 0.03
@@ -139,8 +143,10 @@ class SynthConfig:
             raise SynthConfigError(f"speed must be positive, got {self.speed}")
         if self.num_heldout < 0:
             raise SynthConfigError(f"heldout must be >= 0, got {self.heldout}")
-        if self.event_substeps < 1:
-            raise SynthConfigError(f"event_substeps must be >= 1, got {self.event_substeps}")
+        if self.event_substeps is not None and self.event_substeps < 1:
+            raise SynthConfigError(f"event_substeps must be >= 1 (or None), got {self.event_substeps}")
+        if not self.event_step_px > 0:
+            raise SynthConfigError(f"event_step_px must be positive, got {self.event_step_px}")
         if not self.event_threshold > 0.01:
             raise SynthConfigError(f"event_threshold must be > 0.01, got {self.event_threshold}")
         if self.event_threshold_sigma < 0 or self.event_noise_hz < 0 or self.event_refractory_us < 0:
