@@ -1,0 +1,58 @@
+"""``agrinerf-count --config RUN/config.yml --out DIR [--truth RAW_CAPTURE]``: fruit in 3D from a trained run."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Literal, Optional, Tuple
+
+import tyro
+
+from agrinerf_ns.atomic import OutputExistsError
+from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, run_count
+from agrinerf_ns.count.render import CountInputError
+
+
+@dataclass
+class CountArgs:
+    """Count fruit in 3D: render every camera of a trained run, detect fruit per view, lift the detections to 3D with
+    the rendered depth, fuse them across views; writes fruits.csv, fruits.ply, fruit_map.png and count.json (and
+    score.md against a synthetic capture's truth)."""
+
+    out: Path
+    """Output folder (written to a temporary sibling, then renamed into place)."""
+    config: Optional[Path] = None
+    """The run's config.yml (outputs/<name>/<method>/<time>/config.yml)."""
+    renders: Optional[Path] = None
+    """Instead of --config: a render folder written by an earlier count (OUT/renders), to re-detect without rendering."""
+    truth: Optional[Path] = None
+    """A synthetic raw capture (agrinerf-synth) whose truth/fruits.json scores the count."""
+    overwrite: bool = False
+    """Replace --out when it exists."""
+    splits: Tuple[Literal["train", "eval"], ...] = ("train", "eval")
+    """The run's cameras to render and count in (training and held-out views)."""
+    save_renders: bool = True
+    """Keep the rendered views under OUT/renders (npz per view)."""
+    count: Annotated[CountConfig, tyro.conf.arg(name="")] = field(default_factory=CountConfig)
+    """Detection, clustering and scoring options."""
+
+
+def main(args: CountArgs) -> CountResult:
+    try:
+        return run_count(
+            args.out, args.count, args.config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits
+        )
+    except (CountInputError, OutputExistsError, FileExistsError, FileNotFoundError, ValueError) as err:
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
+        sys.exit(2)
+
+
+def entrypoint() -> None:
+    """Console script entry point."""
+    tyro.extras.set_accent_color("bright_yellow")
+    main(tyro.cli(CountArgs))
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,86 @@
+"""Fruit detectors for counting: ``blobs`` (OpenCV, the default; :mod:`agrinerf_ns.count.blobs`) or ``yolo``
+(weights trained by ``agrinerf-detect``; Ultralytics is the optional AGPL-3.0 extra and is imported only here,
+inside :func:`yolo_detections`, when it is asked for)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, List, Literal, Optional
+
+import numpy as np
+
+from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, detect_blobs
+from agrinerf_ns.count.render import RenderedView
+from agrinerf_ns.images import to_uint8
+
+DetectorName = Literal["blobs", "yolo"]
+Source = Literal["thermal", "rgb"]
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Which detector finds fruit in the rendered views, and on which output."""
+
+    detector: DetectorName = "blobs"
+    """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
+    e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
+    source: Source = "thermal"
+    """The output fruit are found in: the cross-spectral ``thermal`` or ``rgb``."""
+    weights: Optional[Path] = None
+    """YOLO weights (``.pt``), for ``--detector yolo``."""
+    confidence: float = 0.25
+    """YOLO: lowest box score kept."""
+    blobs: BlobConfig = field(default_factory=BlobConfig)
+
+
+Detector = Callable[[RenderedView, float], List[Detection]]
+"""(view, dataparser scale: Nerfstudio units per dataset unit) -> the view's fruit."""
+
+
+def make_detector(config: DetectorConfig) -> Detector:
+    """The detector ``config`` asks for (YOLO weights are loaded once, here)."""
+    if config.detector == "yolo":
+        return yolo_detector(config)
+    return lambda view, scale: detect_blobs(view, config.source, scale, config.blobs)
+
+
+def yolo_detector(config: DetectorConfig) -> Detector:
+    """YOLO boxes on a view's ``config.source`` image; a box's pixels are its inscribed ellipse (where rendered)."""
+    if config.weights is None or not Path(config.weights).is_file():
+        raise FileNotFoundError(f"{config.weights}: YOLO weights not found (--detector yolo needs --weights PATH)")
+    from agrinerf_ns.detect.detector import configure_offline
+
+    configure_offline()
+    from ultralytics import YOLO
+
+    model = YOLO(str(config.weights))
+    imgsz = int(model.overrides.get("imgsz", 640))
+
+    def detect(view: RenderedView, scale: float) -> List[Detection]:
+        image = _detector_image(view, config.source)
+        result = model.predict(image, imgsz=imgsz, conf=config.confidence, device="cpu", verbose=False)[0]
+        boxes = result.boxes.xyxy.cpu().numpy().reshape(-1, 4)
+        scores = result.boxes.conf.cpu().numpy().reshape(-1)
+        return [Detection(_ellipse_mask(view, box), float(s)) for box, s in zip(boxes, scores, strict=True)]
+
+    return detect
+
+
+def _detector_image(view: RenderedView, source: str) -> np.ndarray:
+    """The 8-bit BGR image a YOLO detector trained by agrinerf-detect sees (its renders are 8-bit PNGs)."""
+    if source == "thermal":
+        if view.thermal is None:
+            raise ValueError(f"view {view.name}: the run renders no cross-spectral 'thermal' output")
+        gray = to_uint8(view.thermal)
+        return np.repeat(gray[..., None], 3, axis=-1)
+    return np.ascontiguousarray(to_uint8(view.rgb)[..., ::-1])
+
+
+def _ellipse_mask(view: RenderedView, box: np.ndarray) -> np.ndarray:
+    height, width = view.depth.shape
+    y, x = np.mgrid[0:height, 0:width] + 0.5
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    rx, ry = max((box[2] - box[0]) / 2, 0.5), max((box[3] - box[1]) / 2, 0.5)
+    inside = ((x - cx) / rx) ** 2 + ((y - cy) / ry) ** 2 <= 1.0
+    return inside & (view.accumulation >= MIN_ACCUMULATION)

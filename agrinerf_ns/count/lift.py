@@ -1,0 +1,70 @@
+"""A detection's pixels to a 3D fruit centre and diameter with the rendered depth.
+
+The pixels' surface points are ``origin + direction x depth`` (unit directions, depth along the ray: see
+:mod:`agrinerf_ns.count.render`); pixels whose depth is far from the detection's median (background seen past the
+fruit's rim) are dropped. A sphere of radius r seen from the front shows its cap: over the image disk, the median
+depth of the cap lies ``r / sqrt(2)`` in front of the centre (depth offset sqrt(r^2 - rho^2) with rho^2 uniform
+over [0, r^2]), so the centre is the median surface point moved ``r / sqrt(2)`` along the mean ray. The radius is
+that of the disk of the detection's area at the centre's distance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from jaxtyping import Bool, Float
+
+from agrinerf_ns.count.render import RenderedView, WorldFrame
+
+CAP_MEDIAN_OFFSET = 1.0 / np.sqrt(2.0)
+"""Median depth of a sphere's visible cap in front of its centre, in radii."""
+DEPTH_INLIER_MADS = 3.0
+"""Pixels farther than this many robust spreads (and a radius) from the median depth are not the fruit's."""
+
+
+@dataclass(frozen=True)
+class LiftedDetection:
+    """A detection in 3D, in the dataset's frame and units."""
+
+    view: int
+    """Index of the view in the render set."""
+    centre: Float[np.ndarray, "3"]
+    diameter: float
+    score: float
+    temperature: Optional[float]
+    """Mean rendered temperature (degrees C) over the detection's pixels, where the run renders one."""
+
+
+def lift_detection(
+    view: RenderedView, mask: Bool[np.ndarray, "h w"], frame: WorldFrame, view_index: int = 0, score: float = 1.0
+) -> Optional[LiftedDetection]:
+    """The fruit centre and diameter of the pixels ``mask`` of ``view`` (None when no pixel has a depth)."""
+    depth = view.depth
+    keep = mask & np.isfinite(depth) & (depth > 0)
+    if not keep.any():
+        return None
+    d = depth[keep]
+    median = float(np.median(d))
+    rho = np.sqrt(mask.sum() / np.pi)  # pixels
+    radius = rho * median / max(view.focal - CAP_MEDIAN_OFFSET * rho, 1e-6)  # Nerfstudio units
+    spread = 1.4826 * float(np.median(np.abs(d - median)))
+    inlier = np.abs(d - median) <= DEPTH_INLIER_MADS * spread + radius
+    keep[keep] = inlier
+    points = view.origins[keep] + view.directions[keep] * depth[keep][:, None]
+    ray = view.directions[keep].mean(0)
+    ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
+    centre_ns = np.median(points, axis=0) + CAP_MEDIAN_OFFSET * radius * ray
+    temperature = None
+    if view.temperature is not None:
+        values = view.temperature[keep]
+        values = values[np.isfinite(values)]
+        temperature = float(values.mean()) if values.size else None
+    return LiftedDetection(
+        view=view_index,
+        centre=frame.to_dataset(centre_ns)[0],
+        diameter=2.0 * radius / frame.scale,
+        score=score,
+        temperature=temperature,
+    )

@@ -1,0 +1,223 @@
+"""The count from rendered views to files: detect per view, lift, cluster, score against the truth, write."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence
+
+import numpy as np
+from jaxtyping import Float
+from rich.console import Console
+from rich.progress import Progress
+
+from agrinerf_ns.atomic import atomic_output_dir
+from agrinerf_ns.count.blobs import MIN_ACCUMULATION
+from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
+from agrinerf_ns.count.detectors import DetectorConfig, make_detector
+from agrinerf_ns.count.lift import LiftedDetection, lift_detection
+from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders, render_run
+from agrinerf_ns.count.score import (
+    Align,
+    CountScore,
+    Similarity,
+    TruthFruit,
+    align_to_capture,
+    dataset_frames,
+    match_fruit,
+    raw_stem,
+    read_truth_fruit,
+    score_fruit,
+    visible_fruit,
+)
+from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
+
+CONSOLE = Console()
+MAP_POINTS = 200_000
+"""Rendered surface points drawn under the fruit map at most."""
+
+
+@dataclass(frozen=True)
+class CountConfig:
+    """How fruit are found, fused and scored."""
+
+    detect: DetectorConfig = field(default_factory=DetectorConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    match_distance: float = 0.05
+    """Scoring: a counted fruit matches a true one within this 3D distance of its centre (capture units, metres)."""
+    align: Align = "poses"
+    """Scoring: fit the dataset's frame to the capture's on the camera centres (``poses``) or take it as it is."""
+    min_visible_pixels: int = 3
+    """Scoring: a true fruit is visible when this many of its pixels show in a training view."""
+
+
+@dataclass
+class CountResult:
+    """What a count found."""
+
+    fruit: List[Fruit]
+    detections: List[LiftedDetection]
+    detections_per_view: List[int]
+    merge_distance: float
+    score: Optional[CountScore] = None
+    to_capture: Optional[Similarity] = None
+    truth: Optional[TruthFruit] = None
+    visible: Optional[np.ndarray] = None
+    """Which true fruit a training view shows."""
+
+
+def count_fruit(renders: RenderSet, config: CountConfig, progress: Optional[Progress] = None) -> CountResult:
+    """Detect fruit in every view, lift each detection to 3D and cluster them into fruit."""
+    detector = make_detector(config.detect)
+    lifted: List[LiftedDetection] = []
+    per_view: List[int] = []
+    task = progress.add_task("detecting fruit", total=len(renders.views)) if progress is not None else None
+    for index, view in enumerate(renders.views):
+        found = detector(view, renders.frame.scale)
+        per_view.append(len(found))
+        for detection in found:
+            point = lift_detection(view, detection.mask, renders.frame, index, detection.score)
+            if point is not None:
+                lifted.append(point)
+        if progress is not None and task is not None:
+            progress.advance(task)
+    fruit = cluster_fruit(lifted, config.cluster)
+    return CountResult(fruit, lifted, per_view, merge_distance(lifted, config.cluster))
+
+
+def score_against_truth(renders: RenderSet, result: CountResult, raw: Path, config: CountConfig) -> None:
+    """Fill ``result.score`` and ``result.to_capture`` against the synthetic capture ``raw``."""
+    truth = read_truth_fruit(raw)
+    if renders.dataset is None:
+        raise CountInputError(f"{raw}: the renders do not name their dataset folder, needed to score them")
+    frames = dataset_frames(renders.dataset)
+    train = [raw_stem(frames.get(v.file_path, {}), v.file_path) for v in renders.views if v.split == "train"]
+    result.truth, result.visible = truth, visible_fruit(raw, train, truth, config.min_visible_pixels)
+    result.to_capture = align_to_capture(renders.dataset, raw) if config.align == "poses" else Similarity.identity()
+    centres = np.stack([f.centre for f in result.fruit]) if result.fruit else np.zeros((0, 3))
+    result.score = score_fruit(result.to_capture.apply(centres), truth, result.visible, config.match_distance)
+
+
+def surface_points(renders: RenderSet, limit: int = MAP_POINTS) -> Float[np.ndarray, "n 3"]:
+    """Rendered surface points of all views (accumulation >= 0.5) in the dataset's frame, at most ``limit``."""
+    parts = [v.points()[v.accumulation >= MIN_ACCUMULATION] for v in renders.views]
+    points = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if len(points) > limit:
+        points = points[np.linspace(0, len(points) - 1, limit).astype(np.int64)]
+    return renders.frame.to_dataset(points)
+
+
+def run_count(
+    out: Path,
+    config: CountConfig,
+    run_config: Optional[Path] = None,
+    renders_dir: Optional[Path] = None,
+    truth: Optional[Path] = None,
+    overwrite: bool = False,
+    save_renders: bool = True,
+    splits: Sequence[str] = ("train", "eval"),
+) -> CountResult:
+    """Render the run at ``run_config`` (or read ``renders_dir``), count its fruit and write ``out`` atomically:
+    fruits.csv, fruits.ply, fruit_map.png, count.json, with ``truth`` also score.md; renders/ when ``save_renders``."""
+    if (run_config is None) == (renders_dir is None):
+        raise ValueError("give exactly one of --config RUN/config.yml and --renders FOLDER")
+    out = Path(out)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out}: output folder exists and is not empty (pass --overwrite to replace it)")
+    if truth is not None:
+        read_truth_fruit(truth)  # fail before rendering
+    with atomic_output_dir(out, overwrite) as tmp:
+        if run_config is not None:
+            renders = render_run(run_config, tmp / "renders" if save_renders else None, splits)
+        else:
+            assert renders_dir is not None
+            renders = load_renders(renders_dir)
+            if save_renders:
+                shutil.copytree(renders_dir, tmp / "renders")
+        if not renders.views:
+            raise CountInputError(f"{run_config or renders_dir}: no views to count fruit in")
+        with Progress(console=CONSOLE, transient=True) as progress:
+            result = count_fruit(renders, config, progress)
+        if truth is not None:
+            score_against_truth(renders, result, Path(truth), config)
+        _write_outputs(tmp, renders, result, config, truth, run_config or renders_dir)
+    _print_summary(out, result)
+    return result
+
+
+def _write_outputs(
+    tmp: Path, renders: RenderSet, result: CountResult, config: CountConfig, truth: Optional[Path], source: Any
+) -> None:
+    fruit = result.fruit
+    centres = np.stack([f.centre for f in fruit]) if fruit else np.zeros((0, 3))
+    ns_centres = renders.frame.to_ns(centres)
+    capture, truth_ids = None, None
+    if result.truth is not None and result.to_capture is not None:
+        capture = result.to_capture.apply(centres)
+        rows, cols = match_fruit(capture, result.truth.centres, config.match_distance)
+        ids = np.full(len(fruit), -1, np.int64)
+        ids[rows] = result.truth.ids[cols]
+        truth_ids = ids.tolist()
+    write_csv(tmp / "fruits.csv", fruit, ns_centres, capture, truth_ids)
+    write_ply(tmp / "fruits.ply", fruit)
+    cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
+    title = (
+        f"{len(fruit)} fruit counted on '{config.detect.source}' ({config.detect.detector}), "
+        f"{len(renders.views)} views of {renders.method or 'the run'}"
+    )
+    if result.score is not None:
+        s = result.score
+        title += f"; visible truth {s.visible}, F1 {s.f1:.2f} at {s.match_distance:g} m"
+    draw_map(tmp / "fruit_map.png", fruit, surface_points(renders), title, result.truth, result.visible, result.to_capture,
+             cameras)  # fmt: skip
+    settings = {
+        "source": str(source),
+        "method": renders.method,
+        "views": len(renders.views),
+        "detector": asdict(config.detect) | {"weights": str(config.detect.weights) if config.detect.weights else None},
+        "cluster": asdict(config.cluster),
+        "merge_distance": result.merge_distance,
+        "detections": len(result.detections),
+        "detections_per_view": result.detections_per_view,
+        "fruit": len(fruit),
+    }
+    report: Dict[str, Any] = dict(settings)
+    if result.score is not None and result.to_capture is not None:
+        report["truth"] = str(truth)
+        report["score"] = result.score.as_dict()
+        report["alignment"] = {
+            "mode": config.align,
+            "scale": result.to_capture.scale,
+            "camera_residual_rms": result.to_capture.residual_rms,
+        }
+        (tmp / "score.md").write_text(
+            score_markdown(
+                result.score,
+                {
+                    "run": str(source),
+                    "truth": str(truth),
+                    "detector": f"{config.detect.detector} on {config.detect.source}",
+                    "min views per fruit": config.cluster.min_views,
+                    "visible": f">= {config.min_visible_pixels} pixels in a training view",
+                    "alignment": f"{config.align} (camera residual RMS {result.to_capture.residual_rms:.3f})",
+                },
+            )
+        )
+    (tmp / "count.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
+
+
+def _print_summary(out: Path, result: CountResult) -> None:
+    CONSOLE.print(
+        f"[bold green]{len(result.fruit)} fruit[/bold green] from {len(result.detections)} detections in "
+        f"{len(result.detections_per_view)} views -> {out}",
+        soft_wrap=True,
+    )
+    if result.score is not None:
+        s = result.score
+        CONSOLE.print(
+            f"against the visible truth ({s.visible} fruit): count error {s.count_error:+.1%}, precision "
+            f"{s.precision:.2f}, recall {s.recall:.2f}, F1 {s.f1:.2f} at {s.match_distance:g} m",
+            soft_wrap=True,
+        )

@@ -1,0 +1,249 @@
+"""Rendered views for counting: every camera of a trained run with its colour, cross-spectral, temperature, depth and
+rays, cached as one ``.npz`` per view beside a ``renders.json`` (so detectors and clustering can be re-run without
+rendering again).
+
+Depth semantics: Nerfstudio's NeRF models (AgriNeRF, nerfacto, TensoRF) render ``depth`` as a distance along the
+ray, in units of the ray direction, and the directions from ``Cameras.generate_rays`` are unit vectors
+(``metadata["directions_norm"]`` holds the norm before normalisation, i.e. 1 / cos of the angle to the optical axis).
+So a pixel's surface point is ``origin + direction * depth`` in Nerfstudio's (dataparser-transformed) frame, not
+``depth * direction / directions_norm``, which would be a z-depth. AgriNeRF's ``depth`` is the median depth;
+``expected_depth`` where a model has it is the weighted mean along the same ray.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence
+
+import numpy as np
+from jaxtyping import Float
+
+RENDERS_JSON = "renders.json"
+OPTIONAL_OUTPUTS = ("thermal", "temperature")
+"""Outputs kept when the run renders them (the cross-spectral channel, degrees C)."""
+
+
+class CountInputError(ValueError):
+    """Input the counting cannot use (a run without depth, an empty render folder, a scene without truth fruit);
+    the message names the file."""
+
+
+@dataclass(frozen=True)
+class WorldFrame:
+    """Nerfstudio's frame against the dataset's (``transforms.json``): ``p_ns = scale * (R p + t)``, as in the run
+    folder's ``dataparser_transforms.json``."""
+
+    transform: Float[np.ndarray, "3 4"]
+    scale: float
+
+    def to_dataset(self, points: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 3"]:
+        """Nerfstudio's frame -> the dataset's."""
+        rot, t = self.transform[:, :3], self.transform[:, 3]
+        return (np.asarray(points, np.float64).reshape(-1, 3) / self.scale - t) @ rot
+
+    def to_ns(self, points: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 3"]:
+        """The dataset's frame -> Nerfstudio's."""
+        rot, t = self.transform[:, :3], self.transform[:, 3]
+        return self.scale * (np.asarray(points, np.float64).reshape(-1, 3) @ rot.T + t)
+
+    @classmethod
+    def read(cls, path: Path) -> "WorldFrame":
+        """Read a ``dataparser_transforms.json``; raises :class:`CountInputError` naming it when malformed."""
+        try:
+            data = json.loads(Path(path).read_text())
+            transform = np.asarray(data["transform"], dtype=np.float64)
+            scale = float(data["scale"])
+        except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+            raise CountInputError(f"{path}: not a Nerfstudio dataparser_transforms.json ({err!r})") from err
+        if transform.shape != (3, 4) or not np.isfinite(transform).all() or not scale > 0:
+            raise CountInputError(f"{path}: need a finite 3x4 'transform' and a 'scale' > 0")
+        return cls(transform, scale)
+
+
+@dataclass
+class RenderedView:
+    """One camera's rendered outputs, (H, W[, C]) arrays in Nerfstudio's frame."""
+
+    name: str
+    """The frame's stem (``000003``)."""
+    split: str
+    """``train`` or ``eval``."""
+    file_path: str
+    """The frame's RGB image relative to the dataset folder (``images/000003.png``)."""
+    rgb: Float[np.ndarray, "h w 3"]
+    depth: Float[np.ndarray, "h w"]
+    accumulation: Float[np.ndarray, "h w"]
+    origins: Float[np.ndarray, "h w 3"]
+    directions: Float[np.ndarray, "h w 3"]
+    """Unit ray directions."""
+    focal: float
+    """Focal length in pixels at this resolution (mean of fx, fy)."""
+    thermal: Optional[Float[np.ndarray, "h w"]] = None
+    temperature: Optional[Float[np.ndarray, "h w"]] = None
+
+    def points(self) -> Float[np.ndarray, "h w 3"]:
+        """The surface point of every pixel: origin + direction x depth."""
+        return self.origins + self.directions * self.depth[..., None]
+
+    def save(self, path: Path) -> None:
+        arrays = {k: v for k, v in self._arrays().items() if v is not None}
+        np.savez_compressed(path, focal=np.float64(self.focal), **arrays)
+
+    def _arrays(self) -> Dict[str, Optional[np.ndarray]]:
+        return {
+            "rgb": self.rgb.astype(np.float16),
+            "depth": self.depth.astype(np.float32),
+            "accumulation": self.accumulation.astype(np.float16),
+            "origins": self.origins.astype(np.float32),
+            "directions": self.directions.astype(np.float32),
+            "thermal": None if self.thermal is None else self.thermal.astype(np.float16),
+            "temperature": None if self.temperature is None else self.temperature.astype(np.float32),
+        }
+
+
+@dataclass
+class RenderSet:
+    """The rendered views of a run and what is needed to read them: the frame conversion and the dataset folder."""
+
+    views: List[RenderedView]
+    frame: WorldFrame
+    dataset: Optional[Path]
+    config: Optional[Path]
+    method: Optional[str]
+
+
+def render_run(
+    config_path: Path,
+    out_dir: Optional[Path] = None,
+    splits: Sequence[str] = ("train", "eval"),
+    eval_num_rays_per_chunk: Optional[int] = None,
+) -> RenderSet:
+    """Render every camera of ``splits`` of the run saved at ``config_path`` (and cache them under ``out_dir``).
+
+    Raises :class:`CountInputError` naming the config when the model renders no ``depth`` (checked on the first
+    view) or the run folder lacks ``dataparser_transforms.json``.
+    """
+    import torch
+    from rich.progress import Progress
+
+    from agrinerf_ns.detect.render import load_run
+
+    config_path = Path(config_path)
+    transforms = config_path.parent / "dataparser_transforms.json"
+    if not transforms.is_file():
+        raise CountInputError(f"{transforms}: missing; the run folder of {config_path} must hold it (ns-train writes it)")
+    frame = WorldFrame.read(transforms)
+    run = load_run(config_path, eval_num_rays_per_chunk)
+    datamanager = run.pipeline.datamanager
+    datasets = {"train": datamanager.train_dataset, "eval": datamanager.eval_dataset}
+    dataset_dir = Path(datamanager.config.data) if getattr(datamanager.config, "data", None) else None
+    views: List[RenderedView] = []
+    total = sum(len(datasets[s]) for s in splits if datasets[s] is not None)
+    with Progress(transient=True) as progress:
+        task = progress.add_task(f"rendering {total} views ({run.method})", total=total)
+        for split in splits:
+            dataset = datasets[split]
+            for index in range(0 if dataset is None else len(dataset)):
+                camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
+                with torch.no_grad():
+                    rays = camera.generate_rays(camera_indices=0, keep_shape=True)
+                    outputs = run.pipeline.model.get_outputs_for_camera(camera)
+                view = _view_from_outputs(outputs, rays, camera, dataset, index, split, config_path)
+                if dataset_dir is not None:
+                    view.file_path = str(Path(dataset.image_filenames[index]).relative_to(dataset_dir.resolve()))
+                views.append(view)
+                progress.advance(task)
+    result = RenderSet(views, frame, dataset_dir, config_path, run.method)
+    if out_dir is not None:
+        save_renders(result, Path(out_dir))
+    return result
+
+
+def _view_from_outputs(
+    outputs: Dict[str, Any], rays: Any, camera: Any, dataset: Any, index: int, split: str, config_path: Path
+) -> RenderedView:
+    if "depth" not in outputs:
+        raise CountInputError(
+            f"{config_path}: the run's model renders no 'depth' output (it renders: {', '.join(sorted(outputs))}); "
+            "counting lifts detections to 3D with it"
+        )
+
+    def array(name: str) -> np.ndarray:
+        return outputs[name].detach().float().cpu().numpy()
+
+    path = Path(dataset.image_filenames[index])
+    return RenderedView(
+        name=path.stem,
+        split=split,
+        file_path=path.name,
+        rgb=array("rgb"),
+        depth=array("depth")[..., 0],
+        accumulation=array("accumulation")[..., 0] if "accumulation" in outputs else np.ones(array("depth").shape[:2]),
+        origins=rays.origins.detach().float().cpu().numpy(),
+        directions=rays.directions.detach().float().cpu().numpy(),
+        focal=float((camera.fx[0, 0] + camera.fy[0, 0]).item() / 2),
+        thermal=array("thermal")[..., 0] if "thermal" in outputs else None,
+        temperature=array("temperature")[..., 0] if "temperature" in outputs else None,
+    )
+
+
+def save_renders(renders: RenderSet, out_dir: Path) -> None:
+    """Write ``<split>_<frame>.npz`` per view and ``renders.json`` into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for view in renders.views:
+        view.save(out_dir / f"{view.split}_{view.name}.npz")
+    meta = {
+        "config": None if renders.config is None else str(renders.config),
+        "method": renders.method,
+        "dataset": None if renders.dataset is None else str(renders.dataset),
+        "dataparser_transform": renders.frame.transform.tolist(),
+        "dataparser_scale": renders.frame.scale,
+        "views": [{"name": v.name, "split": v.split, "file_path": v.file_path} for v in renders.views],
+    }
+    (out_dir / RENDERS_JSON).write_text(json.dumps(meta, indent=1) + "\n")
+
+
+def load_renders(folder: Path) -> RenderSet:
+    """Read a folder written by :func:`save_renders`; raises :class:`CountInputError` naming the folder or file when
+    it is empty, lacks ``renders.json`` or a view file, or a view lacks depth."""
+    folder = Path(folder)
+    meta_path = folder / RENDERS_JSON
+    if not folder.is_dir() or not any(folder.glob("*.npz")):
+        raise CountInputError(f"{folder}: empty render folder (no <split>_<frame>.npz views; agrinerf-count --config "
+                              "writes them under OUT/renders)")
+    if not meta_path.is_file():
+        raise CountInputError(f"{meta_path}: missing; a render folder needs it beside the .npz views")
+    try:
+        meta = json.loads(meta_path.read_text())
+        frame = WorldFrame(np.asarray(meta["dataparser_transform"], np.float64), float(meta["dataparser_scale"]))
+        entries = list(meta["views"])
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise CountInputError(f"{meta_path}: not a render index ({err!r})") from err
+    views = []
+    for entry in entries:
+        path = folder / f"{entry['split']}_{entry['name']}.npz"
+        if not path.is_file():
+            raise CountInputError(f"{path}: listed in {meta_path} but missing")
+        with np.load(path) as data:
+            if "depth" not in data:
+                raise CountInputError(f"{path}: no 'depth' array (counting lifts detections to 3D with it)")
+            views.append(
+                RenderedView(
+                    name=entry["name"],
+                    split=entry["split"],
+                    file_path=entry["file_path"],
+                    rgb=data["rgb"].astype(np.float32),
+                    depth=data["depth"].astype(np.float32),
+                    accumulation=data["accumulation"].astype(np.float32),
+                    origins=data["origins"].astype(np.float32),
+                    directions=data["directions"].astype(np.float32),
+                    focal=float(data["focal"]),
+                    thermal=data["thermal"].astype(np.float32) if "thermal" in data else None,
+                    temperature=data["temperature"].astype(np.float32) if "temperature" in data else None,
+                )
+            )
+    dataset = Path(meta["dataset"]) if meta.get("dataset") else None
+    config = Path(meta["config"]) if meta.get("config") else None
+    return RenderSet(views, frame, dataset, config, meta.get("method"))

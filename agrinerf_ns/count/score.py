@@ -1,0 +1,222 @@
+"""Scoring a fruit map against a synthetic capture's truth (``truth/fruits.json``, ``truth/fruit_ids/``).
+
+A true fruit is *visible from the capture* when at least ``min_pixels`` of it show in at least one training view's
+fruit mask (``truth/fruit_ids/<frame>.png``). Counted fruit are matched one-to-one to the true fruit (Hungarian, on
+the 3D distance) within ``match_distance``: a match to a visible fruit is a true positive, a counted fruit with no
+match a false positive (a match to a fruit no training view shows is neither), a visible fruit with no match a false
+negative. The count error is (counted - visible) / visible.
+
+The fruit map is in the dataset's frame, the truth in the capture's: with ``align="poses"`` the dataset's camera
+centres are fit to the capture's true ones (``truth/poses.txt``, matched by timestamp) by a similarity (Umeyama), which
+removes the pose source's frame (SfM) and the odometry's mean drift, not its local error.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Dict, Iterable, Literal, Optional, Tuple
+
+import cv2
+import numpy as np
+from jaxtyping import Bool, Float
+
+from agrinerf_ns.count.render import CountInputError
+
+FRUITS_JSON = Path("truth") / "fruits.json"
+FRUIT_IDS_DIR = Path("truth") / "fruit_ids"
+TRUE_POSES = Path("truth") / "poses.txt"
+Align = Literal["poses", "none"]
+
+
+@dataclass(frozen=True)
+class TruthFruit:
+    """A capture's true fruit: centres (capture frame), diameters (mean of the ellipsoid's axes) and ids."""
+
+    centres: Float[np.ndarray, "n 3"]
+    diameters: Float[np.ndarray, " n"]
+    ids: np.ndarray
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """``p_capture = scale * R p_dataset + t``."""
+
+    scale: float
+    rotation: Float[np.ndarray, "3 3"]
+    translation: Float[np.ndarray, "3"]
+    residual_rms: float = 0.0
+    """RMS distance of the fitted camera centres (capture units)."""
+
+    def apply(self, points: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 3"]:
+        return self.scale * np.asarray(points, np.float64).reshape(-1, 3) @ self.rotation.T + self.translation
+
+    def inverse(self, points: Float[np.ndarray, "n 3"]) -> Float[np.ndarray, "n 3"]:
+        return (np.asarray(points, np.float64).reshape(-1, 3) - self.translation) @ self.rotation / self.scale
+
+    @classmethod
+    def identity(cls) -> "Similarity":
+        return cls(1.0, np.eye(3), np.zeros(3))
+
+
+@dataclass(frozen=True)
+class CountScore:
+    """A fruit map's count and detection scores against the visible true fruit."""
+
+    counted: int
+    visible: int
+    truth_total: int
+    count_error: float
+    """(counted - visible) / visible."""
+    true_positives: int
+    false_positives: int
+    false_negatives: int
+    precision: float
+    recall: float
+    f1: float
+    match_distance: float
+    mean_match_error: float
+    """Mean distance of the true positives to their fruit (NaN without any)."""
+
+    def as_dict(self) -> Dict[str, float]:
+        return asdict(self)
+
+
+def read_truth_fruit(raw: Path) -> TruthFruit:
+    """The true fruit of a synthetic capture; raises :class:`CountInputError` naming the file when there are none."""
+    path = Path(raw) / FRUITS_JSON
+    if not path.is_file():
+        raise CountInputError(
+            f"{path}: missing; scoring needs a synthetic capture written by agrinerf-synth (truth/fruits.json)"
+        )
+    try:
+        fruits = json.loads(path.read_text())
+        centres = np.asarray([f["center"] for f in fruits], np.float64).reshape(-1, 3)
+        diameters = np.asarray([2.0 * np.mean(f["radii"]) for f in fruits], np.float64)
+        ids = np.asarray([int(f["id"]) for f in fruits], np.int64)
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise CountInputError(f"{path}: not a fruit list (id, center, radii per fruit) ({err!r})") from err
+    if len(ids) == 0:
+        raise CountInputError(f"{path}: the scene has no true fruit to score against")
+    return TruthFruit(centres, diameters, ids)
+
+
+def visible_fruit(raw: Path, frames: Iterable[str], truth: TruthFruit, min_pixels: int = 3) -> Bool[np.ndarray, " n"]:
+    """Which true fruit show with at least ``min_pixels`` pixels in at least one of the ``frames`` (file stems of
+    the raw capture's RGB frames), from ``truth/fruit_ids/<frame>.png`` (k + 1 = fruit k)."""
+    folder = Path(raw) / FRUIT_IDS_DIR
+    seen = np.zeros(len(truth.ids), dtype=bool)
+    index = {int(fid): i for i, fid in enumerate(truth.ids)}
+    frames = list(frames)
+    if not frames:
+        raise CountInputError(f"{folder}: no training frames to decide which fruit are visible")
+    for stem in frames:
+        path = folder / f"{stem}.png"
+        ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if ids is None:
+            raise CountInputError(f"{path}: missing or unreadable fruit mask (truth of frame {stem})")
+        values, counts = np.unique(ids[ids > 0].astype(np.int64) - 1, return_counts=True)
+        for value, count in zip(values, counts, strict=True):
+            if count >= min_pixels and int(value) in index:
+                seen[index[int(value)]] = True
+    return seen
+
+
+def match_fruit(
+    predicted: Float[np.ndarray, "m 3"], truth: Float[np.ndarray, "n 3"], distance: float
+) -> Tuple[np.ndarray, np.ndarray]:
+    """One-to-one matches (Hungarian on the distances) no farther apart than ``distance``: (predicted indices,
+    truth indices)."""
+    from scipy.optimize import linear_sum_assignment
+
+    predicted = np.asarray(predicted, np.float64).reshape(-1, 3)
+    truth = np.asarray(truth, np.float64).reshape(-1, 3)
+    if len(predicted) == 0 or len(truth) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    dist = np.linalg.norm(predicted[:, None, :] - truth[None, :, :], axis=-1)
+    cost = np.where(dist <= distance, dist, 1e6)
+    rows, cols = linear_sum_assignment(cost)
+    keep = dist[rows, cols] <= distance
+    return rows[keep].astype(np.int64), cols[keep].astype(np.int64)
+
+
+def score_fruit(
+    predicted: Float[np.ndarray, "m 3"],
+    truth: TruthFruit,
+    visible: Optional[Bool[np.ndarray, " n"]] = None,
+    match_distance: float = 0.05,
+) -> CountScore:
+    """Count error and precision / recall / F1 of ``predicted`` centres (capture frame) against the visible true
+    fruit (all of them when ``visible`` is None)."""
+    visible = np.ones(len(truth.ids), dtype=bool) if visible is None else np.asarray(visible, bool)
+    rows, cols = match_fruit(predicted, truth.centres, match_distance)
+    counted = len(np.asarray(predicted).reshape(-1, 3))
+    tp_mask = visible[cols]
+    tp = int(tp_mask.sum())
+    fp = counted - len(rows)
+    n_visible = int(visible.sum())
+    fn = n_visible - tp
+    precision = tp / (tp + fp) if tp + fp else 0.0
+    recall = tp / n_visible if n_visible else 0.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    errors = np.linalg.norm(np.asarray(predicted).reshape(-1, 3)[rows[tp_mask]] - truth.centres[cols[tp_mask]], axis=1)
+    return CountScore(
+        counted=counted,
+        visible=n_visible,
+        truth_total=len(truth.ids),
+        count_error=(counted - n_visible) / n_visible if n_visible else float("nan"),
+        true_positives=tp,
+        false_positives=fp,
+        false_negatives=fn,
+        precision=precision,
+        recall=recall,
+        f1=f1,
+        match_distance=match_distance,
+        mean_match_error=float(errors.mean()) if errors.size else float("nan"),
+    )
+
+
+def dataset_frames(dataset: Path) -> Dict[str, dict]:
+    """``file_path`` -> frame of the dataset's ``transforms.json`` (raises naming the file when unreadable)."""
+    path = Path(dataset) / "transforms.json"
+    try:
+        meta = json.loads(path.read_text())
+        return {str(f["file_path"]): f for f in meta["frames"]}
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as err:
+        raise CountInputError(f"{path}: cannot read the dataset's frames ({err!r})") from err
+
+
+def raw_stem(frame: dict, file_path: str) -> str:
+    """The raw capture's RGB frame stem of a dataset frame (``raw_rgb``, else the dataset image's own stem)."""
+    return Path(str(frame.get("raw_rgb", file_path))).stem
+
+
+def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Similarity:
+    """The similarity from the dataset's frame to the capture's, fit on the camera centres (dataset frames'
+    ``timestamp`` matched to ``truth/poses.txt``); raises :class:`CountInputError` naming the file that lacks them."""
+    from agrinerf_ns.process.poses import umeyama
+    from agrinerf_ns.process.readers import RawInputError, read_tum
+
+    frames = list(dataset_frames(dataset).values())
+    try:
+        times, poses = read_tum(Path(raw) / TRUE_POSES)
+    except RawInputError as err:
+        raise CountInputError(str(err)) from err
+    src, dst = [], []
+    for frame in frames:
+        if "timestamp" not in frame:
+            continue
+        k = int(np.argmin(np.abs(times - float(frame["timestamp"]))))
+        if abs(times[k] - float(frame["timestamp"])) <= tolerance_s:
+            src.append(np.asarray(frame["transform_matrix"], np.float64)[:3, 3])
+            dst.append(poses[k][:3, 3])
+    if len(src) < 3:
+        raise CountInputError(
+            f"{Path(dataset) / 'transforms.json'}: {len(src)} frames have a timestamp matching "
+            f"{Path(raw) / TRUE_POSES}; aligning the dataset to the capture needs 3 (or pass --align none)"
+        )
+    s, rot, t = umeyama(np.stack(src), np.stack(dst))
+    fitted = s * np.stack(src) @ rot.T + t
+    rms = float(np.sqrt(np.mean(np.sum((fitted - np.stack(dst)) ** 2, axis=1))))
+    return Similarity(s, rot, t, rms)
