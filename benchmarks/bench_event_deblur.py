@@ -21,7 +21,7 @@ import tyro
 
 from agrinerf_ns.bench import results
 from agrinerf_ns.bench.cli import prepare_scene, run_method
-from agrinerf_ns.bench.methods import BenchMethod
+from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
 from agrinerf_ns.machine import device_name
 
@@ -74,6 +74,19 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
 0.1 (EvDeblurNeRF's) from the event stream at the event camera's pixels in random sub-windows (the model's
 defaults), the blur model 3 renders per blurred pixel, unless the key says otherwise."""
 
+BASELINES: Dict[str, str] = {"nerfacto": "Nerfacto (RGB)", "nerfacto-thermal": "Nerfacto (Thermal)"}
+"""Rows that are other methods (``agrinerf_ns.bench.methods.METHODS``), at the profile's step budget for them (about
+the wall time of the RGB TensoRF's 800 steps on a CPU)."""
+
+TABLE_I: Tuple[Tuple[str, str], ...] = (
+    ("nerfacto", "Nerfacto (RGB)"),
+    ("nerfacto-thermal", "Nerfacto (Thermal)"),
+    ("evdeblurnerf", "EvDeblurNeRF"),
+    ("blur-events-noise", "Ours (RGB module: blur + noise-balanced events)"),
+    ("agrinerf", "Ours (RGB): All + blur + noise-balanced events"),
+)
+"""The paper's Tables I/II rows: row key -> label."""
+
 STEP_FACTORS: Dict[str, int] = {"rgb-long": 4}
 """Rows trained for a multiple of the profile's steps: the RGB TensoRF at about the wall time of the blur model's rows
 (their step times: ``benchmarks/bench_event_speed.py``)."""
@@ -94,11 +107,15 @@ class Args:
 
 def row_profile(profile: BenchProfile, key: str) -> BenchProfile:
     """The profile with this row's step budget."""
+    if key in BASELINES:
+        return profile
     steps = profile.steps["agrinerf-lite"] * STEP_FACTORS.get(key, 1)
     return replace(profile, steps={**profile.steps, key: steps})
 
 
 def method(key: str) -> BenchMethod:
+    if key in BASELINES:
+        return METHODS[key]
     label, options = ROWS[key]
     return BenchMethod(label, "agrinerf-lite", "transforms.json", "rgb", train_args=options)
 
@@ -115,6 +132,26 @@ def step_ratios(rows, keys) -> str:
                 continue
             ratio = results.as_float(row, "s_per_step") / base
             lines.append(f"| {scene} | {key} | {'-' if ratio != ratio else f'{ratio:.2f}'} |")
+    return "\n".join(lines) + "\n"
+
+
+def tables_i_ii(rows, scenes) -> str:
+    """The paper's Tables I/II: PSNR / SSIM / LPIPS of each row's RGB render against the sharp clean truth (and of the
+    thermal render against the rescaled thermal frames, for the thermal rows), at the last step."""
+    last = results.final_rows(rows)
+
+    def cell(row, key: str, digits: int) -> str:
+        value = results.as_float(row, key) if row is not None else float("nan")
+        return "-" if value != value else f"{value:.{digits}f}"
+
+    lines = ["| scene | method | steps | PSNR | SSIM | LPIPS | thermal PSNR |", "|---|---|---|---|---|---|---|"]
+    for scene in scenes:
+        for key, label in TABLE_I:
+            row = last.get((scene, key))
+            if row is None:
+                continue
+            lines.append(f"| {scene} | {label} | {row['step']} | {cell(row, 'psnr_clean', 2)} | "
+                         f"{cell(row, 'ssim_clean', 3)} | {cell(row, 'lpips', 3)} | {cell(row, 'thermal_psnr', 2)} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -145,9 +182,9 @@ def trade_plot(rows, keys, labels: Dict[str, str], path: Path) -> None:
 
 
 def main(args: Args) -> None:
-    unknown = [r for r in args.rows if r not in ROWS]
+    unknown = [r for r in args.rows if r not in ROWS and r not in BASELINES]
     if unknown:
-        raise SystemExit(f"unknown rows {unknown}: {list(ROWS)}")
+        raise SystemExit(f"unknown rows {unknown}: {[*ROWS, *BASELINES]}")
     keys = ["rgb"] + [r for r in args.rows if r != "rgb"]
     profile = PROFILES[args.profile]
     csv_path = args.out / "results.csv"
@@ -164,7 +201,7 @@ def main(args: Args) -> None:
             rows = run_method(scene, key, method(key), raw, data, row_profile(profile, key), args.out / "runs", device)
             results.append_rows(csv_path, rows)
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in args.scenes]
-    labels = {k: ROWS[k][0] for k in keys}
+    labels = {k: ROWS[k][0] if k in ROWS else BASELINES[k] for k in keys}
     text = (
         "# RGB PSNR of the RGB module's parts on motion-blurred scenes\n\n"
         f"Command: `python benchmarks/bench_event_deblur.py {' '.join(sys.argv[1:])}`\n\n"
@@ -178,6 +215,9 @@ def main(args: Args) -> None:
         + "\nStep time (steady state, the same machine, one run after the other, so under whatever else it ran: "
         "`benchmarks/bench_event_speed.py` measures the parts side by side; `deblur.png` plots these):\n\n"
         + step_ratios(rows, keys)
+        + "\nThe paper's Tables I/II (RGB rows against the sharp clean truth; LPIPS NaN where no AlexNet weights are "
+        "available offline; Nerfacto (Thermal) is scored on the thermal frames only):\n\n"
+        + tables_i_ii(rows, args.scenes)
     )
     (args.out / "deblur.md").write_text(text)
     trade_plot(rows, keys, labels, args.out / "deblur.png")

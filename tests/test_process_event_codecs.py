@@ -291,3 +291,36 @@ def test_capture_with_events_raw_gives_the_dataset_of_events_h5(tmp_path: Path):
                                             r"the event camera 56x42"):  # fmt: skip
         process_capture(raw, tmp_path / "ds2", cfg)
     assert not (tmp_path / "ds2").exists()
+
+
+def test_the_event_loss_counts_a_real_recording_like_brute_force(tmp_path: Path):
+    """The event loss's counting structure (agrinerf_ns.model.event_stream) on a real Prophesee recording: bursty,
+    hot pixels, a 640x480 sensor, times in microseconds of the sensor clock. Totals match the upstream reference
+    counts and every random window matches a brute-force count."""
+    import h5py
+    import torch
+
+    from agrinerf_ns.model.event_stream import EventStream
+    from agrinerf_ns.process.rosbag import BagTopics, bag_to_raw
+
+    raw = bag_to_raw(BAGS / "test_events_1.bag", _calib(tmp_path), tmp_path / "raw",
+                     BagTopics(rgb=None, thermal=None, events=TOPIC), event_clock="sensor")  # fmt: skip
+    with h5py.File(raw / "events" / "events.h5") as f:
+        x, y, t, p = (f[f"events/{k}"][:].astype(np.int64) for k in "xytp")
+    stream = EventStream(x, y, t, p, 640, 480)
+    pixel_all = torch.arange(640 * 480)
+    on, off = stream.counts(pixel_all, torch.full_like(pixel_all, int(t.min())), torch.full_like(pixel_all, int(t.max()) + 1))
+    assert (int(off.sum()), int(on.sum())) == (218_291, 125_183)
+    rng = np.random.default_rng(0)
+    busiest = np.argsort(np.bincount(y * 640 + x, minlength=640 * 480))[-200:]  # the hot and busy pixels
+    pixel = torch.from_numpy(np.concatenate([busiest, rng.integers(0, 640 * 480, 300)]))
+    t0 = torch.from_numpy(rng.integers(int(t.min()) - 1000, int(t.max()), pixel.numel()))
+    t1 = t0 + torch.from_numpy(rng.integers(0, 400_000, pixel.numel()))
+    on, off = stream.counts(pixel, t0, t1)
+    order = np.argsort(y * 640 + x, kind="stable")
+    key_pixel, key_t, key_p = (y * 640 + x)[order], t[order], p[order]
+    for k in range(pixel.numel()):
+        lo, hi = np.searchsorted(key_pixel, [int(pixel[k]), int(pixel[k]) + 1])
+        m = (key_t[lo:hi] >= int(t0[k])) & (key_t[lo:hi] < int(t1[k]))
+        assert (int(on[k]), int(off[k])) == (int((key_p[lo:hi][m] == 1).sum()), int((key_p[lo:hi][m] == 0).sum()))
+    assert int(on.sum() + off.sum()) > 500  # the windows hold real events (943 here), not only empty ones
