@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 from agrinerf_ns.bench.methods import ABLATIONS
-from agrinerf_ns.detect.evaluate import load_plan, plan_from_bench, trained_scene_detectors
+from agrinerf_ns.detect.plan import load_plan, plan_from_bench
 from agrinerf_ns.detect.tables import TABLE_IV_ORDER
+from agrinerf_ns.detect.training import trained_scene_detectors
 
 
 def test_load_plan_resolves_relative_paths_and_reports_missing_keys(tmp_path: Path) -> None:

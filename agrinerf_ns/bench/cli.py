@@ -20,6 +20,7 @@ from rich.console import Console
 from rich.progress import Progress
 
 from agrinerf_ns.bench import results
+from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, machine_note, scene_folders, train_record
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
@@ -61,7 +62,7 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
     scene, _, lighting = name.partition("-")
-    raw, data = root / name / "raw", root / name / "data"
+    raw, data = scene_folders(root, name)
     config = SynthConfig(scene=scene, lighting=lighting, seed=seed, views=profile.views, width=profile.width,
                          height=profile.height, **profile.synth)  # fmt: skip
     if not _same_capture(raw, config):
@@ -105,7 +106,6 @@ def _same_capture(raw: Path, config: "SynthConfig") -> bool:
     return all(written.get(key) == value for key, value in asdict(config).items() if key in written)
 
 
-
 def run_method(
     scene: str,
     method_key: str,
@@ -116,15 +116,18 @@ def run_method(
     runs: Path,
     device: str,
 ) -> List[Dict[str, object]]:
-    """Train one method on one scene and evaluate its checkpoints; returns the result rows."""
+    """Train one method on one scene and evaluate its checkpoints; returns the result rows.
+
+    ``runs``: the output folder's ``runs/`` (:mod:`agrinerf_ns.bench.layout`)."""
     from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
 
     steps = profile.steps.get(method_key, profile.steps[method.ns_method])  # an ablation: its method's budget
     save_every = max(1, steps // profile.evaluations)
-    record = runs / scene / method_key / "train_run.json"
+    record = train_record(runs, scene, method_key)
+    experiment = experiment_folder(runs, scene, method_key)
     run = TrainRun.load(record) if record.exists() else None
     if run is None or not run.checkpoints():
-        run = ns_train(method.ns_method, data / method.data_file, runs / scene, method_key, max_steps=steps,
+        run = ns_train(method.ns_method, data / method.data_file, experiment.parent, experiment.name, max_steps=steps,
                        rays_per_batch=profile.rays_per_batch,
                        extra_args=(*method.train_args, *_extra_args(profile, method_key, method)),
                        dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
@@ -183,14 +186,14 @@ def _seconds(value: float) -> str:
 
 def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[float], command: str) -> None:
     """results.md (command, machine, summary, table) and tradeoff.png."""
-    devices = sorted({r["device"] for r in rows})
-    text = (f"# agrinerf-bench results\n\nCommand: `{command}`\n\nMachine: {', '.join(devices)}\n\n"
+    layout = BenchLayout(out)
+    text = (f"# agrinerf-bench results\n\nCommand: `{command}`\n\n{machine_note(sorted({r['device'] for r in rows}))}\n\n"
             f"![quality against wall time](tradeoff.png)\n\n## Summary\n{summary(rows, target_psnr)}\n"
             f"## All checkpoints\ns/step: steady state, wall time between a run's first and last checkpoint over the "
             f"steps between them. Peak RSS: the `ns-train` process tree, sampled every 0.2 s.\n\n"
             f"{results.markdown_table(rows)}")  # fmt: skip
-    (out / "results.md").write_text(text)
-    results.plot(rows, out / "tradeoff.png")
+    layout.results_md.write_text(text)
+    results.plot(rows, layout.tradeoff_png)
 
 
 def main(config: BenchConfig) -> List[results.Row]:
@@ -201,7 +204,8 @@ def main(config: BenchConfig) -> List[results.Row]:
         raise ValueError(f"unknown methods {unknown}: choose from {', '.join(METHODS)}")
     profile = PROFILES[config.profile]
     scenes = config.scenes or profile.scenes
-    csv_path = config.results_csv or config.out / "results.csv"
+    layout = BenchLayout(config.out)
+    csv_path = config.results_csv or layout.results_csv
     device = device_name()
     done = results.done_runs(results.read_rows(csv_path))
     todo = [] if config.report_only else [(s, m) for s in scenes for m in config.methods if (s, m) not in done]
@@ -209,13 +213,13 @@ def main(config: BenchConfig) -> List[results.Row]:
         task = progress.add_task("benchmark runs", total=len(todo))
         for scene, method_key in todo:
             progress.update(task, description=f"{scene}: {method_key}")
-            raw, data = prepare_scene(scene, profile, config.seed, config.out / "scenes")
-            rows = run_method(scene, method_key, METHODS[method_key], raw, data, profile, config.out / "runs", device)
+            raw, data = prepare_scene(scene, profile, config.seed, layout.scenes)
+            rows = run_method(scene, method_key, METHODS[method_key], raw, data, profile, layout.runs, device)
             results.append_rows(csv_path, rows)
             progress.advance(task)
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in config.methods]
     write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
-    CONSOLE.print(f"results: {csv_path}, {config.out / 'results.md'}, {config.out / 'tradeoff.png'}")
+    CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
     return rows
 
 

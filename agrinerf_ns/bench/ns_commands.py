@@ -18,6 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from agrinerf_ns.bench import layout
+
 
 class NerfstudioCommandError(RuntimeError):
     """An ``ns-*`` command exited non-zero; the message holds the command and the tail of its output."""
@@ -150,7 +152,7 @@ def headless_train_args(
         "--pipeline.datamanager.train-num-rays-per-batch", str(rays_per_batch),
         "--output-dir", str(output_dir),
         "--experiment-name", experiment,
-        "--timestamp", "run",
+        "--timestamp", layout.RUN_TIMESTAMP,
         "--vis", "tensorboard",
         "--viewer.quit-on-train-completion", "True",
     ]  # fmt: skip
@@ -196,8 +198,7 @@ class TrainRun:
 
     def checkpoints(self) -> List[Tuple[int, Path]]:
         """(step, path) of every checkpoint, by step."""
-        found = [(int(p.stem.split("-")[1]), p) for p in (self.config.parent / "nerfstudio_models").glob("step-*.ckpt")]
-        return sorted(found)
+        return layout.checkpoints(self.config)
 
 
 def steady_seconds_per_step(checkpoints: Sequence[Tuple[int, Path]]) -> Optional[float]:
@@ -241,7 +242,7 @@ def ns_train(
     ]
     started_at = time.time()
     result = run_ns("train", args, log_path=output_dir / experiment / f"{method}.train.log", timeout=timeout)
-    config = output_dir / experiment / method / "run" / "config.yml"
+    config = output_dir / experiment / method / layout.RUN_TIMESTAMP / "config.yml"
     if not config.exists():
         raise NerfstudioCommandError(f"ns-train finished but wrote no {config}")
     profiler = _mean_iteration_seconds(result.output)

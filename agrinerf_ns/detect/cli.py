@@ -19,22 +19,7 @@ from typing_extensions import Annotated
 
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS
 from agrinerf_ns.detect.detector import DetectorConfig
-
-MinBoxPixels = Annotated[
-    int,
-    tyro.conf.arg(
-        help="A fruit counts when at least this many of its pixels are visible (truth/boxes_coco.json areas); smaller "
-        "ones are ignored in scoring and left out of detector training labels. 0: every box counts."
-    ),
-]
-RaysPerChunk = Annotated[
-    Optional[int],
-    tyro.conf.arg(
-        help="Rays rendered at once (eval_num_rays_per_chunk). Default: 1024 on a CPU (faster and far less memory than "
-        "the configs' GPU-sized chunks there; docs/detect.md), the run config's on a GPU. The image does not depend on "
-        "it."
-    ),
-]
+from agrinerf_ns.detect.settings import EvalSettings, MinBoxPixels, RaysPerChunk
 
 
 @dataclass
@@ -56,31 +41,14 @@ class EvaluateCommand:
     """Or: an agrinerf-bench output folder (all its finished runs; agrinerf gives an RGB and a cross-spectral row)."""
     table: Literal["III", "IV"] = "III"
     """Table III (methods x lighting) or IV (modality ablations of one scene)."""
-    detector: Annotated[DetectorConfig, tyro.conf.arg(name="detector")] = field(default_factory=DetectorConfig)
-    conf_threshold: float = 0.25
-    """Score threshold for precision, recall, F1 and the picture."""
-    cross_spectral_fraction: float = 0.25
-    """Cross-spectral renders of training views added to the thermal detector's set (fraction of its size)."""
-    rgb_source: Literal["clean", "captured"] = "clean"
-    """RGB detector training images: the clean truth views, or the captured (dataset) frames as the paper labels."""
-    thermal_init: Literal["rgb", "scratch"] = "rgb"
-    """Start the thermal detector from the scene's RGB detector (trained here from scratch) or from random weights."""
-    thermal_init_lr0: float = 0.002
-    """Learning rate of the thermal detector started from the RGB one (the RGB one uses --detector.lr0)."""
-    min_box_pixels: MinBoxPixels = MIN_BOX_PIXELS
-    max_render_views: Optional[int] = None
-    """Render at most this many held-out views per method, evenly spaced (default: all)."""
-    rays_per_chunk: RaysPerChunk = None
-    detectors_from: Optional[Path] = None
-    """An earlier evaluate --out folder whose detectors of the same scenes to use instead of training new ones (e.g.
-    Table IV scored with Table III's detectors); refused if they trained on a held-out view."""
-    reuse: bool = True
-    """Reuse renders and detector weights already in OUT/work."""
+    settings: Annotated[EvalSettings, tyro.conf.arg(name="")] = field(default_factory=EvalSettings)
+    """Evaluation settings (agrinerf_ns.detect.settings.EvalSettings)."""
 
     def main(self) -> None:
         from rich.console import Console
 
-        from agrinerf_ns.detect.evaluate import EvalSettings, evaluate_plan, load_plan, plan_from_bench
+        from agrinerf_ns.detect.evaluate import evaluate_plan
+        from agrinerf_ns.detect.plan import load_plan, plan_from_bench
 
         if (self.plan is None) == (self.bench is None):
             raise ValueError("give exactly one of --plan PLAN.json or --bench AGRINERF_BENCH_OUT")
@@ -88,22 +56,8 @@ class EvaluateCommand:
             scenes = load_plan(self.plan)
         else:
             scenes = plan_from_bench(self.bench, self.table)  # type: ignore[arg-type]
-
-        settings = EvalSettings(
-            detector=self.detector,
-            conf_threshold=self.conf_threshold,
-            cross_spectral_fraction=self.cross_spectral_fraction,
-            max_render_views=self.max_render_views,
-            rays_per_chunk=self.rays_per_chunk,
-            reuse=self.reuse,
-            rgb_source=self.rgb_source,
-            thermal_init=self.thermal_init,
-            thermal_init_lr0=self.thermal_init_lr0,
-            min_box_pixels=self.min_box_pixels,
-            detectors_from=self.detectors_from,
-        )
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        written = evaluate_plan(scenes, self.out, settings, self.table, command)
+        written = evaluate_plan(scenes, self.out, self.settings, self.table, command)
         console = Console()
         console.print(written["markdown"].read_text())
         for kind, path in written.items():
@@ -152,7 +106,8 @@ class TrainCommand:
 
     def main(self) -> None:
         from agrinerf_ns.detect.boxes import list_images
-        from agrinerf_ns.detect.evaluate import EvalSettings, MethodSpec, SceneSpec, train_scene_detector
+        from agrinerf_ns.detect.plan import MethodSpec, SceneSpec
+        from agrinerf_ns.detect.training import train_scene_detector
 
         if self.modality == "thermal" and self.dataset is None:
             raise ValueError("--modality thermal needs --dataset (the processed dataset with thermal frames)")
@@ -185,11 +140,15 @@ class ScoreCommand:
     """Also write the metrics JSON here."""
 
     def main(self) -> None:
-        from agrinerf_ns.detect.evaluate import EvalSettings, score_render_folder
+        from agrinerf_ns.detect.bootstrap import bootstrap_maps
+        from agrinerf_ns.detect.score_views import score_render_folder
 
-        settings = EvalSettings(conf_threshold=self.conf_threshold, min_box_pixels=self.min_box_pixels)
-        metrics, _ = score_render_folder(self.raw, self.renders, self.weights, settings, imgsz=self.imgsz)
-        text = json.dumps(metrics.as_dict(), indent=2)
+        scored = score_render_folder(
+            self.raw, self.renders, self.weights, self.conf_threshold, self.min_box_pixels, imgsz=self.imgsz
+        )
+        intervals = bootstrap_maps(scored.matched).intervals()
+        bounds = {f"{key}_95ci": [i.low, i.high] for key, i in zip(("map50", "map50_95"), intervals, strict=True)}
+        text = json.dumps({**scored.metrics.as_dict(), **bounds}, indent=2)
         print(text)
         if self.out is not None:
             self.out.write_text(text)
@@ -206,7 +165,7 @@ class TableCommand:
     table: Literal["III", "IV"] = "III"
 
     def main(self) -> None:
-        from agrinerf_ns.detect.evaluate import merge_evaluations
+        from agrinerf_ns.detect.merge import merge_evaluations
 
         command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
         md, csv_path = merge_evaluations(self.metrics, self.out, self.table, command)

@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Dict, List, Literal, Sequence, Tuple
 
 import numpy as np
-from jaxtyping import Bool, Float
+from jaxtyping import Bool, Float, Int8
 
 IOU_THRESHOLDS: Tuple[float, ...] = tuple(float(t) for t in np.linspace(0.5, 0.95, 10))
 """COCO IoU thresholds 0.50:0.05:0.95."""
@@ -94,24 +94,24 @@ def box_iou(a: Float[np.ndarray, "n 4"], b: Float[np.ndarray, "m 4"]) -> Float[n
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
-def match_image(
+def match_outcomes(
     image: ImageBoxes, iou_threshold: float, max_dets: int = 100, conf_threshold: float = 0.0
-) -> Tuple[Float[np.ndarray, " k"], Bool[np.ndarray, " k"]]:
-    """Greedy COCO matching in one image.
+) -> Tuple[Float[np.ndarray, " k"], Int8[np.ndarray, " k"]]:
+    """Greedy COCO matching in one image, every considered detection with its outcome.
 
-    Returns the scores of the kept detections (descending; those >= ``conf_threshold``, at most ``max_dets``, minus
-    those matched to an ignored box) and whether each is a true positive. Each true box is matched at most once.
+    Returns the scores of the detections considered (descending; those >= ``conf_threshold``, at most ``max_dets``)
+    and each one's outcome: 1 true positive, 0 false positive, -1 left out (it took an ignored box). Each true box is
+    matched at most once.
     """
     keep = np.flatnonzero(image.scores >= conf_threshold)
     order = keep[np.argsort(-image.scores[keep], kind="mergesort")][:max_dets]
     scores = image.scores[order]
-    is_tp = np.zeros(len(order), dtype=bool)
+    outcome = np.zeros(len(order), dtype=np.int8)
     counted = len(image.true_boxes)
     if len(order) == 0 or counted + len(image.ignore_boxes) == 0:
-        return scores, is_tp
+        return scores, outcome
     ious = box_iou(image.pred_boxes[order], np.concatenate([image.true_boxes, image.ignore_boxes]))
     matched = np.zeros(ious.shape[1], dtype=bool)
-    dropped = np.zeros(len(order), dtype=bool)
     for d in range(len(order)):
         for candidates in (range(counted), range(counted, ious.shape[1])):  # counted boxes first, as COCOeval
             best, best_iou = -1, min(iou_threshold, 1 - 1e-10)
@@ -121,10 +121,19 @@ def match_image(
                 best, best_iou = g, ious[d, g]
             if best >= 0:
                 matched[best] = True
-                is_tp[d] = best < counted
-                dropped[d] = best >= counted
+                outcome[d] = 1 if best < counted else -1
                 break
-    return scores[~dropped], is_tp[~dropped]
+    return scores, outcome
+
+
+def match_image(
+    image: ImageBoxes, iou_threshold: float, max_dets: int = 100, conf_threshold: float = 0.0
+) -> Tuple[Float[np.ndarray, " k"], Bool[np.ndarray, " k"]]:
+    """Greedy COCO matching in one image (:func:`match_outcomes`) without the detections left out on ignored boxes:
+    the scores of the kept detections (descending) and whether each is a true positive."""
+    scores, outcome = match_outcomes(image, iou_threshold, max_dets, conf_threshold)
+    kept = outcome >= 0
+    return scores[kept], outcome[kept] == 1
 
 
 def average_precision(
