@@ -45,6 +45,8 @@ class BlobConfig:
     """Largest fruit diameter kept."""
     min_pixels: int = 3
     """Smallest blob kept, in pixels."""
+    max_elongation: float = 2.5
+    """Largest ratio of a blob's principal axes (fruit are round; a canopy edge's halo is a strip)."""
     background_sigma: float = 0.05
     """Scale of the surroundings a fruit is compared with, as a fraction of the image's shorter side."""
     min_hue_deg: float = -20.0
@@ -116,11 +118,21 @@ def detect_blobs(
             if stats[label, cv2.CC_STAT_AREA] < config.min_pixels:
                 continue
             mask = labels == label
+            if elongation(mask) > config.max_elongation:
+                continue
             diameter = blob_diameter(mask, view, scale)
             if diameter is None or not config.min_diameter <= diameter <= config.max_diameter:
                 continue
             detections.append(Detection(mask, float(np.max(sign * z[mask]))))
     return detections
+
+
+def elongation(mask: Bool[np.ndarray, "h w"]) -> float:
+    """Ratio of the principal axes of a blob's pixels (1 for a disk; a pixel's own extent keeps it finite)."""
+    ys, xs = np.nonzero(mask)
+    cov = np.cov(np.stack([xs, ys]).astype(np.float64)) if len(xs) > 1 else np.zeros((2, 2))
+    low, high = np.linalg.eigvalsh(np.atleast_2d(cov) + np.eye(2) / 12.0)
+    return float(np.sqrt(high / low))
 
 
 def blob_diameter(mask: Bool[np.ndarray, "h w"], view: RenderedView, scale: float) -> Optional[float]:

@@ -4,8 +4,9 @@ The pixels' surface points are ``origin + direction x depth`` (unit directions, 
 :mod:`agrinerf_ns.count.render`); pixels whose depth is far from the detection's median (background seen past the
 fruit's rim) are dropped. A sphere of radius r seen from the front shows its cap: over the image disk, the median
 depth of the cap lies ``r / sqrt(2)`` in front of the centre (depth offset sqrt(r^2 - rho^2) with rho^2 uniform
-over [0, r^2]), so the centre is the median surface point moved ``r / sqrt(2)`` along the mean ray. The radius is
-that of the disk of the detection's area at the centre's distance.
+over [0, r^2]), so the centre lies on the mean ray of the pixels at their median depth plus ``r / sqrt(2)`` (all of
+it independent of the frame's axes, unlike a per-axis median of the points). The radius is that of the disk of the
+detection's area at the centre's distance.
 """
 
 from __future__ import annotations
@@ -52,10 +53,10 @@ def lift_detection(
     spread = 1.4826 * float(np.median(np.abs(d - median)))
     inlier = np.abs(d - median) <= DEPTH_INLIER_MADS * spread + radius
     keep[keep] = inlier
-    points = view.origins[keep] + view.directions[keep] * depth[keep][:, None]
     ray = view.directions[keep].mean(0)
     ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
-    centre_ns = np.median(points, axis=0) + CAP_MEDIAN_OFFSET * radius * ray
+    distance = float(np.median(depth[keep])) + CAP_MEDIAN_OFFSET * radius
+    centre_ns = view.origins[keep].mean(0) + distance * ray
     temperature = None
     if view.temperature is not None:
         values = view.temperature[keep]
@@ -63,7 +64,7 @@ def lift_detection(
         temperature = float(values.mean()) if values.size else None
     return LiftedDetection(
         view=view_index,
-        centre=frame.to_dataset(centre_ns)[0],
+        centre=frame.to_dataset(centre_ns[None])[0],
         diameter=2.0 * radius / frame.scale,
         score=score,
         temperature=temperature,

@@ -161,14 +161,19 @@ def render_run(
     return result
 
 
-def _view_from_outputs(
-    outputs: Dict[str, Any], rays: Any, camera: Any, dataset: Any, index: int, split: str, config_path: Path
-) -> RenderedView:
+def require_depth(outputs: Dict[str, Any], config_path: Path) -> None:
+    """Raise :class:`CountInputError` naming the run's config when its model's ``outputs`` have no ``depth``."""
     if "depth" not in outputs:
         raise CountInputError(
             f"{config_path}: the run's model renders no 'depth' output (it renders: {', '.join(sorted(outputs))}); "
             "counting lifts detections to 3D with it"
         )
+
+
+def _view_from_outputs(
+    outputs: Dict[str, Any], rays: Any, camera: Any, dataset: Any, index: int, split: str, config_path: Path
+) -> RenderedView:
+    require_depth(outputs, config_path)
 
     def array(name: str) -> np.ndarray:
         return outputs[name].detach().float().cpu().numpy()

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, Iterable, Literal, Optional, Tuple
+from typing import Dict, Iterable, List, Literal, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -177,14 +177,21 @@ def score_fruit(
     )
 
 
-def dataset_frames(dataset: Path) -> Dict[str, dict]:
-    """``file_path`` -> frame of the dataset's ``transforms.json`` (raises naming the file when unreadable)."""
+def read_frames(dataset: Path) -> List[dict]:
+    """The frames of the dataset's ``transforms.json`` (raises naming the file when unreadable)."""
     path = Path(dataset) / "transforms.json"
     try:
-        meta = json.loads(path.read_text())
-        return {str(f["file_path"]): f for f in meta["frames"]}
+        frames = json.loads(path.read_text())["frames"]
+        if not isinstance(frames, list) or not all(isinstance(f, dict) and "file_path" in f for f in frames):
+            raise TypeError("'frames' must be a list of objects with a file_path")
+        return frames
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as err:
         raise CountInputError(f"{path}: cannot read the dataset's frames ({err!r})") from err
+
+
+def dataset_frames(dataset: Path) -> Dict[str, dict]:
+    """``file_path`` -> frame of the dataset's ``transforms.json``."""
+    return {str(f["file_path"]): f for f in read_frames(dataset)}
 
 
 def raw_stem(frame: dict, file_path: str) -> str:
@@ -198,7 +205,7 @@ def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Sim
     from agrinerf_ns.process.poses import umeyama
     from agrinerf_ns.process.readers import RawInputError, read_tum
 
-    frames = list(dataset_frames(dataset).values())
+    frames = read_frames(dataset)
     try:
         times, poses = read_tum(Path(raw) / TRUE_POSES)
     except RawInputError as err:

@@ -1,0 +1,261 @@
+"""agrinerf-count: clustering, the lift to 3D, blob detection, scoring against the truth, the CLI and its errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import List
+
+import cv2
+import numpy as np
+import pytest
+from helpers.tiny_scene import cast_sphere_view
+
+from agrinerf_ns.count.blobs import BlobConfig, detect_blobs
+from agrinerf_ns.count.cli import CountArgs, main
+from agrinerf_ns.count.cluster import ClusterConfig, cluster_fruit
+from agrinerf_ns.count.lift import LiftedDetection, lift_detection
+from agrinerf_ns.count.pipeline import CountConfig
+from agrinerf_ns.count.render import (
+    CountInputError,
+    RenderedView,
+    WorldFrame,
+    load_renders,
+    require_depth,
+)
+from agrinerf_ns.count.score import (
+    TruthFruit,
+    align_to_capture,
+    read_truth_fruit,
+    score_fruit,
+    visible_fruit,
+)
+
+IDENTITY = WorldFrame(np.eye(4)[:3], 1.0)
+FRUIT_D = 0.08
+"""A fruit's diameter in the hand-made point sets (metres)."""
+
+
+def _detections(centre, views: int, noise: float, rng: np.random.Generator, first_view: int = 0):
+    return [
+        LiftedDetection(first_view + v, np.asarray(centre) + rng.normal(0, noise, 3), FRUIT_D, 1.0, 20.0)
+        for v in range(views)
+    ]
+
+
+def test_two_fruit_a_fruit_width_apart_are_two() -> None:
+    rng = np.random.default_rng(0)
+    points = _detections([0, 0, 1], 10, 0.05 * FRUIT_D, rng) + _detections([FRUIT_D, 0, 1], 10, 0.05 * FRUIT_D, rng)
+    fruit = cluster_fruit(points)
+    assert len(fruit) == 2
+    assert sorted(f.views for f in fruit) == [10, 10]
+    assert sorted(round(float(f.centre[0]) / FRUIT_D) for f in fruit) == [0, 1]
+
+
+def test_one_fruit_seen_from_ten_views_is_one() -> None:
+    rng = np.random.default_rng(1)
+    points = _detections([1.0, 2.0, 0.5], 10, 0.1 * FRUIT_D, rng)
+    fruit = cluster_fruit(points)
+    assert len(fruit) == 1
+    assert fruit[0].views == 10 and fruit[0].detections == 10
+    assert np.linalg.norm(fruit[0].centre - [1.0, 2.0, 0.5]) < 0.1 * FRUIT_D
+    assert fruit[0].temperature == pytest.approx(20.0)
+    assert cluster_fruit(points, ClusterConfig(min_views=11)) == []
+    assert cluster_fruit(points[:1]) == []  # one view is not enough by default
+
+
+def _sphere_view(index: int, views: int = 10, width: int = 64, height: int = 48):
+    """A view of the tiny scene's unit sphere with its truth depth (along the unit ray) as the rendered depth."""
+    sphere = cast_sphere_view(index, views, width, height, 0.9 * width)
+    origins = np.broadcast_to(sphere.c2w[:3, 3], sphere.points.shape).copy()
+    depth = np.where(sphere.hit, np.linalg.norm(sphere.points - origins, axis=-1), 0.0)
+    view = RenderedView(
+        f"frame_{index:05d}", "train", f"images/frame_{index:05d}.png", np.zeros((height, width, 3)), depth,
+        sphere.hit.astype(np.float64), origins, sphere.dirs, 0.9 * width,
+    )  # fmt: skip
+    return view, sphere.hit
+
+
+def test_lift_from_depth_back_to_the_true_centre() -> None:
+    """Each view's sphere pixels lift to within 0.15 radius of the true centre (the cap-median model assumes a
+    far sphere; this one spans a third of the view), and the fused fruit to within 0.05 radius; diameter within 5%."""
+    lifted: List[LiftedDetection] = []
+    for i in range(10):
+        view, hit = _sphere_view(i)
+        point = lift_detection(view, hit, IDENTITY, i)
+        assert point is not None
+        assert np.linalg.norm(point.centre) < 0.15
+        assert point.diameter == pytest.approx(2.0, rel=0.05)
+        lifted.append(point)
+    fruit = cluster_fruit(lifted, ClusterConfig(min_views=10))
+    assert len(fruit) == 1 and np.linalg.norm(fruit[0].centre) < 0.05
+
+
+def test_lift_goes_through_the_dataparser_frame() -> None:
+    """The same sphere in a scaled, rotated, shifted Nerfstudio frame lifts to the same dataset-frame centre."""
+    angle = 0.3
+    rot = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    frame = WorldFrame(np.concatenate([rot, [[0.1], [-0.2], [0.3]]], axis=1), 0.25)
+    view, hit = _sphere_view(3)
+    view.origins = frame.to_ns(view.origins.reshape(-1, 3)).reshape(view.origins.shape)
+    view.directions = (view.directions.reshape(-1, 3) @ rot.T).reshape(view.directions.shape)
+    view.depth = view.depth * frame.scale
+    point = lift_detection(view, hit, frame)
+    reference = lift_detection(_sphere_view(3)[0], hit, IDENTITY)
+    assert point is not None and reference is not None
+    assert np.allclose(point.centre, reference.centre, atol=1e-5)
+    assert point.diameter == pytest.approx(reference.diameter, rel=1e-5)
+
+
+def _plane_view(thermal: np.ndarray, rgb: np.ndarray, depth: float, focal: float) -> RenderedView:
+    height, width = thermal.shape
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    dirs = np.stack([(u - width / 2) / focal, -(v - height / 2) / focal, -np.ones_like(u)], -1)
+    norm = np.linalg.norm(dirs, axis=-1, keepdims=True)
+    return RenderedView(
+        "000000", "train", "images/000000.png", rgb, depth * norm[..., 0], np.ones((height, width)),
+        np.zeros((height, width, 3)), dirs / norm, focal, thermal=thermal,
+    )  # fmt: skip
+
+
+def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
+    """A leaf-coloured, leaf-temperature plane at 1.5 m with 6 cm fruit (8 px at focal 200): three warm, one cool,
+    two red; and a large warm patch (a trunk-sized 40 cm blob) that is not fruit-sized."""
+    rng = np.random.default_rng(0)
+    height, width, focal = 96, 128, 200.0
+    thermal = 0.4 + rng.normal(0, 0.01, (height, width))
+    rgb = np.tile(np.array([0.10, 0.26, 0.06]), (height, width, 1)) + rng.normal(0, 0.01, (height, width, 3))
+    for x, y, delta in ((20, 20, 0.1), (60, 25, 0.12), (100, 20, 0.1), (30, 70, -0.1)):
+        cv2.circle(thermal, (x, y), 4, 0.4 + delta, -1)
+    for x, y in ((70, 70), (105, 75)):
+        cv2.circle(rgb, (x, y), 4, (0.7, 0.08, 0.05), -1)
+    cv2.rectangle(thermal, (60, 45), (110, 95), 0.6, -1)  # 40 cm wide at 1.5 m: not a fruit
+    view = _plane_view(thermal.astype(np.float32), np.clip(rgb, 0, 1).astype(np.float32), 1.5, focal)
+    both = detect_blobs(view, "thermal", 1.0, BlobConfig())
+    warm = detect_blobs(view, "thermal", 1.0, BlobConfig(polarity="warm"))
+    red = detect_blobs(view, "rgb", 1.0, BlobConfig())
+    assert (len(both), len(warm), len(red)) == (4, 3, 2)
+    frame_points = [lift_detection(view, d.mask, IDENTITY) for d in warm]
+    assert all(p is not None and p.diameter == pytest.approx(0.06, rel=0.3) for p in frame_points)
+
+
+def _truth(n: int = 4) -> TruthFruit:
+    centres = np.array([[0.2 * i, 0.0, 0.5] for i in range(n)])
+    return TruthFruit(centres, np.full(n, 0.06), np.arange(n))
+
+
+def test_scoring_is_one_on_the_truth_and_zero_in_empty_space() -> None:
+    truth = _truth()
+    perfect = score_fruit(truth.centres, truth, match_distance=0.05)
+    assert (perfect.precision, perfect.recall, perfect.f1, perfect.count_error) == (1.0, 1.0, 1.0, 0.0)
+    empty = score_fruit(truth.centres + [0.0, 5.0, 0.0], truth, match_distance=0.05)
+    assert (empty.precision, empty.recall, empty.f1) == (0.0, 0.0, 0.0)
+    assert empty.false_positives == 4 and empty.false_negatives == 4
+    # one-to-one: two counted fruit at one true fruit are one hit and one false positive
+    twice = score_fruit(np.array([[0.0, 0.0, 0.5], [0.01, 0.0, 0.5]]), truth, match_distance=0.05)
+    assert (twice.true_positives, twice.false_positives, twice.false_negatives) == (1, 1, 3)
+    # a fruit no training view shows is neither missed nor a false positive when counted
+    hidden = score_fruit(truth.centres, truth, np.array([True, True, True, False]), match_distance=0.05)
+    assert (hidden.visible, hidden.true_positives, hidden.false_positives, hidden.f1) == (3, 3, 0, 1.0)
+
+
+def _write_truth_capture(raw: Path, truth: TruthFruit) -> None:
+    (raw / "truth" / "fruit_ids").mkdir(parents=True)
+    fruits = [
+        {"id": int(i), "center": c.tolist(), "radii": [0.03] * 3}
+        for i, c in zip(truth.ids, truth.centres, strict=True)
+    ]
+    (raw / "truth" / "fruits.json").write_text(json.dumps(fruits))
+    ids = np.zeros((20, 20), np.uint16)
+    ids[0, :5] = 1  # fruit 0: 5 pixels
+    ids[1, :2] = 2  # fruit 1: 2 pixels, below the 3 a fruit needs to be visible
+    cv2.imwrite(str(raw / "truth" / "fruit_ids" / "000000.png"), ids)
+    ids = np.zeros((20, 20), np.uint16)
+    ids[5:8, 5:8] = 3  # fruit 2, in a frame that is not a training frame
+    cv2.imwrite(str(raw / "truth" / "fruit_ids" / "000001.png"), ids)
+
+
+def test_visible_fruit_and_the_alignment_to_the_capture(tmp_path: Path) -> None:
+    truth = _truth()
+    raw, data = tmp_path / "raw", tmp_path / "data"
+    _write_truth_capture(raw, truth)
+    assert read_truth_fruit(raw).centres.shape == (4, 3)
+    assert visible_fruit(raw, ["000000"], truth).tolist() == [True, False, False, False]
+    assert visible_fruit(raw, ["000000", "000001"], truth).tolist() == [True, False, True, False]
+    # a dataset whose frame is the capture's rotated by 90 degrees about z, halved and shifted
+    rng = np.random.default_rng(2)
+    times = np.arange(6) * 0.1
+    centres = rng.uniform(-1, 1, (6, 3))
+    lines = [f"{t:.6f} {x} {y} {z} 0 0 0 1\n" for t, (x, y, z) in zip(times, centres, strict=True)]
+    (raw / "truth" / "poses.txt").write_text("".join(lines))
+    rot = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    frames = []
+    for k, (t, c) in enumerate(zip(times, centres, strict=True)):
+        c2w = np.eye(4)
+        c2w[:3, 3] = 0.5 * rot @ c + [1.0, 2.0, 3.0]
+        frames.append({"file_path": f"images/{k:06d}.png", "timestamp": float(t), "transform_matrix": c2w.tolist()})
+    data.mkdir()
+    (data / "transforms.json").write_text(json.dumps({"frames": frames}))
+    align = align_to_capture(data, raw)
+    assert align.scale == pytest.approx(2.0) and align.residual_rms < 1e-9
+    assert np.allclose(align.apply(0.5 * centres @ rot.T + [1.0, 2.0, 3.0]), centres)
+
+
+def test_a_capture_without_truth_fruit_is_named(tmp_path: Path) -> None:
+    with pytest.raises(CountInputError, match=r"truth/fruits.json: missing"):
+        read_truth_fruit(tmp_path)
+    (tmp_path / "truth").mkdir()
+    (tmp_path / "truth" / "fruits.json").write_text("[]")
+    with pytest.raises(CountInputError, match=r"fruits.json: the scene has no true fruit"):
+        read_truth_fruit(tmp_path)
+
+
+def test_a_run_without_depth_and_an_empty_render_folder_are_named(tmp_path: Path, capsys) -> None:
+    with pytest.raises(CountInputError, match=r"run/config.yml: the run's model renders no 'depth' output"):
+        require_depth({"rgb": None, "accumulation": None}, Path("run/config.yml"))
+    empty = tmp_path / "renders"
+    empty.mkdir()
+    with pytest.raises(CountInputError, match=r"renders: empty render folder"):
+        load_renders(empty)
+    with pytest.raises(SystemExit) as stop:
+        main(CountArgs(out=tmp_path / "out", renders=empty))
+    assert stop.value.code == 2 and "empty render folder" in capsys.readouterr().out
+    # a render folder whose views lack depth
+    np.savez(empty / "train_000000.npz", rgb=np.zeros((2, 2, 3)))
+    (empty / "renders.json").write_text(json.dumps({
+        "dataparser_transform": np.eye(4)[:3].tolist(), "dataparser_scale": 1.0,
+        "views": [{"name": "000000", "split": "train", "file_path": "images/000000.png"}],
+    }))  # fmt: skip
+    with pytest.raises(CountInputError, match=r"train_000000.npz: no 'depth' array"):
+        load_renders(empty)
+    assert not (tmp_path / "out").exists()
+
+
+def test_count_a_trained_run(tiny_run_config: Path, tmp_path: Path) -> None:
+    """The tiny run's held-out view through the whole command: rays in the dataset's frame, files written, and a
+    second count from the saved renders."""
+    out = tmp_path / "count"
+    main(CountArgs(out=out, config=tiny_run_config, splits=("eval",), count=CountConfig(cluster=ClusterConfig(min_views=1))))
+    names = {p.name for p in out.iterdir()}
+    assert {"fruits.csv", "fruits.ply", "fruit_map.png", "count.json", "renders"} <= names
+    renders = load_renders(out / "renders")
+    (view,) = renders.views
+    assert renders.dataset is not None and renders.config == tiny_run_config
+    assert np.allclose(np.linalg.norm(view.directions, axis=-1), 1.0, atol=1e-5)
+    transforms = json.loads((renders.dataset / "transforms.json").read_text())
+    c2w = {f["file_path"]: np.asarray(f["transform_matrix"]) for f in transforms["frames"]}[view.file_path]
+    assert np.allclose(renders.frame.to_dataset(view.origins[0, :1])[0], c2w[:3, 3], atol=1e-4)
+    assert view.depth.shape == view.rgb.shape[:2] and view.thermal is not None
+
+    with open(out / "fruits.csv") as handle:
+        header = next(csv.reader(handle))
+    assert header[:4] == ["id", "x", "y", "z"] and "temperature_c" in header
+    report = json.loads((out / "count.json").read_text())
+    assert report["views"] == 1 and report["fruit"] == sum(1 for _ in open(out / "fruits.csv")) - 1
+    ply = (out / "fruits.ply").read_bytes()
+    assert ply.startswith(b"ply\nformat binary_little_endian 1.0\n") and b"element vertex" in ply
+    with pytest.raises(SystemExit):
+        main(CountArgs(out=out, renders=out / "renders"))  # exists: not replaced without --overwrite
+    again = main(CountArgs(out=tmp_path / "again", renders=out / "renders", count=CountConfig(cluster=ClusterConfig(min_views=1))))
+    assert len(again.fruit) == report["fruit"]  # the same views give the same count without rendering
