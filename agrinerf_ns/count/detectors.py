@@ -6,9 +6,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, List, Literal, Optional
+from typing import Annotated, Callable, List, Literal, Optional
 
 import numpy as np
+import tyro
 
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, detect_blobs
 from agrinerf_ns.count.render import RenderedView
@@ -31,7 +32,8 @@ class DetectorConfig:
     """YOLO weights (``.pt``), for ``--detector yolo``."""
     confidence: float = 0.25
     """YOLO: lowest box score kept."""
-    blobs: BlobConfig = field(default_factory=BlobConfig)
+    blobs: Annotated[BlobConfig, tyro.conf.arg(name="")] = field(default_factory=BlobConfig)
+    """Settings of ``--detector blobs``."""
 
 
 Detector = Callable[[RenderedView, float], List[Detection]]

@@ -6,9 +6,10 @@ import json
 import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Annotated, Any, Dict, List, Optional, Sequence
 
 import numpy as np
+import tyro
 from jaxtyping import Float
 from rich.console import Console
 from rich.progress import Progress
@@ -43,8 +44,8 @@ MAP_POINTS = 200_000
 class CountConfig:
     """How fruit are found, fused and scored."""
 
-    detect: DetectorConfig = field(default_factory=DetectorConfig)
-    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    detect: Annotated[DetectorConfig, tyro.conf.arg(name="")] = field(default_factory=DetectorConfig)
+    cluster: Annotated[ClusterConfig, tyro.conf.arg(name="")] = field(default_factory=ClusterConfig)
     match_distance: float = 0.05
     """Scoring: a counted fruit matches a true one within this 3D distance of its centre (capture units, metres)."""
     align: Align = "poses"
