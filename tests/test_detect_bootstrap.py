@@ -103,3 +103,37 @@ def test_interval_format() -> None:
     assert Interval(0.1734, 0.121, 0.2204).format() == "17.3 [12.1, 22.0]"
     assert Interval(0.05, -0.0001, 0.1).format(signed=True) == "+5.0 [+0.0, +10.0]"
     assert Interval(-0.05, -0.1, -0.01).significant() and not Interval(0.05, -0.01, 0.1).significant()
+
+
+def test_tables_print_intervals_and_paired_differences(tmp_path) -> None:
+    import csv
+
+    from agrinerf_ns.detect.merge import merge_evaluations
+    from agrinerf_ns.detect.scoring import score_detections
+    from agrinerf_ns.detect.tables import ResultRow, write_tables
+
+    frames = [f"{i:06d}" for i in range(40)]
+    good, poor = _images(40, 5, hit_rate=0.9), _images(40, 6, hit_rate=0.3)
+    rows = [
+        ResultRow("garden", "dark", label, score_detections(images), 9, MatchedImages.from_images(frames, images))
+        for label, images in (("Nerfacto (RGB)", poor), ("Ours (Cross-Spectral)", good))
+    ]
+    md, csv_path = write_tables(rows, tmp_path, "III", "table_iii")
+    text = md.read_text()
+    (ours50, _), (base50, _) = _maps(good).intervals(), _maps(poor).intervals()
+    assert f"| **{100 * ours50.value:.1f}** [{100 * ours50.low:.1f}, {100 * ours50.high:.1f}] |" in text
+    assert f"| {base50.format()} |" in text and "95% bootstrap intervals" in text
+    gap = _maps(good).minus(_maps(poor))[0]
+    assert f"- Ours (Cross-Spectral) - Nerfacto (RGB): mAP50 {gap.format(signed=True)}*" in text
+    table = list(csv.DictReader(csv_path.open()))
+    for row in table:
+        assert float(row["map50_low"]) <= float(row["map50"]) <= float(row["map50_high"])
+    # metrics.json keeps the matched detections: a merged table has the same intervals
+    results = [
+        {"scene": r.scene, "lighting": r.lighting, "method": r.method, "step": r.step, **r.metrics.as_dict(),
+         "images": r.matched.to_json()}
+        for r in rows
+    ]  # fmt: skip
+    (tmp_path / "metrics.json").write_text(json.dumps({"command": "x", "settings": {}, "results": results}))
+    merged, _ = merge_evaluations([tmp_path / "metrics.json"], tmp_path / "merged", "III", "y")
+    assert text.split("\n\nCommand")[0] in merged.read_text()

@@ -70,26 +70,41 @@ class MatchedImages:
     def average_precisions(
         self, counts: Real[np.ndarray, "resamples images"], interpolation: Interpolation = "coco101"
     ) -> Float[np.ndarray, "resamples thresholds"]:
-        """AP at every IoU threshold of each resample, given how often it draws each image (NaN: no true box)."""
+        """AP at every IoU threshold of each resample, given how often it draws each image (NaN: no true box).
+
+        Only the true positives are visited: recall rises only there, and a false positive's precision is at most
+        that of the true positive before it, so the monotone envelope at the true positives is the full curve's. The
+        true and false positives ranked up to each true positive are counted per image once, so a resample's counts
+        are one matrix product with its draws (integer-valued, hence exact in float64).
+        """
         counts = np.asarray(counts, np.float64).reshape(-1, len(self.frames))
         out = np.zeros((len(counts), len(IOU_THRESHOLDS)))
-        positive, negative = (self.outcome == 1).astype(np.float64), (self.outcome == 0).astype(np.float64)
-        for b, weights in enumerate(counts):
-            num_true = float(weights @ self.num_true)
-            if num_true == 0:
-                out[b] = np.nan
-                continue
-            if len(self.image) == 0:
-                continue
-            per_det = weights[self.image]
-            tp = np.cumsum(positive * per_det, axis=1)
-            fp = np.cumsum(negative * per_det, axis=1)
-            recall = tp / num_true
+        num_true = counts @ self.num_true
+        for t in range(len(IOU_THRESHOLDS)):
+            tp_before, fp_before = self._counts_at_true_positives(t)
+            tp, fp = tp_before @ counts.T, fp_before @ counts.T  # (true positives, resamples)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                recall = tp / num_true
             precision = tp / (tp + fp + np.spacing(1))
-            envelope = np.maximum.accumulate(precision[:, ::-1], axis=1)[:, ::-1]
-            for t in range(len(IOU_THRESHOLDS)):
-                out[b, t] = _interpolated(recall[t], envelope[t], interpolation)
+            envelope = np.maximum.accumulate(precision[::-1], axis=0)[::-1]
+            for b in range(len(counts)):
+                out[b, t] = _interpolated(recall[:, b], envelope[:, b], interpolation)
+        out[num_true == 0] = np.nan
         return out
+
+    def _counts_at_true_positives(
+        self, t: int
+    ) -> Tuple[Float[np.ndarray, "positives images"], Float[np.ndarray, "positives images"]]:
+        """Per true positive at threshold ``t`` (in rank order) and image: that image's true positives ranked up to
+        it (inclusive) and its false positives ranked before it."""
+        positives = np.flatnonzero(self.outcome[t] == 1)
+        tp_before = np.zeros((len(positives), len(self.frames)))
+        fp_before = np.zeros((len(positives), len(self.frames)))
+        for i in range(len(self.frames)):
+            mine = self.image == i
+            tp_before[:, i] = np.searchsorted(np.flatnonzero(mine & (self.outcome[t] == 1)), positives, side="right")
+            fp_before[:, i] = np.searchsorted(np.flatnonzero(mine & (self.outcome[t] == 0)), positives, side="left")
+        return tp_before, fp_before
 
     def to_json(self) -> List[Dict[str, Any]]:
         """Per image: frame, counted true boxes, detection scores (descending) and the outcomes at each threshold as a
@@ -121,6 +136,8 @@ def _interpolated(
     recall: Float[np.ndarray, " dets"], envelope: Float[np.ndarray, " dets"], interpolation: Interpolation
 ) -> float:
     """AP from a recall curve and its monotone precision envelope, as :func:`scoring.average_precision`."""
+    if len(recall) == 0:
+        return 0.0
     if interpolation == "coco101":
         idx = np.searchsorted(recall, RECALL_POINTS, side="left")
         return float(np.where(idx < len(envelope), envelope[np.minimum(idx, len(envelope) - 1)], 0.0).mean())
