@@ -14,7 +14,7 @@ undefined (no counted true box drawn) are left out.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Dict, List, Sequence, Tuple
+from typing import Any, Dict, FrozenSet, List, Sequence, Tuple
 
 import numpy as np
 from jaxtyping import Float, Int, Int8, Real
@@ -182,7 +182,7 @@ class Interval:
 class BootstrapMaps:
     """One row's mAP50 and mAP50-95 on all its images and on each resample."""
 
-    frames: frozenset
+    frames: FrozenSet[str]
     map50: float
     map50_95: float
     samples: Float[np.ndarray, "resamples 2"]
