@@ -10,10 +10,10 @@ import pytest
 from PIL import Image
 
 from agrinerf_ns.synth import SynthConfig, generate_capture
-from agrinerf_ns.synth.capture import event_times, make_scene
+from agrinerf_ns.synth.capture import event_times, make_scene, render_radiance
 from agrinerf_ns.synth.raycast import cast
 from agrinerf_ns.synth.rig import THERMAL_DELAY, frame_times
-from agrinerf_ns.synth.scene import FRUIT, LEAF, LIGHTING_PRESETS, SKY, material_of, radiance, rec709_luminance
+from agrinerf_ns.synth.scene import FRUIT, LEAF, LIGHTING_PRESETS, SKY, material_of, rec709_luminance
 from agrinerf_ns.synth.sensors import EventSimulator
 
 LIGHTINGS = ("bright", "shadowed", "dusk", "dark")
@@ -152,7 +152,7 @@ def test_events_where_image_changes_not_in_static_sky(event_capture: Path) -> No
     sky_rate = per_px[core.ravel()].mean() / duration
     scene_rate = per_px[never_sky].mean() / duration
     assert sky_rate < 3 * noise_hz + 0.5  # noise rate only
-    assert scene_rate > 50 * noise_hz  # the moving textured scene fires
+    assert scene_rate > 30 * noise_hz  # the moving textured scene fires (about 48x with area-integrating pixels)
 
 
 def test_event_polarity_follows_log_intensity_change(event_capture: Path) -> None:
@@ -164,9 +164,10 @@ def test_event_polarity_follows_log_intensity_change(event_capture: Path) -> Non
     agree = total = 0
     for k in range(2, len(times) - 1, 3):
         ta, tb = float(times[k]), float(times[k + 1])
-        la, lb = (
-            rec709_luminance(radiance(scene, cast(scene.prims, cam, rig.pose(tt, "event")), light)) for tt in (ta, tb)
-        )
+        la, lb = (  # what an event pixel integrates over its area
+            rec709_luminance(render_radiance(scene, cam, rig.pose(tt, "event"), light, EVENTS.event_supersample)[0]
+                             .reshape(-1, 3)) for tt in (ta, tb)
+        )  # fmt: skip
         dlog = np.log(lb + 1e-6) - np.log(la + 1e-6)
         m = (t > round(ta * 1e6)) & (t <= round(tb * 1e6))
         net = np.zeros(cam.width * cam.height)
@@ -178,20 +179,20 @@ def test_event_polarity_follows_log_intensity_change(event_capture: Path) -> Non
     assert agree / total > 0.95
 
 
-def _ideal_event_residual(config: SynthConfig) -> tuple:
-    """Mean squared residual and correlation of an ideal event camera's C (N_on - N_off) against the truth log change
-    at the same pixels over random windows of the path (the simulator alone, no dataset or model)."""
+def _event_residual(config: SynthConfig) -> tuple:
+    """Mean squared residual and correlation of the event camera's C (N_on - N_off) against the truth log change at
+    the same pixels over random windows of the path (the simulator alone, no dataset or model)."""
     from agrinerf_ns.synth.capture import EVENT_EPS, event_substeps, simulate_events
 
-    config = config.replace(event_refractory_us=0, event_noise_hz=0.0, event_threshold_sigma=0.0)
     scene, rig = make_scene(config)
     light, cam = LIGHTING_PRESETS[config.lighting], rig.cams["event"]
     substeps, _ = event_substeps(config, scene, rig)
     x, y, t, p = simulate_events(config, scene, rig, light, substeps)
     times = event_times(config, substeps)
 
-    def log_lum(tt: float) -> np.ndarray:
-        return np.log(rec709_luminance(radiance(scene, cast(scene.prims, cam, rig.pose(tt, "event")), light)) + EVENT_EPS)
+    def log_lum(tt: float) -> np.ndarray:  # what an event pixel integrates over its area
+        rad, _ = render_radiance(scene, cam, rig.pose(tt, "event"), light, config.event_supersample)
+        return np.log(rec709_luminance(rad.reshape(-1, 3)) + EVENT_EPS)
 
     rng = np.random.default_rng(1)
     sq, corr = [], []
@@ -211,9 +212,20 @@ def test_ideal_event_camera_counts_the_truth_log_change() -> None:
     """Sampled finely enough (``event_step_px``), an ideal event camera's counts times its threshold follow the truth
     log-intensity change over any window; six renders per frame interval at a tractor's speed (about 1 px of motion
     between renders) miss texture that crosses a pixel between two renders and fall far behind."""
-    cfg = SynthConfig(scene="orchard", lighting="dusk", views=4, heldout=1, width=64, height=48, speed=2.0)
-    fine_sq, fine_corr, substeps = _ideal_event_residual(cfg)
-    coarse_sq, coarse_corr, _ = _ideal_event_residual(cfg.replace(event_substeps=6))
+    cfg = SynthConfig(scene="orchard", lighting="dusk", views=4, heldout=1, width=64, height=48, speed=2.0,
+                      event_refractory_us=0, event_noise_hz=0.0, event_threshold_sigma=0.0, event_supersample=1)  # fmt: skip
+    fine_sq, fine_corr, substeps = _event_residual(cfg)
+    coarse_sq, coarse_corr, _ = _event_residual(cfg.replace(event_substeps=6))
     assert substeps > 6
     assert fine_corr > 0.97 and fine_sq < 0.08, (fine_corr, fine_sq)
     assert coarse_sq > 2 * fine_sq and coarse_corr < fine_corr, (coarse_sq, fine_sq)
+
+
+def test_event_pixels_integrate_over_their_area_so_the_refractory_period_keeps_the_counts() -> None:
+    """With the default 1 ms refractory period, point-sampled event pixels see an edge as a jump whose events all fall
+    inside one refractory period (most are lost); pixels that integrate over their area (``event_supersample``) see a
+    ramp and keep most of them."""
+    cfg = SynthConfig(scene="orchard", lighting="dusk", views=4, heldout=1, width=64, height=48, speed=2.0)
+    area_sq, area_corr, _ = _event_residual(cfg)
+    point_sq, point_corr, _ = _event_residual(cfg.replace(event_supersample=1))
+    assert area_corr > point_corr + 0.05 and area_sq < 0.7 * point_sq, (area_corr, point_corr, area_sq, point_sq)

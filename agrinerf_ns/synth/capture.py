@@ -123,8 +123,8 @@ def simulate_events(
                          config.event_refractory_us, EVENT_EPS, rng)
     times = event_times(config, substeps)
     for k, t in enumerate(times):
-        hits = cast(scene.prims, cam, rig.pose(float(t), "event"))
-        lum = rec709_luminance(radiance(scene, hits, light))
+        rad, _ = render_radiance(scene, cam, rig.pose(float(t), "event"), light, config.event_supersample)
+        lum = rec709_luminance(rad.reshape(-1, 3))
         if k == 0:
             sim.reset(lum, float(t))
         else:

@@ -55,6 +55,10 @@ class SynthConfig:
     """Largest image motion of the event camera between two of its renders (pixels, 95th percentile over its pixels).
     The simulator interpolates each pixel's log intensity linearly between renders, so a coarser step misses texture
     that crosses a pixel between two renders and under-reports the change (docs/synth.md, Events)."""
+    event_supersample: int = 3
+    """Rays per event pixel per axis, averaged in linear intensity. A real pixel integrates the light over its area, so
+    an edge crossing it ramps its log intensity over the crossing time and its events spread in time; a point-sampled
+    pixel jumps at once and the refractory period swallows most of the jump's events (docs/synth.md, Events)."""
     event_threshold: float = 0.2
     """Mean log-intensity contrast threshold of the event pixels."""
     event_threshold_sigma: float = 0.03
@@ -145,6 +149,8 @@ class SynthConfig:
             raise SynthConfigError(f"heldout must be >= 0, got {self.heldout}")
         if self.event_substeps is not None and self.event_substeps < 1:
             raise SynthConfigError(f"event_substeps must be >= 1 (or None), got {self.event_substeps}")
+        if self.event_supersample < 1:
+            raise SynthConfigError(f"event_supersample must be >= 1, got {self.event_supersample}")
         if not self.event_step_px > 0:
             raise SynthConfigError(f"event_step_px must be positive, got {self.event_step_px}")
         if not self.event_threshold > 0.01:
