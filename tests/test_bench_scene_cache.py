@@ -32,3 +32,16 @@ def test_scene_cache_follows_the_profile(tmp_path: Path) -> None:
     prepare_scene("orchard-dark", replace(tiny, views=7, plane_depth=1.5), 0, tmp_path)
     assert json.loads((raw / "truth" / "scene.json").read_text())["config"]["views"] == 7
     assert len(json.loads((data / "transforms.json").read_text())["frames"]) == 7 and _plane(data) == 1.5
+
+
+def test_a_capture_written_before_a_setting_existed_is_not_reused(tmp_path: Path) -> None:
+    """A cached capture whose scene.json lacks one of today's settings (an older synthesiser wrote it) is made anew:
+    the missing setting may change what is written (as event_supersample changed the events, not the RGB)."""
+    tiny = replace(PROFILES["tiny"], views=6)
+    raw, _ = prepare_scene("orchard-dark", tiny, 0, tmp_path)
+    scene_json = raw / "truth" / "scene.json"
+    written = json.loads(scene_json.read_text())
+    del written["config"]["event_supersample"]
+    scene_json.write_text(json.dumps(written))
+    prepare_scene("orchard-dark", tiny, 0, tmp_path)
+    assert "event_supersample" in json.loads(scene_json.read_text())["config"]

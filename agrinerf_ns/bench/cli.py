@@ -98,12 +98,14 @@ def _same_split(data: Path, eval_every: int) -> bool:
 
 
 def _same_capture(raw: Path, config: "SynthConfig") -> bool:
-    """Whether ``raw`` is a finished capture written with ``config`` (its ``truth/scene.json``)."""
+    """Whether ``raw`` is a finished capture written with ``config`` (its ``truth/scene.json``). A capture that lacks a
+    setting (written before the synthesiser had it) is not: the setting may change what is written."""
     scene_json = raw / "truth" / "scene.json"
     if not (raw / "calib.yaml").exists() or not scene_json.exists():
         return False
     written = json.loads(scene_json.read_text()).get("config", {})
-    return all(written.get(key) == value for key, value in asdict(config).items() if key in written)
+    wanted = json.loads(json.dumps(asdict(config)))  # tuples as the JSON lists they are written as
+    return all(key in written and written[key] == value for key, value in wanted.items())
 
 
 def run_method(
