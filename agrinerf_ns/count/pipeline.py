@@ -29,6 +29,7 @@ from agrinerf_ns.count.score import (
     dataset_frames,
     match_fruit,
     raw_stem,
+    read_split,
     read_truth_fruit,
     score_fruit,
     visible_fruit,
@@ -36,6 +37,8 @@ from agrinerf_ns.count.score import (
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
 
 CONSOLE = Console()
+FLAT_DEPTH = 0.02
+"""A relative depth spread (see :func:`depth_spread`) below which the count warns that the geometry is flat."""
 MAP_POINTS = 200_000
 """Rendered surface points drawn under the fruit map at most."""
 
@@ -67,6 +70,8 @@ class CountResult:
     truth: Optional[TruthFruit] = None
     visible: Optional[np.ndarray] = None
     """Which true fruit a training view shows."""
+    depth_spread: float = float("nan")
+    """:func:`depth_spread` of the renders."""
 
 
 def count_fruit(renders: RenderSet, config: CountConfig, progress: Optional[Progress] = None) -> CountResult:
@@ -93,12 +98,33 @@ def score_against_truth(renders: RenderSet, result: CountResult, raw: Path, conf
     truth = read_truth_fruit(raw)
     if renders.dataset is None:
         raise CountInputError(f"{raw}: the renders do not name their dataset folder, needed to score them")
-    frames = dataset_frames(renders.dataset)
-    train = [raw_stem(frames.get(v.file_path, {}), v.file_path) for v in renders.views if v.split == "train"]
+    train = training_frames(renders)
     result.truth, result.visible = truth, visible_fruit(raw, train, truth, config.min_visible_pixels)
     result.to_capture = align_to_capture(renders.dataset, raw) if config.align == "poses" else Similarity.identity()
     centres = np.stack([f.centre for f in result.fruit]) if result.fruit else np.zeros((0, 3))
     result.score = score_fruit(result.to_capture.apply(centres), truth, result.visible, config.match_distance)
+
+
+def training_frames(renders: RenderSet) -> List[str]:
+    """The raw capture's frame stems of the run's training views: the dataset's ``train_filenames`` where
+    ``transforms.json`` lists them, else the rendered training views."""
+    assert renders.dataset is not None
+    frames = dataset_frames(renders.dataset)
+    listed = read_split(renders.dataset, "train_filenames")
+    names = listed if listed else [v.file_path for v in renders.views if v.split == "train"]
+    return [raw_stem(frames.get(name, {}), name) for name in names]
+
+
+def depth_spread(renders: RenderSet) -> float:
+    """Median over views of the rendered depth's interquartile range relative to its median (about 0 when the run
+    put everything on one far shell, as an untrained or degenerate geometry does)."""
+    spreads = []
+    for view in renders.views:
+        d = view.depth[view.accumulation >= MIN_ACCUMULATION]
+        if d.size:
+            q1, q2, q3 = np.percentile(d, [25, 50, 75])
+            spreads.append((q3 - q1) / max(q2, 1e-9))
+    return float(np.median(spreads)) if spreads else 0.0
 
 
 def surface_points(renders: RenderSet, limit: int = MAP_POINTS) -> Float[np.ndarray, "n 3"]:
@@ -139,8 +165,16 @@ def run_count(
                 shutil.copytree(renders_dir, tmp / "renders")
         if not renders.views:
             raise CountInputError(f"{run_config or renders_dir}: no views to count fruit in")
+        spread = depth_spread(renders)
+        if spread < FLAT_DEPTH:
+            CONSOLE.print(
+                f"[yellow]Warning: the rendered depth is nearly flat (interquartile range {spread:.1%} of the median): "
+                "the run's geometry is a far shell, so detections cannot be placed in 3D",
+                soft_wrap=True,
+            )
         with Progress(console=CONSOLE, transient=True) as progress:
             result = count_fruit(renders, config, progress)
+        result.depth_spread = spread
         if truth is not None:
             score_against_truth(renders, result, Path(truth), config)
         _write_outputs(tmp, renders, result, config, truth, run_config or renders_dir)
@@ -180,6 +214,7 @@ def _write_outputs(
         "detector": asdict(config.detect) | {"weights": str(config.detect.weights) if config.detect.weights else None},
         "cluster": asdict(config.cluster),
         "merge_distance": result.merge_distance,
+        "depth_spread": result.depth_spread,
         "detections": len(result.detections),
         "detections_per_view": result.detections_per_view,
         "fruit": len(fruit),

@@ -152,13 +152,21 @@ def render_run(
                     outputs = run.pipeline.model.get_outputs_for_camera(camera)
                 view = _view_from_outputs(outputs, rays, camera, dataset, index, split, config_path)
                 if dataset_dir is not None:
-                    view.file_path = str(Path(dataset.image_filenames[index]).relative_to(dataset_dir.resolve()))
+                    view.file_path = _relative(Path(dataset.image_filenames[index]), dataset_dir)
                 views.append(view)
                 progress.advance(task)
     result = RenderSet(views, frame, dataset_dir, config_path, run.method)
     if out_dir is not None:
         save_renders(result, Path(out_dir))
     return result
+
+
+def _relative(image: Path, dataset_dir: Path) -> str:
+    """An image's path relative to the dataset folder (as ``transforms.json``'s ``file_path``), else its name."""
+    try:
+        return str(image.resolve().relative_to(dataset_dir.resolve()))
+    except ValueError:
+        return image.name
 
 
 def require_depth(outputs: Dict[str, Any], config_path: Path) -> None:

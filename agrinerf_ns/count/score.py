@@ -189,6 +189,15 @@ def read_frames(dataset: Path) -> List[dict]:
         raise CountInputError(f"{path}: cannot read the dataset's frames ({err!r})") from err
 
 
+def read_split(dataset: Path, key: str) -> List[str]:
+    """A split list of ``transforms.json`` (``train_filenames``, ...); empty when it has none."""
+    path = Path(dataset) / "transforms.json"
+    try:
+        return [str(name) for name in json.loads(path.read_text()).get(key, [])]
+    except (OSError, json.JSONDecodeError, AttributeError, TypeError) as err:
+        raise CountInputError(f"{path}: cannot read the dataset's {key} ({err!r})") from err
+
+
 def dataset_frames(dataset: Path) -> Dict[str, dict]:
     """``file_path`` -> frame of the dataset's ``transforms.json``."""
     return {str(f["file_path"]): f for f in read_frames(dataset)}
