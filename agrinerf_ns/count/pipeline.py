@@ -39,6 +39,8 @@ from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_p
 CONSOLE = Console()
 FLAT_DEPTH = 0.02
 """A relative depth spread (see :func:`depth_spread`) below which the count warns that the geometry is flat."""
+SCORE_DISTANCES = (0.05, 0.1, 0.15, 0.2)
+"""Match distances (capture units) of the F1 curve in count.json, beside the score at ``--match-distance``."""
 MAP_POINTS = 200_000
 """Rendered surface points drawn under the fruit map at most."""
 
@@ -223,6 +225,10 @@ def _write_outputs(
     if result.score is not None and result.to_capture is not None:
         report["truth"] = str(truth)
         report["score"] = result.score.as_dict()
+        capture_centres = result.to_capture.apply(centres)
+        report["f1_at_distance"] = {
+            f"{d:g}": score_fruit(capture_centres, result.truth, result.visible, d).f1 for d in SCORE_DISTANCES
+        } if result.truth is not None else {}  # fmt: skip
         report["alignment"] = {
             "mode": config.align,
             "scale": result.to_capture.scale,

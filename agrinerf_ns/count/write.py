@@ -91,7 +91,7 @@ def draw_map(
     to_capture: Optional[Similarity] = None,
     cameras: Optional[Float[np.ndarray, "k 3"]] = None,
 ) -> None:
-    """Top view (x right, y up) of the rendered surface's height with the counted fruit (discs at their diameter,
+    """Top view (x right, y up) of the rendered surface's mean height (grey, lighter is higher) with the counted fruit (discs at their diameter,
     coloured by temperature where known) and, when given, the true fruit (rings: visible ones green, the others
     grey); everything in the capture's frame when ``to_capture`` is given, else the dataset's."""
     import matplotlib
@@ -124,9 +124,8 @@ def draw_map(
                                      weights=g[:, 2])  # fmt: skip
         counts, _, _ = np.histogram2d(g[:, 0], g[:, 1], bins=bins, range=[[lo[0], hi[0]], [lo[1], hi[1]]])
         mean_z = np.where(counts > 0, top / np.maximum(counts, 1), np.nan)
-        image = ax.imshow(mean_z.T, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="gray",
-                          interpolation="nearest", alpha=0.8)  # fmt: skip
-        fig.colorbar(image, ax=ax, label="mean height of the rendered surface", fraction=0.025, pad=0.01)
+        ax.imshow(mean_z.T, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="gray",
+                  interpolation="nearest", alpha=0.8)  # fmt: skip
     if truth is not None:
         vis = np.ones(len(truth.ids), bool) if visible is None else visible
         for keep, colour, label in ((~vis, "0.6", "true fruit, not visible"), (vis, "limegreen", "true fruit, visible")):
