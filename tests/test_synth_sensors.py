@@ -213,7 +213,8 @@ def test_ideal_event_camera_counts_the_truth_log_change() -> None:
     log-intensity change over any window; six renders per frame interval at a tractor's speed (about 1 px of motion
     between renders) miss texture that crosses a pixel between two renders and fall far behind."""
     cfg = SynthConfig(scene="orchard", lighting="dusk", views=4, heldout=1, width=64, height=48, speed=2.0,
-                      event_refractory_us=0, event_noise_hz=0.0, event_threshold_sigma=0.0, event_supersample=1)  # fmt: skip
+                      event_refractory_us=0, event_noise_hz=0.0, event_threshold_sigma=0.0, event_supersample=1,
+                      event_step_px=0.1)  # fmt: skip
     fine_sq, fine_corr, substeps = _event_residual(cfg)
     coarse_sq, coarse_corr, _ = _event_residual(cfg.replace(event_substeps=6))
     assert substeps > 6
