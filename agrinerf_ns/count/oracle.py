@@ -24,7 +24,8 @@ from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, W
 from agrinerf_ns.count.score import read_frames, read_split
 
 
-def _undistort_maps(raw: Path, meta: dict) -> tuple:
+def undistort_maps(raw: Path, meta: dict) -> tuple:
+    """OpenCV remap tables from the raw RGB camera (``calib.yaml``, distorted) onto the dataset's pinhole camera."""
     calib = yaml.safe_load((raw / "calib.yaml").read_text())
     cam = next(c for c in calib.values() if isinstance(c, dict) and c.get("modality") == "rgb")
     fx, fy, cx, cy = cam["intrinsics"]
@@ -40,7 +41,7 @@ def oracle_renders(raw: Path, dataset: Path) -> RenderSet:
     meta = json.loads((dataset / "transforms.json").read_text())
     if not (raw / "truth" / "depth").is_dir():
         raise CountInputError(f"{raw / 'truth' / 'depth'}: missing; the oracle needs a synthetic capture's true depth")
-    map_x, map_y = _undistort_maps(raw, meta)
+    map_x, map_y = undistort_maps(raw, meta)
     width, height, fx, fy = int(meta["w"]), int(meta["h"]), float(meta["fl_x"]), float(meta["fl_y"])
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     cam_dirs = np.stack([(u - meta["cx"]) / fx, -(v - meta["cy"]) / fy, -np.ones_like(u)], -1)  # OpenGL camera

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, Iterable, List, Literal, Optional, Tuple
+from typing import Dict, Iterable, List, Literal, Optional, Tuple, Union
 
 import cv2
 import numpy as np
@@ -79,7 +79,7 @@ class CountScore:
     mean_match_error: float
     """Mean distance of the true positives to their fruit (NaN without any)."""
 
-    def as_dict(self) -> Dict[str, float]:
+    def as_dict(self) -> Dict[str, Union[int, float]]:
         return asdict(self)
 
 
@@ -209,30 +209,38 @@ def raw_stem(frame: dict, file_path: str) -> str:
 
 
 def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Similarity:
-    """The similarity from the dataset's frame to the capture's, fit on the camera centres (dataset frames'
-    ``timestamp`` matched to ``truth/poses.txt``); raises :class:`CountInputError` naming the file that lacks them."""
-    from agrinerf_ns.process.poses import umeyama
+    """The similarity from the dataset's frame to the capture's, fit on the cameras (dataset frames' ``timestamp``
+    matched to ``truth/poses.txt``): the rotation from the cameras' orientations (their mean relative rotation; camera
+    centres alone leave the rotation about a straight path undetermined), then scale and translation from the centres
+    by least squares. Raises :class:`CountInputError` naming the file that lacks the poses."""
     from agrinerf_ns.process.readers import RawInputError, read_tum
 
-    frames = read_frames(dataset)
     try:
         times, poses = read_tum(Path(raw) / TRUE_POSES)
     except RawInputError as err:
         raise CountInputError(str(err)) from err
-    src, dst = [], []
-    for frame in frames:
+    src, dst, relative = [], [], []
+    opengl_to_opencv = np.diag([1.0, -1.0, -1.0])
+    for frame in read_frames(dataset):
         if "timestamp" not in frame:
             continue
         k = int(np.argmin(np.abs(times - float(frame["timestamp"]))))
         if abs(times[k] - float(frame["timestamp"])) <= tolerance_s:
-            src.append(np.asarray(frame["transform_matrix"], np.float64)[:3, 3])
+            c2w = np.asarray(frame["transform_matrix"], np.float64)
+            src.append(c2w[:3, 3])
             dst.append(poses[k][:3, 3])
+            relative.append(poses[k][:3, :3] @ opengl_to_opencv @ c2w[:3, :3].T)
     if len(src) < 3:
         raise CountInputError(
             f"{Path(dataset) / 'transforms.json'}: {len(src)} frames have a timestamp matching "
             f"{Path(raw) / TRUE_POSES}; aligning the dataset to the capture needs 3 (or pass --align none)"
         )
-    s, rot, t = umeyama(np.stack(src), np.stack(dst))
-    fitted = s * np.stack(src) @ rot.T + t
-    rms = float(np.sqrt(np.mean(np.sum((fitted - np.stack(dst)) ** 2, axis=1))))
-    return Similarity(s, rot, t, rms)
+    u, _, vt = np.linalg.svd(np.mean(relative, axis=0))
+    rot = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    a, b = np.stack(src), np.stack(dst)
+    a0, b0 = a - a.mean(0), b - b.mean(0)
+    scale = float(np.sum(b0 * (a0 @ rot.T)) / max(float(np.sum(a0**2)), 1e-12))
+    t = b.mean(0) - scale * rot @ a.mean(0)
+    fitted = scale * a @ rot.T + t
+    rms = float(np.sqrt(np.mean(np.sum((fitted - b) ** 2, axis=1))))
+    return Similarity(scale, rot, t, rms)
