@@ -54,7 +54,7 @@ class CountConfig:
     match_distance: float = 0.05
     """Scoring: a counted fruit matches a true one within this 3D distance of its centre (capture units, metres)."""
     align: Align = "poses"
-    """Scoring: fit the dataset's frame to the capture's on the camera centres (``poses``) or take it as it is."""
+    """Scoring: fit the dataset's frame to the capture's on the cameras (``poses``) or take it as it is."""
     min_visible_pixels: int = 3
     """Scoring: a true fruit is visible when this many of its pixels show in a training view."""
 

@@ -6,9 +6,10 @@ the 3D distance) within ``match_distance``: a match to a visible fruit is a true
 match a false positive (a match to a fruit no training view shows is neither), a visible fruit with no match a false
 negative. The count error is (counted - visible) / visible.
 
-The fruit map is in the dataset's frame, the truth in the capture's: with ``align="poses"`` the dataset's camera
-centres are fit to the capture's true ones (``truth/poses.txt``, matched by timestamp) by a similarity (Umeyama), which
-removes the pose source's frame (SfM) and the odometry's mean drift, not its local error.
+The fruit map is in the dataset's frame, the truth in the capture's: with ``align="poses"`` the dataset's cameras are
+fit to the capture's true ones (``truth/poses.txt``, matched by timestamp) by a similarity (rotation from their
+orientations, scale and shift from their centres), which removes the pose source's frame (SfM) and the odometry's mean
+drift, not its local error.
 """
 
 from __future__ import annotations
