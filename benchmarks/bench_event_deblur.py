@@ -7,7 +7,7 @@ EvDeblurNeRF against Ours (RGB), and the ablation of the RGB module's parts).
 Every row is one ``ns-train agrinerf-lite`` run on the profile's scene (the same RGB TensoRF; the rows switch its
 parts on), evaluated on the held-out views against the sharp, exposure-aligned clean truth; each row is paired, view
 by view, with ``rgb`` (the RGB TensoRF alone). Writes ``OUT/results.csv`` (resumable) and ``OUT/deblur.md`` with the
-PSNR table and the step time of each row as a ratio to ``rgb``'s, both runs on this machine.
+PSNR table and the paper's Tables I/II (step times: ``benchmarks/bench_event_speed.py``).
 """
 
 from __future__ import annotations
@@ -120,21 +120,6 @@ def method(key: str) -> BenchMethod:
     return BenchMethod(label, "agrinerf-lite", "transforms.json", "rgb", train_args=options)
 
 
-def step_ratios(rows, keys) -> str:
-    """Steady-state s/step of each row as a ratio to ``rgb``'s on the same scene."""
-    last = results.final_rows(rows)
-    lines = ["| scene | row | s/step / RGB's |", "|---|---|---|"]
-    for scene in sorted({s for s, _ in last}):
-        base = results.as_float(last.get((scene, "rgb"), {}), "s_per_step")
-        for key in keys:
-            row = last.get((scene, key))
-            if row is None or key == "rgb":
-                continue
-            ratio = results.as_float(row, "s_per_step") / base
-            lines.append(f"| {scene} | {key} | {'-' if ratio != ratio else f'{ratio:.2f}'} |")
-    return "\n".join(lines) + "\n"
-
-
 def tables_i_ii(rows, scenes) -> str:
     """The paper's Tables I/II: PSNR / SSIM / LPIPS of each row's RGB render against the sharp clean truth (and of the
     thermal render against the rescaled thermal frames, for the thermal rows), at the last step."""
@@ -153,32 +138,6 @@ def tables_i_ii(rows, scenes) -> str:
             lines.append(f"| {scene} | {label} | {row['step']} | {cell(row, 'psnr_clean', 2)} | "
                          f"{cell(row, 'ssim_clean', 3)} | {cell(row, 'lpips', 3)} | {cell(row, 'thermal_psnr', 2)} |")  # fmt: skip
     return "\n".join(lines) + "\n"
-
-
-def trade_plot(rows, keys, labels: Dict[str, str], path: Path) -> None:
-    """PSNR against step time (as a ratio to the RGB TensoRF's), one point per row and scene."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    last = results.final_rows(rows)
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for scene in sorted({s for s, _ in last}):
-        base = results.as_float(last.get((scene, "rgb"), {}), "s_per_step")
-        for key in keys:
-            row = last.get((scene, key))
-            if row is None:
-                continue
-            x, y = results.as_float(row, "s_per_step") / base, results.as_float(row, "psnr_clean")
-            ax.scatter([x], [y])
-            ax.annotate(f"{scene}: {labels[key]}", (x, y), fontsize=7, xytext=(4, 2), textcoords="offset points")
-    ax.set_xlabel("seconds per step / RGB TensoRF's")
-    ax.set_ylabel("PSNR vs sharp clean truth (dB)")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def main(args: Args) -> None:
@@ -212,15 +171,14 @@ def main(args: Args) -> None:
         "TensoRF alone and its 95% t-interval (* where the interval excludes 0). Rows: "
         "`benchmarks/bench_event_deblur.py` ROWS.\n\n"
         + results.ablation_table(rows, keys, "rgb", labels)
-        + "\nStep time (steady state, the same machine, one run after the other, so under whatever else it ran: "
-        "`benchmarks/bench_event_speed.py` measures the parts side by side; `deblur.png` plots these):\n\n"
-        + step_ratios(rows, keys)
+        + "\nStep time and memory: not from these rows, which ran one after another under whatever else the machine "
+        "ran, but from `benchmarks/bench_event_speed.py`, which steps the parts in turn in one process "
+        "(results/event-speed: table and plot).\n"
         + "\nThe paper's Tables I/II (RGB rows against the sharp clean truth; LPIPS NaN where no AlexNet weights are "
         "available offline; Nerfacto (Thermal) is scored on the thermal frames only):\n\n"
         + tables_i_ii(rows, args.scenes)
     )
     (args.out / "deblur.md").write_text(text)
-    trade_plot(rows, keys, labels, args.out / "deblur.png")
     print(text)
 
 
