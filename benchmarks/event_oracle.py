@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-import numpy as np
 import torch
 import tyro
 
@@ -73,8 +72,8 @@ def truth_rows(
     import json
 
     from agrinerf_ns.synth import SynthConfig
-    from agrinerf_ns.synth.capture import EVENT_EPS, make_scene, render_radiance
-    from agrinerf_ns.synth.scene import LIGHTING_PRESETS, rec709_luminance
+    from agrinerf_ns.synth.capture import event_log_luminance, make_scene
+    from agrinerf_ns.synth.scene import LIGHTING_PRESETS
 
     written = json.loads((raw / "truth" / "scene.json").read_text())["config"]
     fields = {f.name for f in dataclasses.fields(SynthConfig)}
@@ -82,9 +81,8 @@ def truth_rows(
     scene, rig = make_scene(config)
     light, cam = LIGHTING_PRESETS[config.lighting], rig.cams["event"]
 
-    def log_lum(t_us: int) -> torch.Tensor:  # what the event pixel integrates over its area
-        rad, _ = render_radiance(scene, cam, rig.pose(t_us * 1e-6, "event"), light, config.event_supersample)
-        return torch.from_numpy(np.log(rec709_luminance(rad.reshape(-1, 3)) + EVENT_EPS))
+    def log_lum(t_us: int) -> torch.Tensor:
+        return torch.from_numpy(event_log_luminance(config, scene, rig, light, t_us * 1e-6))
 
     pixel = torch.arange(cam.width * cam.height)
     rows = []

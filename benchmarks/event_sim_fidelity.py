@@ -15,12 +15,14 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Tuple
+from typing import Tuple
 
-import numpy as np
 import tyro
 
 from agrinerf_ns.machine import device_name
+from agrinerf_ns.synth import SynthConfig
+from agrinerf_ns.synth.capture import event_substeps, make_scene
+from agrinerf_ns.synth.event_fidelity import EventFidelity, event_fidelity
 
 
 @dataclass
@@ -48,63 +50,25 @@ SETTINGS: Tuple[Tuple[str, int, int, bool], ...] = (
 """Row label, renders per frame interval, rays per pixel per axis, ideal sensor."""
 
 
-def fidelity(args: Args, substeps: int, supersample: int, ideal: bool) -> Tuple[float, float, float, float, int]:
-    """(squared residual, 'no change' squared target, correlation, least-squares gain of the target onto the truth
-    change, events) averaged over the windows."""
-    from agrinerf_ns.synth import SynthConfig
-    from agrinerf_ns.synth.capture import (
-        EVENT_EPS,
-        event_substeps,
-        event_times,
-        make_scene,
-        render_radiance,
-        simulate_events,
-    )
-    from agrinerf_ns.synth.scene import LIGHTING_PRESETS, rec709_luminance
-
+def fidelity(args: Args, substeps: int, supersample: int, ideal: bool) -> EventFidelity:
+    """One row's camera, simulated and scored (``agrinerf_ns.synth.event_fidelity``)."""
     config = SynthConfig(scene="orchard", lighting="dusk", views=args.views, width=128, height=96, speed=2.0,
                          seed=args.seed, event_substeps=substeps, event_supersample=supersample)  # fmt: skip
     if ideal:
         config = config.replace(event_refractory_us=0, event_noise_hz=0.0, event_threshold_sigma=0.0)
-    scene, rig = make_scene(config)
-    light, cam = LIGHTING_PRESETS[config.lighting], rig.cams["event"]
-    steps, _ = event_substeps(config, scene, rig)
-    x, y, t, p = simulate_events(config, scene, rig, light, steps)
-    times = event_times(config, steps)
-
-    def log_lum(tt: float) -> np.ndarray:
-        rad, _ = render_radiance(scene, cam, rig.pose(tt, "event"), light, supersample)
-        return np.log(rec709_luminance(rad.reshape(-1, 3)) + EVENT_EPS)
-
-    pixel = y.astype(np.int64) * cam.width + x
-    rng = np.random.default_rng(1)
-    stats: List[Tuple[float, float, float, float]] = []
-    for _ in range(args.windows):
-        a = float(rng.uniform(times[1], times[-2]))
-        b = min(a + float(rng.uniform(0.025, 0.1)), float(times[-1]))
-        m = (t >= round(a * 1e6)) & (t < round(b * 1e6))
-        target = config.event_threshold * np.bincount(pixel[m], np.where(p[m] > 0, 1.0, -1.0),
-                                                      minlength=cam.width * cam.height)  # fmt: skip
-        change = log_lum(b) - log_lum(a)
-        stats.append((float(np.mean((change - target) ** 2)), float(np.mean(target**2)),
-                      float(np.corrcoef(change, target)[0, 1]), float(change @ target / (change @ change))))  # fmt: skip
-    mean = np.mean(np.array(stats), axis=0)
-    return float(mean[0]), float(mean[1]), float(mean[2]), float(mean[3]), int(t.size)
+    return event_fidelity(config, windows=args.windows, min_window_s=0.025)
 
 
 def main(args: Args) -> None:
-    from agrinerf_ns.synth import SynthConfig
-    from agrinerf_ns.synth.capture import event_substeps, make_scene
-
     base = SynthConfig(scene="orchard", lighting="dusk", views=args.views, width=128, height=96, speed=2.0)
     scene, rig = make_scene(base)
     _, motion_per_render = event_substeps(base.replace(event_substeps=1), scene, rig)  # motion per frame interval
     lines = ["| simulation | image motion between renders (px) | squared residual | 'no change' | correlation | gain "
              "| events |", "|---|---|---|---|---|---|---|"]  # fmt: skip
     for label, substeps, supersample, ideal in SETTINGS:
-        sq, none, corr, gain, n = fidelity(args, substeps, supersample, ideal)
-        lines.append(f"| {label} | {motion_per_render / substeps:.2f} | {sq:.3f} | {none:.3f} | {corr:.3f} | "
-                     f"{gain:.2f} | {n} |")  # fmt: skip
+        f = fidelity(args, substeps, supersample, ideal)
+        lines.append(f"| {label} | {motion_per_render / substeps:.2f} | {f.squared_residual:.3f} | {f.no_change:.3f} | "
+                     f"{f.correlation:.3f} | {f.gain:.2f} | {f.events} |")  # fmt: skip
         print(lines[-1], flush=True)
     text = (
         "# The synthetic event camera against the truth\n\n"

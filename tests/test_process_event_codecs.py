@@ -323,4 +323,4 @@ def test_the_event_loss_counts_a_real_recording_like_brute_force(tmp_path: Path)
         lo, hi = np.searchsorted(key_pixel, [int(pixel[k]), int(pixel[k]) + 1])
         m = (key_t[lo:hi] >= int(t0[k])) & (key_t[lo:hi] < int(t1[k]))
         assert (int(on[k]), int(off[k])) == (int((key_p[lo:hi][m] == 1).sum()), int((key_p[lo:hi][m] == 0).sum()))
-    assert int(on.sum() + off.sum()) > 500  # the windows hold real events (943 here), not only empty ones
+    assert int(on.sum() + off.sum()) > 500  # the windows hold real events, not only empty ones

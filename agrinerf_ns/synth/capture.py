@@ -112,6 +112,20 @@ def event_times(config: SynthConfig, substeps: Optional[int] = None) -> Float[np
     return T0 - 0.5 / config.fps + np.arange(n + 1) / (config.fps * k)
 
 
+def event_luminance(config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, t: float) -> Float[np.ndarray, " n"]:
+    """Linear luminance at every event pixel (row-major) at time ``t``: the mean of its ``event_supersample``^2 rays,
+    as a real pixel integrates the light over its area. What the simulated event pixels respond to."""
+    rad, _ = render_radiance(scene, rig.cams["event"], rig.pose(t, "event"), light, config.event_supersample)
+    return rec709_luminance(rad.reshape(-1, 3))
+
+
+def event_log_luminance(
+    config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, t: float
+) -> Float[np.ndarray, " n"]:
+    """The truth log intensity of every event pixel at time ``t`` (the simulator's ``log(Y + EVENT_EPS)``)."""
+    return np.log(event_luminance(config, scene, rig, light, t) + EVENT_EPS)
+
+
 def simulate_events(
     config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, substeps: int, progress: Optional[object] = None
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -123,8 +137,7 @@ def simulate_events(
                          config.event_refractory_us, EVENT_EPS, rng)
     times = event_times(config, substeps)
     for k, t in enumerate(times):
-        rad, _ = render_radiance(scene, cam, rig.pose(float(t), "event"), light, config.event_supersample)
-        lum = rec709_luminance(rad.reshape(-1, 3))
+        lum = event_luminance(config, scene, rig, light, float(t))
         if k == 0:
             sim.reset(lum, float(t))
         else:

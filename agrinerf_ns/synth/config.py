@@ -54,8 +54,8 @@ class SynthConfig:
     event_step_px: float = 0.25
     """Largest image motion of the event camera between two of its renders (pixels, 95th percentile over its pixels).
     The simulator interpolates each pixel's log intensity linearly between renders, so a coarser step misses texture
-    that crosses a pixel between two renders and under-reports the change (docs/synth.md, Events). With
-    ``event_supersample`` 3, 0.1 changes the counts little against 0.25 and costs 2.5x the renders."""
+    that crosses a pixel between two renders and under-reports the change; with ``event_supersample`` pixels a finer
+    step changes little (docs/synth.md, Events; ``benchmarks/event_sim_fidelity.py``)."""
     event_supersample: int = 3
     """Rays per event pixel per axis, averaged in linear intensity. A real pixel integrates the light over its area, so
     an edge crossing it ramps its log intensity over the crossing time and its events spread in time; a point-sampled
