@@ -19,7 +19,7 @@ from typing import Any, Dict, FrozenSet, List, Sequence, Tuple
 import numpy as np
 from jaxtyping import Float, Int, Int8, Real
 
-from agrinerf_ns.detect.scoring import IOU_THRESHOLDS, RECALL_POINTS, ImageBoxes, Interpolation, match_outcomes
+from agrinerf_ns.detect.scoring import IOU_THRESHOLDS, ImageBoxes, Interpolation, interpolated_precision, match_outcomes
 
 BOOTSTRAP_RESAMPLES = 1000
 BOOTSTRAP_SEED = 0
@@ -88,7 +88,7 @@ class MatchedImages:
             precision = tp / (tp + fp + np.spacing(1))
             envelope = np.maximum.accumulate(precision[::-1], axis=0)[::-1]
             for b in range(len(counts)):
-                out[b, t] = _interpolated(recall[:, b], envelope[:, b], interpolation)
+                out[b, t] = interpolated_precision(recall[:, b], envelope[:, b], interpolation)
         out[num_true == 0] = np.nan
         return out
 
@@ -130,20 +130,6 @@ class MatchedImages:
             outcome = np.array([[code[c] for c in row] for row in r["outcomes"]], np.int8)
             per_image.append((np.asarray(r["scores"], np.float64), outcome.reshape(len(IOU_THRESHOLDS), -1)))
         return MatchedImages._build([r["frame"] for r in records], [r["num_true"] for r in records], per_image)
-
-
-def _interpolated(
-    recall: Float[np.ndarray, " dets"], envelope: Float[np.ndarray, " dets"], interpolation: Interpolation
-) -> float:
-    """AP from a recall curve and its monotone precision envelope, as :func:`scoring.average_precision`."""
-    if len(recall) == 0:
-        return 0.0
-    if interpolation == "coco101":
-        idx = np.searchsorted(recall, RECALL_POINTS, side="left")
-        return float(np.where(idx < len(envelope), envelope[np.minimum(idx, len(envelope) - 1)], 0.0).mean())
-    if interpolation == "all_point":
-        return float(np.sum(np.diff(np.concatenate([[0.0], recall])) * envelope))
-    raise ValueError(f"unknown interpolation {interpolation!r}: use 'coco101' or 'all_point'")
 
 
 def resample_counts(

@@ -153,14 +153,21 @@ def average_precision(
     fp = np.cumsum(~is_tp[order])
     recall = tp / num_true
     precision = tp / (tp + fp + np.spacing(1))
-    envelope = np.maximum.accumulate(precision[::-1])[::-1]
+    return interpolated_precision(recall, np.maximum.accumulate(precision[::-1])[::-1], interpolation)
+
+
+def interpolated_precision(
+    recall: Float[np.ndarray, " dets"], envelope: Float[np.ndarray, " dets"], interpolation: Interpolation
+) -> float:
+    """AP from a recall curve (detections in rank order) and its monotone precision envelope: COCO's 101 recall
+    points or the all-point area."""
+    if len(recall) == 0:
+        return 0.0
     if interpolation == "coco101":
         idx = np.searchsorted(recall, RECALL_POINTS, side="left")
-        sampled = np.where(idx < len(envelope), envelope[np.minimum(idx, len(envelope) - 1)], 0.0)
-        return float(sampled.mean())
+        return float(np.where(idx < len(envelope), envelope[np.minimum(idx, len(envelope) - 1)], 0.0).mean())
     if interpolation == "all_point":
-        recall_steps = np.diff(np.concatenate([[0.0], recall]))
-        return float(np.sum(recall_steps * envelope))
+        return float(np.sum(np.diff(np.concatenate([[0.0], recall])) * envelope))
     raise ValueError(f"unknown interpolation {interpolation!r}: use 'coco101' or 'all_point'")
 
 
