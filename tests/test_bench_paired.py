@@ -18,3 +18,31 @@ def test_paired_difference_with_one_view_has_no_interval_and_unequal_views_are_r
     assert mean == 2.0 and math.isnan(half)
     with pytest.raises(ValueError, match="differ in number"):
         results.paired_difference([1.0, 2.0], [1.0])
+
+
+def _row(scene: str, method: str, psnr: float, views: str = "") -> results.Row:
+    return {"scene": scene, "method": method, "step": "500", "psnr_clean": str(psnr), "psnr_clean_per_view": views}
+
+
+def test_run_spread_pools_replicates_by_hand_and_ignores_other_methods() -> None:
+    rows = [
+        _row("a", "rgb", 20.0), _row("a", "rep", 21.0), _row("a", "other", 5.0),
+        _row("b", "rgb", 18.0), _row("b", "rep", 18.0), _row("b", "rep2", 18.6),
+        _row("c", "rgb", 30.0),  # a group of one adds nothing
+    ]  # fmt: skip
+    sd, dof = results.run_spread(rows, ["rgb", "rep", "rep2"])
+    # scene a: squares 0.25 + 0.25, 1 dof; scene b: mean 18.2, squares 0.04 + 0.04 + 0.16, 2 dof
+    assert dof == 3
+    assert sd == pytest.approx(math.sqrt((0.5 + 0.24) / 3))
+    assert math.isnan(results.run_spread([_row("a", "rgb", 20.0)], ["rgb", "rep"])[0])
+
+
+def test_interval_with_run_spread_is_wider_and_can_unmark_a_difference() -> None:
+    views_base, views_mine = "20.0;20.1;19.9;20.0", "20.3;20.4;20.2;20.3"  # +0.3, tight across views
+    rows = [_row("a", "rgb", 20.0, views_base), _row("a", "new", 20.3, views_mine)]
+    tight = results.ablation_table(rows, ["rgb", "new"], "rgb", {})
+    assert "*" in tight
+    wide = results.ablation_table(rows, ["rgb", "new"], "rgb", {}, run_sd=(0.3, 20))
+    assert "*" not in wide
+    half = results.difference_interval(0.0, 0.3, 20)
+    assert half == pytest.approx(2.085963 * math.sqrt(2) * 0.3, rel=1e-5)  # t(0.975, 20 dof)

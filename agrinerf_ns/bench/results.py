@@ -177,9 +177,47 @@ def final_rows(rows: Sequence[Row]) -> Dict[Tuple[str, str], Row]:
     return last
 
 
-def ablation_table(rows: Sequence[Row], methods: Sequence[str], baseline: str, labels: Dict[str, str]) -> str:
+def run_spread(rows: Sequence[Row], replicates: Sequence[str]) -> Tuple[float, int]:
+    """Run-to-run standard deviation of the final ``psnr_clean`` and its degrees of freedom, pooled over scenes.
+
+    ``replicates`` are methods that train the same model with different random streams (in each scene, the runs of
+    those present form one group). Training on a CPU is not bit-reproducible, and a paired per-view interval covers
+    the held-out views, not this spread: two single runs differ by it even when nothing differs. NaN with no group of
+    two.
+    """
+    last = final_rows(rows)
+    sum_sq, dof = 0.0, 0
+    for scene in {scene for scene, _ in last}:
+        values = [as_float(last[(scene, m)], "psnr_clean") for m in replicates if (scene, m) in last]
+        values = [v for v in values if math.isfinite(v)]
+        if len(values) >= 2:
+            mean = sum(values) / len(values)
+            sum_sq += sum((v - mean) ** 2 for v in values)
+            dof += len(values) - 1
+    return (math.sqrt(sum_sq / dof), dof) if dof else (math.nan, 0)
+
+
+def difference_interval(view_half: float, run_sd: float, run_dof: int, confidence: float = 0.95) -> float:
+    """Half-width of the interval of a difference between two single runs: the paired per-view half-width and the
+    run-to-run part (two runs, each with standard deviation ``run_sd``), independent sources added in quadrature."""
+    from scipy import stats
+
+    if not (math.isfinite(run_sd) and run_dof > 0):
+        return view_half
+    run_half = float(stats.t.ppf(0.5 + confidence / 2, run_dof)) * math.sqrt(2.0) * run_sd
+    return math.hypot(view_half, run_half) if math.isfinite(view_half) else run_half
+
+
+def ablation_table(
+    rows: Sequence[Row],
+    methods: Sequence[str],
+    baseline: str,
+    labels: Dict[str, str],
+    run_sd: Tuple[float, int] = (math.nan, 0),
+) -> str:
     """Scenes down, methods across: each cell the final ``psnr_clean`` and, for the non-baseline methods, the paired
-    per-view difference to ``baseline`` with its 95% interval (a difference whose interval excludes 0 is marked *)."""
+    per-view difference to ``baseline`` with its 95% interval (a difference whose interval excludes 0 is marked *).
+    With ``run_sd`` (:func:`run_spread`) the interval also covers the run-to-run spread (:func:`difference_interval`)."""
     last = final_rows(rows)
     scenes = sorted({scene for scene, _ in last})
     header = "| scene | " + " | ".join(labels.get(m, m) for m in methods) + " |"
@@ -195,6 +233,7 @@ def ablation_table(rows: Sequence[Row], methods: Sequence[str], baseline: str, l
             cell = f"{as_float(row, 'psnr_clean'):.2f}"
             if method != baseline and base is not None and per_view(row) and per_view(base):
                 mean, half = paired_difference(per_view(row), per_view(base))
+                half = difference_interval(half, *run_sd)
                 mark = "*" if math.isfinite(half) and abs(mean) > half else ""
                 cell += f" ({mean:+.2f} ± {half:.2f}{mark})"
             cells.append(cell)
