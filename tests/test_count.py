@@ -12,11 +12,12 @@ import numpy as np
 import pytest
 from helpers.tiny_scene import cast_sphere_view
 
-from agrinerf_ns.count.blobs import BlobConfig, detect_blobs
+from agrinerf_ns.count.blobs import BlobConfig, detect_blobs, surround_sides
 from agrinerf_ns.count.cli import CountArgs, main
-from agrinerf_ns.count.cluster import ClusterConfig, cluster_fruit
+from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
+from agrinerf_ns.count.diagnose import diagnose
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
-from agrinerf_ns.count.oracle import oracle_renders, undistort_maps
+from agrinerf_ns.count.oracle import oracle_renders, reproject_thermal, undistort_maps
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import (
     CountInputError,
@@ -33,6 +34,8 @@ from agrinerf_ns.count.score import (
     score_fruit,
     visible_fruit,
 )
+from agrinerf_ns.count.support import keep_supported, views_showing
+from agrinerf_ns.process.readers import CameraCalib
 
 IDENTITY = WorldFrame(np.eye(4)[:3], 1.0)
 FRUIT_D = 0.08
@@ -165,8 +168,7 @@ def test_scoring_is_one_on_the_truth_and_zero_in_empty_space() -> None:
 def _write_truth_capture(raw: Path, truth: TruthFruit) -> None:
     (raw / "truth" / "fruit_ids").mkdir(parents=True)
     fruits = [
-        {"id": int(i), "center": c.tolist(), "radii": [0.03] * 3}
-        for i, c in zip(truth.ids, truth.centres, strict=True)
+        {"id": int(i), "center": c.tolist(), "radii": [0.03] * 3} for i, c in zip(truth.ids, truth.centres, strict=True)
     ]
     (raw / "truth" / "fruits.json").write_text(json.dumps(fruits))
     ids = np.zeros((20, 20), np.uint16)
@@ -239,7 +241,11 @@ def test_count_a_trained_run(tiny_run_config: Path, tmp_path: Path) -> None:
     """The tiny run's held-out view through the whole command: rays in the dataset's frame, files written, and a
     second count from the saved renders."""
     out = tmp_path / "count"
-    main(CountArgs(out=out, config=tiny_run_config, splits=("eval",), count=CountConfig(cluster=ClusterConfig(min_views=1))))
+    main(
+        CountArgs(
+            out=out, config=tiny_run_config, splits=("eval",), count=CountConfig(cluster=ClusterConfig(min_views=1))
+        )
+    )
     names = {p.name for p in out.iterdir()}
     assert {"fruits.csv", "fruits.ply", "fruit_map.png", "count.json", "renders"} <= names
     renders = load_renders(out / "renders")
@@ -260,7 +266,11 @@ def test_count_a_trained_run(tiny_run_config: Path, tmp_path: Path) -> None:
     assert ply.startswith(b"ply\nformat binary_little_endian 1.0\n") and b"element vertex" in ply
     with pytest.raises(SystemExit):
         main(CountArgs(out=out, renders=out / "renders"))  # exists: not replaced without --overwrite
-    again = main(CountArgs(out=tmp_path / "again", renders=out / "renders", count=CountConfig(cluster=ClusterConfig(min_views=1))))
+    again = main(
+        CountArgs(
+            out=tmp_path / "again", renders=out / "renders", count=CountConfig(cluster=ClusterConfig(min_views=1))
+        )
+    )
     assert len(again.fruit) == report["fruit"]  # the same views give the same count without rendering
 
 
@@ -308,3 +318,66 @@ def test_count_scores_against_the_synthetic_truth(tiny_capture: Tuple[Path, Path
     assert "| f1 |" in (tmp_path / "count" / "score.md").read_text()
     with open(tmp_path / "count" / "fruits.csv") as handle:
         assert next(csv.reader(handle))[-4:] == ["x_capture", "y_capture", "z_capture", "truth_id"]
+
+
+def test_surround_sides_tell_a_fruit_from_an_edge() -> None:
+    """A disc of contrast on a flat background stands out on all four sides; the same disc on the border of a
+    region as strong as itself stands out on two only, and the default blob detector drops such a blob."""
+    z = np.zeros((40, 40), np.float32)
+    disc = np.zeros((40, 40), np.uint8)
+    cv2.circle(disc, (20, 20), 3, 1, -1)
+    z[disc > 0] = 5.0
+    valid = np.ones_like(z, bool)
+    assert surround_sides(disc > 0, z, valid) == 4
+    z[:, :20] = 5.0
+    assert surround_sides(disc > 0, z, valid) == 2
+    assert surround_sides(disc > 0, z, valid & (np.arange(40) >= 20)[None, :]) == 2  # no ring on one side: fails
+
+
+def test_reprojected_thermal_follows_the_baseline() -> None:
+    """A thermal camera 10 cm to the right of the RGB camera, same intrinsics, sees a plane at 2 m shifted by
+    f x 0.1 / 2 = 4 pixels: the reprojection puts each thermal pixel back on its RGB pixel, NaN off its view."""
+    height, width, focal = 48, 64, 80.0
+    meta = {"cx": width / 2, "cy": height / 2, "fl_x": focal, "fl_y": focal}
+    k = np.array([[focal, 0, width / 2 - 0.5], [0, focal, height / 2 - 0.5], [0, 0, 1.0]])
+    to_thermal = np.eye(4)
+    to_thermal[0, 3] = -0.1
+    camera = CameraCalib("cam1", "thermal", k, np.zeros(4), width, height, to_thermal)
+    columns = np.tile(np.arange(width, dtype=np.float32), (height, 1))
+    thermal_frame = columns + 4.0  # thermal column c sees the RGB column c + 4
+    out = reproject_thermal(thermal_frame, np.full((height, width), 2.0, np.float32), meta, camera)
+    inside = np.isfinite(out)
+    assert inside[:, 4:].all() and not inside[:, :3].any()
+    np.testing.assert_allclose(out[inside], columns[inside], atol=1e-3)
+    assert np.isnan(reproject_thermal(thermal_frame, np.full((height, width), np.inf, np.float32), meta, camera)).all()
+
+
+def test_views_showing_and_the_support_rule() -> None:
+    """A wall 2 m in front of four identical cameras: a fruit 1 m in front shows in all four, one behind the wall
+    and one outside the field of view in none; a fruit seen by one of four views stays at fraction 0.25, not 0.3."""
+    height, width, focal = 48, 64, 80.0
+    wall = _plane_view(np.zeros((height, width), np.float32), np.zeros((height, width, 3), np.float32), 2.0, focal)
+    views = [wall] * 4
+    centres = np.array([[0.1, 0.0, -1.0], [0.0, 0.0, -3.0], [5.0, 0.0, -1.0]])
+    assert views_showing(centres, np.full(3, 0.06), views, IDENTITY).tolist() == [4, 0, 0]
+    fruit = [Fruit(centres[0], 0.06, views=1, detections=1, temperature=None, score=1.0)]
+    assert keep_supported(fruit, views, IDENTITY, 0.25) == fruit
+    assert keep_supported(fruit, views, IDENTITY, 0.3) == []
+    assert keep_supported(fruit, views, IDENTITY, 0.0) == fruit
+
+
+def test_reprojected_thermal_and_the_diagnosis_on_the_tiny_capture(tiny_capture: Tuple[Path, Path]) -> None:
+    """The raw thermal frames reprojected through the true depth agree with the true temperature (the thermal
+    camera's blur and noise aside), and the diagnosis accounts for every detection and the visible fruit."""
+    raw, data = tiny_capture
+    reprojected, true = oracle_renders(raw, data, "reprojected"), oracle_renders(raw, data, "true")
+    errors = []
+    for a, b in zip(reprojected.views, true.views, strict=True):
+        assert a.temperature is not None and b.temperature is not None
+        both = np.isfinite(a.temperature) & np.isfinite(b.temperature) & (a.accumulation > 0)
+        errors.append(np.abs(a.temperature[both] - b.temperature[both]))
+    assert np.median(np.concatenate(errors)) < 1.0
+    report = diagnose(true, raw, CountConfig())
+    assert report["detections"] == sum(report["2d"][k] for k in ("hits", "duplicates", "false_blobs"))
+    assert report["denominator"]["visible"] == report["score"]["visible"] > 0
+    assert report["2d"]["recall"] > 0.3 and report["lift_error_m"]["median"] < 0.03

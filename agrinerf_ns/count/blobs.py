@@ -49,6 +49,10 @@ class BlobConfig:
     """Largest ratio of a blob's principal axes (fruit are round; a canopy edge's halo is a strip)."""
     background_sigma: float = 0.05
     """Scale of the surroundings a fruit is compared with, as a fraction of the image's shorter side."""
+    min_surround_sides: int = 4
+    """Of the four sides (quadrants around its centre) of a ring around a blob, how many must be lower in contrast
+    than the blob's own pixels by half their median (an edge between two surfaces is lower on one side only;
+    0: no test)."""
     min_hue_deg: float = -20.0
     """``rgb``: fruit hues span ``min_hue_deg`` .. ``max_hue_deg`` (0 = red, 60 = yellow, 120 = green)."""
     max_hue_deg: float = 70.0
@@ -101,15 +105,15 @@ def contrast(
     return dog / max(spread, 1e-6)
 
 
-def detect_blobs(
-    view: RenderedView, source: str, scale: float, config: BlobConfig = BlobConfig()
-) -> List[Detection]:
+def detect_blobs(view: RenderedView, source: str, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
     """Fruit-sized blobs of ``source`` in ``view``; ``scale`` is the dataparser scale (Nerfstudio units per dataset
     unit), so that sizes are compared in the dataset's units."""
-    valid = (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0)
     feature = feature_image(view, source)
+    valid = (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(feature)
     z = contrast(feature, valid, config.background_sigma)
-    signs = [1.0] if source == "rgb" or config.polarity == "warm" else [-1.0] if config.polarity == "cool" else [1.0, -1.0]
+    signs = (
+        [1.0] if source == "rgb" or config.polarity == "warm" else [-1.0] if config.polarity == "cool" else [1.0, -1.0]
+    )
     detections: List[Detection] = []
     for sign in signs:
         above = (sign * z > config.threshold) & valid
@@ -120,11 +124,30 @@ def detect_blobs(
             mask = labels == label
             if elongation(mask) > config.max_elongation:
                 continue
+            if config.min_surround_sides and surround_sides(mask, sign * z, valid) < config.min_surround_sides:
+                continue
             diameter = blob_diameter(mask, view, scale)
             if diameter is None or not config.min_diameter <= diameter <= config.max_diameter:
                 continue
             detections.append(Detection(mask, float(np.max(sign * z[mask]))))
     return detections
+
+
+def surround_sides(mask: Bool[np.ndarray, "h w"], z: Float[np.ndarray, "h w"], valid: Bool[np.ndarray, "h w"]) -> int:
+    """Quadrants of the ring of valid pixels around ``mask`` (two pixels wide) whose median of ``z`` lies below half
+    the blob's median: a compact object stands out on all four sides, an edge or a strip's end on fewer."""
+    ys, xs = np.nonzero(mask)
+    cy, cx = ys.mean(), xs.mean()
+    grown = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))) > 0
+    ring = grown & ~mask & valid
+    level = 0.5 * float(np.median(z[mask]))
+    ry, rx = np.nonzero(ring)
+    sides = 0
+    for quadrant in ((ry < cy) & (rx < cx), (ry < cy) & (rx >= cx), (ry >= cy) & (rx < cx), (ry >= cy) & (rx >= cx)):
+        values = z[ry[quadrant], rx[quadrant]]
+        if values.size and float(np.median(values)) < level:
+            sides += 1
+    return sides
 
 
 def elongation(mask: Bool[np.ndarray, "h w"]) -> float:

@@ -4,7 +4,8 @@ Complete linkage joins two groups only when every pair of their detections is wi
 cluster never spans more than that distance and fruit do not chain together the way single-linkage or DBSCAN
 neighbourhoods can in a dense canopy. The default merge distance is ``merge_fraction`` x the median detected
 diameter: two fruit one fruit-width apart stay two, while one fruit's detections from many views (which scatter by
-much less than a diameter) become one. A cluster is a fruit when at least ``min_views`` distinct views saw it.
+much less than a diameter) become one. A cluster is a fruit when at least ``min_views`` distinct views saw it (and, in the pipeline, at least
+``min_view_fraction`` of the views that show its place).
 """
 
 from __future__ import annotations
@@ -29,6 +30,9 @@ class ClusterConfig:
     detected diameter."""
     merge_fraction: float = 0.8
     """The default merge distance as a fraction of the median detected diameter."""
+    min_view_fraction: float = 0.25
+    """Of the views that show a fruit's centre unoccluded (:mod:`agrinerf_ns.count.support`), the fraction that must
+    have detected it (0: no test)."""
 
 
 @dataclass(frozen=True)

@@ -3,9 +3,16 @@ them: ``python -m agrinerf_ns.count.oracle --raw RAW --data DATASET --out FOLDER
 ``agrinerf-count --renders FOLDER --truth RAW``.
 
 It measures the counting itself (detector, lift, fusion) apart from the reconstruction: ``rgb`` is the dataset's
-captured RGB frame (noise in the dark), ``thermal`` its rescaled thermal frame warped into the RGB camera, ``depth``
-the true z-depth (``truth/depth``, raw distorted pixels) undistorted onto the dataset's pinhole camera and turned into a
-distance along the unit ray, in the dataset's frame (identity dataparser transform, scale 1).
+captured RGB frame (noise in the dark), ``depth`` the true z-depth (``truth/depth``, raw distorted pixels) undistorted
+onto the dataset's pinhole camera and turned into a distance along the unit ray, in the dataset's frame (identity
+dataparser transform, scale 1). ``thermal`` (and ``temperature``, degrees C) is, by ``--thermal``:
+
+- ``reprojected`` (default): the raw thermal frame sampled where each pixel's true surface point falls in the
+  thermal camera (calibration ``T_cn_cnm1``, intrinsics, distortion, radiometric map): the captured thermal
+  information registered as a perfect cross-spectral field would register it, at the thermal camera's resolution;
+- ``captured``: the dataset's thermal frame (warped into the RGB camera at one plane depth, so misregistered off that
+  depth by the rig's baseline), NaN outside the thermal camera's view;
+- ``true``: the synthetic capture's true temperature in the RGB camera (``truth/temperature``), an upper bound.
 """
 
 from __future__ import annotations
@@ -13,15 +20,19 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List
+from typing import List, Literal, Optional, Tuple
 
 import cv2
 import numpy as np
 import tyro
 import yaml
+from jaxtyping import Float
 
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
 from agrinerf_ns.count.score import read_frames, read_split
+from agrinerf_ns.process.readers import CameraCalib, read_calibration
+
+ThermalMode = Literal["reprojected", "captured", "true"]
 
 
 def undistort_maps(raw: Path, meta: dict) -> tuple:
@@ -36,7 +47,58 @@ def undistort_maps(raw: Path, meta: dict) -> tuple:
     return cv2.initUndistortRectifyMap(k_raw, np.asarray(cam["distortion_coeffs"]), None, k_new, size, cv2.CV_32FC1)
 
 
-def oracle_renders(raw: Path, dataset: Path) -> RenderSet:
+def reproject_thermal(
+    counts: np.ndarray, z: Float[np.ndarray, "h w"], meta: dict, camera: CameraCalib
+) -> Float[np.ndarray, "h w"]:
+    """Temperature (degrees C; NaN off the thermal view or without depth) of the raw thermal frame ``counts`` at
+    each dataset pixel's surface point (``z``: z-depth on the dataset's pinhole camera)."""
+    height, width = z.shape
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    hit = np.isfinite(z) & (z > 0)
+    zz = np.where(hit, z, 1.0)
+    points = np.stack([(u - meta["cx"]) / meta["fl_x"] * zz, (v - meta["cy"]) / meta["fl_y"] * zz, zz], -1)
+    points = points.reshape(-1, 3) @ camera.T_cam_rgb[:3, :3].T + camera.T_cam_rgb[:3, 3]
+    pixels, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    pixels = pixels.reshape(height, width, 2).astype(np.float32)
+    sampled = cv2.remap(counts.astype(np.float32), pixels[..., 0], pixels[..., 1], cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)  # fmt: skip
+    rows, cols = counts.shape[:2]
+    on_view = (np.abs(pixels[..., 0] - (cols - 1) / 2) <= cols / 2) & (
+        np.abs(pixels[..., 1] - (rows - 1) / 2) <= rows / 2
+    )
+    celsius = camera.radiometric.celsius(sampled) if camera.radiometric is not None else sampled
+    in_front = points.reshape(height, width, 3)[..., 2] > 0
+    return np.where(hit & in_front & on_view, celsius, np.nan).astype(np.float32)
+
+
+def oracle_thermal(
+    raw: Path, dataset: Path, frame: dict, z: np.ndarray, meta: dict, maps: Tuple, mode: ThermalMode
+) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+    """(thermal, temperature) of one oracle view by ``mode`` (see the module docstring)."""
+    if mode == "true":
+        stem = Path(str(frame.get("raw_rgb", frame["file_path"]))).stem
+        t = np.load(raw / "truth" / "temperature" / f"{stem}.npy").astype(np.float32)
+        t = cv2.remap(t, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        return t, t
+    if mode == "captured":
+        if "thermal_file_path" not in frame:
+            return None, None
+        image = cv2.imread(str(dataset / frame["thermal_file_path"]), cv2.IMREAD_GRAYSCALE) / 255.0
+        if "thermal_mask_path" in frame:
+            mask = cv2.imread(str(dataset / frame["thermal_mask_path"]), cv2.IMREAD_GRAYSCALE)
+            image = np.where(mask > 0, image, np.nan)
+        return image.astype(np.float32), None
+    if "raw_thermal" not in frame:
+        return None, None
+    camera = read_calibration(raw / "calib.yaml").thermal
+    if camera is None:
+        raise CountInputError(f"{raw / 'calib.yaml'}: no thermal camera to reproject the thermal frames from")
+    counts = cv2.imread(str(raw / frame["raw_thermal"]), cv2.IMREAD_UNCHANGED)
+    t = reproject_thermal(counts, z, meta, camera)
+    return t, t
+
+
+def oracle_renders(raw: Path, dataset: Path, thermal_mode: ThermalMode = "reprojected") -> RenderSet:
     """Every frame of ``dataset`` (processed from the synthetic capture ``raw``) as a rendered view."""
     meta = json.loads((dataset / "transforms.json").read_text())
     if not (raw / "truth" / "depth").is_dir():
@@ -55,9 +117,7 @@ def oracle_renders(raw: Path, dataset: Path) -> RenderSet:
         hit = np.isfinite(z)
         c2w = np.asarray(frame["transform_matrix"], np.float64)
         rgb = cv2.imread(str(dataset / frame["file_path"]), cv2.IMREAD_COLOR)[..., ::-1] / 255.0
-        thermal = None
-        if "thermal_file_path" in frame:
-            thermal = cv2.imread(str(dataset / frame["thermal_file_path"]), cv2.IMREAD_GRAYSCALE) / 255.0
+        thermal, temperature = oracle_thermal(raw, dataset, frame, z, meta, (map_x, map_y), thermal_mode)
         views.append(
             RenderedView(
                 name=Path(frame["file_path"]).stem,
@@ -69,10 +129,12 @@ def oracle_renders(raw: Path, dataset: Path) -> RenderSet:
                 origins=np.broadcast_to(c2w[:3, 3], (height, width, 3)).astype(np.float32),
                 directions=((cam_dirs / norm[..., None]) @ c2w[:3, :3].T).astype(np.float32),
                 focal=(fx + fy) / 2,
-                thermal=None if thermal is None else thermal.astype(np.float32),
+                thermal=thermal,
+                temperature=temperature,
             )
         )
-    return RenderSet(views, WorldFrame(np.eye(4)[:3], 1.0), dataset, None, "oracle (captured frames, true depth)")
+    method = f"oracle (captured frames, true depth, {thermal_mode} thermal)"
+    return RenderSet(views, WorldFrame(np.eye(4)[:3], 1.0), dataset, None, method)
 
 
 @dataclass
@@ -85,11 +147,14 @@ class OracleArgs:
     """Its dataset (agrinerf-process)."""
     out: Path
     """Render folder to write."""
+    thermal: ThermalMode = "reprojected"
+    """The thermal output: the raw frame reprojected through the true depth, the dataset's plane-warped frame, or the
+    true temperature."""
 
 
 def entrypoint() -> None:
     args = tyro.cli(OracleArgs)
-    save_renders(oracle_renders(args.raw, args.data), args.out)
+    save_renders(oracle_renders(args.raw, args.data, args.thermal), args.out)
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ from agrinerf_ns.count.score import (
     score_fruit,
     visible_fruit,
 )
+from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
 
 CONSOLE = Console()
@@ -91,8 +92,14 @@ def count_fruit(renders: RenderSet, config: CountConfig, progress: Optional[Prog
                 lifted.append(point)
         if progress is not None and task is not None:
             progress.advance(task)
-    fruit = cluster_fruit(lifted, config.cluster)
+    fruit = fuse(lifted, renders, config.cluster)
     return CountResult(fruit, lifted, per_view, merge_distance(lifted, config.cluster))
+
+
+def fuse(lifted: Sequence[LiftedDetection], renders: RenderSet, config: ClusterConfig) -> List[Fruit]:
+    """Detections to fruit: clustered (:func:`cluster_fruit`), then kept where enough of the views that show them
+    detected them (:func:`keep_supported`)."""
+    return keep_supported(cluster_fruit(lifted, config), renders.views, renders.frame, config.min_view_fraction)
 
 
 def score_against_truth(renders: RenderSet, result: CountResult, raw: Path, config: CountConfig) -> None:

@@ -1,0 +1,177 @@
+"""Where a count loses fruit, measured against a synthetic capture's truth: ``python -m agrinerf_ns.count.diagnose
+--renders FOLDER --truth RAW [count options]`` prints (and with ``--out`` writes) a JSON report.
+
+- **2D detection**, per view: the true fruit ids (``truth/fruit_ids``, undistorted onto the dataset's camera) under
+  each detection's pixels. A detection is a hit when it covers a fruit no earlier detection of the view covered, a
+  duplicate when it covers only fruit already hit, a false blob when it covers no fruit pixel. Recall is over the
+  fruit showing at least ``min_visible_pixels`` in the view.
+- **Lift**: the 3D distance of each hit's lifted centre (capture frame) from its fruit's true centre.
+- **Fusion**: clusters holding hits on more than one true fruit (over-merged) and true fruit whose hits fall in more
+  than one cluster (over-split), before and after ``min_views``.
+- **Denominator**: the visible true fruit by the number of training views that show them, and how many of them any
+  view's detector hits in at least ``min_views`` views (the recall a perfect fusion could reach).
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Dict, List, Optional
+
+import cv2
+import numpy as np
+import tyro
+from jaxtyping import Int
+
+from agrinerf_ns.count.cluster import cluster_labels, merge_distance
+from agrinerf_ns.count.detectors import make_detector
+from agrinerf_ns.count.lift import lift_detection
+from agrinerf_ns.count.oracle import undistort_maps
+from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
+from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders
+from agrinerf_ns.count.score import (
+    FRUIT_IDS_DIR,
+    align_to_capture,
+    dataset_frames,
+    raw_stem,
+    read_truth_fruit,
+    score_fruit,
+    visible_fruit,
+)
+
+
+def view_fruit_ids(raw: Path, renders: RenderSet) -> List[Int[np.ndarray, "h w"]]:
+    """Per view, the true fruit id of each pixel (-1 none), undistorted onto the dataset's pinhole camera."""
+    assert renders.dataset is not None
+    meta = json.loads((renders.dataset / "transforms.json").read_text())
+    map_x, map_y = undistort_maps(raw, meta)
+    frames = dataset_frames(renders.dataset)
+    out = []
+    for view in renders.views:
+        path = raw / FRUIT_IDS_DIR / f"{raw_stem(frames.get(view.file_path, {}), view.file_path)}.png"
+        ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if ids is None:
+            raise CountInputError(f"{path}: missing or unreadable fruit mask")
+        ids = cv2.remap(ids, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        out.append(ids.astype(np.int64) - 1)
+    return out
+
+
+def diagnose(renders: RenderSet, raw: Path, config: CountConfig) -> Dict[str, Any]:
+    """The report described in the module docstring."""
+    truth = read_truth_fruit(raw)
+    index = {int(fid): i for i, fid in enumerate(truth.ids)}
+    assert renders.dataset is not None
+    to_capture = align_to_capture(renders.dataset, raw)
+    detector = make_detector(config.detect)
+    train_stems = set(training_frames(renders))
+    frames = dataset_frames(renders.dataset)
+    hits = misses = dups = false_blobs = shown = 0
+    lift_errors: List[float] = []
+    lifted, owners = [], []  # per lifted detection: the true fruit index it hit (-1: none or duplicate)
+    views_hitting: Dict[int, set] = defaultdict(set)
+    train_views_showing: Counter = Counter()
+    for v, (view, ids) in enumerate(zip(renders.views, view_fruit_ids(raw, renders), strict=True)):
+        values, counts = np.unique(ids[ids >= 0], return_counts=True)
+        in_view = {int(i) for i, c in zip(values, counts, strict=True) if c >= config.min_visible_pixels}
+        if raw_stem(frames.get(view.file_path, {}), view.file_path) in train_stems:
+            train_views_showing.update(index[i] for i in in_view if i in index)
+        found_here: set = set()
+        for det in detector(view, renders.frame.scale):
+            under = ids[det.mask]
+            under = under[under >= 0]
+            new = [int(i) for i in np.unique(under) if int(i) not in found_here]
+            owner = -1
+            if under.size == 0:
+                false_blobs += 1
+            elif not new:
+                dups += 1
+            else:
+                owner = max(new, key=lambda i: int((under == i).sum()))
+                found_here.add(owner)
+            point = lift_detection(view, det.mask, renders.frame, v, det.score)
+            if point is None:
+                continue
+            lifted.append(point)
+            owners.append(index.get(owner, -1) if owner >= 0 else -1)
+            if owner >= 0 and owner in index:
+                views_hitting[index[owner]].add(v)
+                centre = to_capture.apply(point.centre[None])[0]
+                lift_errors.append(float(np.linalg.norm(centre - truth.centres[index[owner]])))
+        hit_here = len(found_here & in_view)
+        hits += hit_here
+        shown += len(in_view)
+        misses += len(in_view) - hit_here
+    visible = visible_fruit(raw, list(train_stems), truth, config.min_visible_pixels)
+    seen_in = np.array([train_views_showing[i] for i in range(len(truth.ids))])
+    owners_arr = np.asarray(owners)
+    labels = cluster_labels(np.stack([d.centre for d in lifted]), merge_distance(lifted, config.cluster)) if lifted else np.zeros(0, int)  # fmt: skip
+    kept = {
+        int(lab) for lab in np.unique(labels)
+        if len({lifted[k].view for k in np.nonzero(labels == lab)[0]}) >= config.cluster.min_views
+    }  # fmt: skip
+    merged = sum(len(set(owners_arr[(labels == lab) & (owners_arr >= 0)])) > 1 for lab in kept)
+    split = sum(len(set(labels[owners_arr == i]) & kept) > 1 for i in range(len(truth.ids)))
+    fruit = fuse(lifted, renders, config.cluster)
+    centres = to_capture.apply(np.stack([f.centre for f in fruit])) if fruit else np.zeros((0, 3))
+    score = score_fruit(centres, truth, visible, config.match_distance)
+    hit_views = np.array([len(views_hitting.get(i, ())) for i in range(len(truth.ids))])
+    errors = np.asarray(lift_errors)
+    return {
+        "views": len(renders.views),
+        "detections": hits + dups + false_blobs,
+        "2d": {
+            "fruit_shown": shown,
+            "recall": hits / max(shown, 1),
+            "precision": hits / max(hits + dups + false_blobs, 1),
+            "hits": hits,
+            "duplicates": dups,
+            "false_blobs": false_blobs,
+        },
+        "lift_error_m": {
+            "median": float(np.median(errors)) if errors.size else None,
+            "p90": float(np.percentile(errors, 90)) if errors.size else None,
+            "within_match_distance": float(np.mean(errors <= config.match_distance)) if errors.size else None,
+        },
+        "fusion": {
+            "clusters_kept": len(kept),
+            "over_merged_clusters": int(merged),
+            "over_split_fruit": int(split),
+            "clusters_without_a_hit": int(sum(not (owners_arr[labels == lab] >= 0).any() for lab in kept)),
+        },
+        "denominator": {
+            "visible": int(visible.sum()),
+            "visible_in_1_training_view": int(((seen_in == 1) & visible).sum()),
+            "visible_in_2plus_training_views": int(((seen_in >= 2) & visible).sum()),
+            "visible_hit_in_min_views": int(((hit_views >= config.cluster.min_views) & visible).sum()),
+        },
+        "score": score.as_dict(),
+    }
+
+
+@dataclass
+class DiagnoseArgs:
+    """Measure where a count loses fruit, against a synthetic capture's truth."""
+
+    renders: Path
+    """A render folder (agrinerf-count OUT/renders, or python -m agrinerf_ns.count.oracle)."""
+    truth: Path
+    """The synthetic raw capture."""
+    out: Optional[Path] = None
+    """Write the report here (JSON) as well."""
+    count: Annotated[CountConfig, tyro.conf.arg(name="")] = field(default_factory=CountConfig)
+
+
+def entrypoint() -> None:
+    args = tyro.cli(DiagnoseArgs)
+    report = diagnose(load_renders(args.renders), args.truth, args.count)
+    text = json.dumps(report, indent=1)
+    print(text)
+    if args.out is not None:
+        args.out.write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    entrypoint()
