@@ -118,10 +118,11 @@ def report(rows, args: Args, profile, device: str) -> str:
     replicates = ["rgb"] + [method(r, s)[0] for r in REPLICATE_ROUTINGS for s in SETS]
     sd, dof = results.run_spread(rows, replicates)
     spread = (
-        f"Run-to-run spread: the RGB-only model's final PSNR varies with the random stream by a standard deviation of "
-        f"{sd:.2f} dB ({dof} degrees of freedom, pooled over the scenes from the RGB run and the `rgb-geometry` runs, "
-        "which receive exactly its gradient). Each interval below adds that spread for two single runs to the paired "
-        "per-view interval (in quadrature), so a * marks a difference beyond both.\n\n"
+        "Run-to-run spread: training is deterministic for one random stream, but the RGB-only model's final PSNR "
+        f"moves with the stream (the rays drawn) by a standard deviation of {sd:.2f} dB ({dof} degrees of freedom, "
+        "pooled over the scenes from the RGB run and the `rgb-geometry` runs, which receive exactly its gradient; "
+        "runs that drew the same stream count once). Each interval below adds that spread for two single runs to the "
+        "paired per-view interval (in quadrature), so a * marks a difference beyond both.\n\n"
         if dof
         else "No replicate runs: the intervals cover the held-out views only, not the run-to-run spread.\n\n"
     )

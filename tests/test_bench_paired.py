@@ -35,6 +35,9 @@ def test_run_spread_pools_replicates_by_hand_and_ignores_other_methods() -> None
     assert dof == 3
     assert sd == pytest.approx(math.sqrt((0.5 + 0.24) / 3))
     assert math.isnan(results.run_spread([_row("a", "rgb", 20.0)], ["rgb", "rep"])[0])
+    # a run with the very same per-view results drew the same random stream: it counts once
+    same = [_row("a", "rgb", 20.0, "19.0;21.0"), _row("a", "rep", 20.0, "19.0;21.0"), _row("a", "rep2", 21.0, "20;22")]
+    assert results.run_spread(same, ["rgb", "rep", "rep2"]) == (pytest.approx(math.sqrt(0.5)), 1)
 
 
 def test_interval_with_run_spread_is_wider_and_can_unmark_a_difference() -> None:

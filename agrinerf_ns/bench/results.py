@@ -180,15 +180,16 @@ def final_rows(rows: Sequence[Row]) -> Dict[Tuple[str, str], Row]:
 def run_spread(rows: Sequence[Row], replicates: Sequence[str]) -> Tuple[float, int]:
     """Run-to-run standard deviation of the final ``psnr_clean`` and its degrees of freedom, pooled over scenes.
 
-    ``replicates`` are methods that train the same model with different random streams (in each scene, the runs of
-    those present form one group). Training on a CPU is not bit-reproducible, and a paired per-view interval covers
-    the held-out views, not this spread: two single runs differ by it even when nothing differs. NaN with no group of
-    two.
+    ``replicates`` are methods that train the same model with other random streams (in each scene, the runs of those
+    present form one group; runs with the very same per-view results drew the same stream and count once). A paired
+    per-view interval covers the held-out views, not this spread: two runs that draw other random rays differ by it
+    even when nothing else differs. NaN with no group of two.
     """
     last = final_rows(rows)
     sum_sq, dof = 0.0, 0
     for scene in {scene for scene, _ in last}:
-        values = [as_float(last[(scene, m)], "psnr_clean") for m in replicates if (scene, m) in last]
+        runs = {tuple(per_view(last[(scene, m)])) or m: last[(scene, m)] for m in replicates if (scene, m) in last}
+        values = [as_float(row, "psnr_clean") for row in runs.values()]
         values = [v for v in values if math.isfinite(v)]
         if len(values) >= 2:
             mean = sum(values) / len(values)
