@@ -66,6 +66,34 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
         "+ noise-balanced event loss, learnt thresholds",
         (*EVENTS, *_events(256, 1.0), *NOISE, f"{MODEL}event-threshold-learnt", "True"),
     ),
+    "events-eps1e-6": (
+        "+ noise-balanced event loss, log offset 1e-6",
+        (*EVENTS, *_events(256, 1.0), *NOISE, f"{MODEL}event-log-eps", "1e-6"),
+    ),
+    "events-bound": (
+        "+ noise-balanced event loss, counts as lower bounds",
+        (*EVENTS, *_events(256, 1.0), *NOISE, f"{MODEL}event-loss-bound", "True"),
+    ),
+    "thermal-geometry": (
+        "All, the thermal-camera term moves the density",
+        (f"{MODEL}density-gradient-scales.thermal-camera-loss", "1.0"),
+    ),
+    "blur-thermal-geometry": (
+        "All + blur, the thermal-camera term moves the density",
+        (*_blur(3), f"{MODEL}density-gradient-scales.thermal-camera-loss", "1.0"),
+    ),
+    "dark-recipe": (
+        "All + blur + bounded events, the thermal-camera term moves the density",
+        (
+            *_blur(3),
+            *_events(256, 1.0),
+            *NOISE,
+            f"{MODEL}event-loss-bound",
+            "True",
+            f"{MODEL}density-gradient-scales.thermal-camera-loss",
+            "1.0",
+        ),
+    ),
     "agrinerf": ("Ours: All + blur + noise-balanced events", (*_blur(3), *_events(256, 1.0), *NOISE)),
     "rgb-long": ("RGB TensoRF, 4x the steps", RGB),
     "rgb-seed": ("RGB TensoRF, another seed", (*RGB, "--machine.seed", "43")),

@@ -11,6 +11,8 @@ the thermal and event frames (and their valid masks) and hands their paths to th
   (or the modality is not requested in ``modalities``).
 - ``"modalities"``: the tuple of modalities that are both present and requested, among ("rgb", "thermal", "events").
 - ``"agrinerf"``: the dataset's top-level ``agrinerf`` block (a dict; empty when the file has none).
+- ``"rgb_level"``: the split's mean RGB value as a fraction of full scale (:func:`rgb_level`): how much light the
+  RGB camera got, which decides the model's low-light routing (``low_light_level``).
 - ``"temperature_filenames"``: the frames' linear temperature images (``thermal_temperature_path``: 16-bit PNG in
   centikelvin, ``agrinerf_ns.temperature``) and ``"temperature_stats"`` (dict of floats ``mean_c``, ``std_c``,
   ``min_c``, ``max_c``, degrees C), only when the thermal frames are loaded and the dataset has temperatures (its
@@ -127,9 +129,32 @@ class AgriNeRFDataParser(Nerfstudio):
         )
         metadata["modalities"] = modalities
         metadata["agrinerf"] = dict(block)
+        metadata["rgb_level"] = rgb_level(outputs.image_filenames)
         metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs
+
+
+RGB_LEVEL_FRAMES = 8
+"""Frames (evenly spaced over the split) whose mean gives the split's RGB level."""
+
+
+def rgb_level(image_paths: List[Path]) -> float:
+    """Mean RGB value of the split's frames as a fraction of full scale (0: black, 1: white), from up to
+    RGB_LEVEL_FRAMES of them: how much light the RGB camera got (frames of a few DN carry mostly noise). NaN without
+    frames."""
+    import numpy as np
+    from PIL import Image
+
+    if not image_paths:
+        return float("nan")
+    picks = np.unique(np.linspace(0, len(image_paths) - 1, min(RGB_LEVEL_FRAMES, len(image_paths))).round().astype(int))
+    means = []
+    for k in picks:
+        with Image.open(image_paths[int(k)]) as image:
+            array = np.asarray(image.convert("RGB"))
+        means.append(float(array.mean()) / 255.0)
+    return float(np.mean(means))
 
 
 TEMPERATURE_KEY = "thermal_temperature_path"

@@ -227,3 +227,16 @@ def test_timing_without_exposures_or_timestamps(tmp_path: Path) -> None:
                                                                             "timestamp")])  # fmt: skip
     with pytest.raises(AgriNeRFDataError, match="'timestamp' is given in some frames only"):
         _outputs(root)
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.02])
+def test_rgb_level_is_the_mean_value_of_the_splits_frames(tmp_path: Path, scale: float) -> None:
+    root = write_tridata(tmp_path)
+    for path in sorted((root / "images").iterdir()):  # darken the frames, as a camera at night records them
+        array = np.asarray(Image.open(path).convert("RGB")).astype(np.float64) * scale
+        Image.fromarray(array.round().astype(np.uint8)).save(path)
+    outputs = _outputs(root)
+    means = [np.asarray(Image.open(p).convert("RGB")).mean() / 255.0 for p in outputs.image_filenames]
+    assert len(outputs.image_filenames) <= 8  # every frame is read: the level is their exact mean
+    assert outputs.metadata["rgb_level"] == pytest.approx(float(np.mean(means)), rel=1e-9)
+    assert (outputs.metadata["rgb_level"] < 0.04) is (scale < 0.1)

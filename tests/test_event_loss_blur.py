@@ -24,9 +24,9 @@ SMALL = {**SMALL_MODEL, "density_shift": 0.0, "event_threshold": C, "event_rays_
 
 
 # ----------------------------------------------------------------------------- the loss on hand-made cases
-def _loss(log_start: float, log_end: float, on: float, off: float, mask: float = 1.0) -> float:
+def _loss(log_start: float, log_end: float, on: float, off: float, mask: float = 1.0, bound: bool = False) -> float:
     t = lambda v: torch.tensor([[float(v)]])  # noqa: E731
-    return float(losses.event_loss(t(log_start), t(log_end), t(on), t(off), C, C, t(mask)))
+    return float(losses.event_loss(t(log_start), t(log_end), t(on), t(off), C, C, t(mask), lower_bound=bound))
 
 
 def test_a_log_step_of_two_thresholds_with_two_on_events_costs_nothing() -> None:
@@ -43,6 +43,27 @@ def test_a_static_pixel_without_events_costs_nothing_and_one_that_changed_withou
     assert _loss(-1.0, -1.0, on=0, off=0) == 0.0
     assert _loss(-1.0, -0.5, on=0, off=0) == pytest.approx(0.25)
     assert _loss(-1.0, -0.5, on=0, off=0, mask=0.0) == 0.0  # outside the event camera's view
+
+
+def test_a_count_as_lower_bound_forgives_only_a_larger_change_in_its_direction() -> None:
+    # 3 ON events, the pixel rose by 5 thresholds: the sensor dropped events; squared loss pulls it down, bound not
+    assert _loss(0.0, 5 * C, on=3, off=0) == pytest.approx((2 * C) ** 2, rel=1e-6)
+    assert _loss(0.0, 5 * C, on=3, off=0, bound=True) == 0.0
+    assert _loss(0.0, -5 * C, on=0, off=3, bound=True) == 0.0
+    # a smaller change, the other sign, or a change without events still cost what the squared loss charges
+    assert _loss(0.0, C, on=3, off=0, bound=True) == pytest.approx((2 * C) ** 2, rel=1e-6)
+    assert _loss(0.0, -C, on=3, off=0, bound=True) == pytest.approx((4 * C) ** 2, rel=1e-6)
+    assert _loss(-1.0, -0.5, on=0, off=0, bound=True) == pytest.approx(0.25)
+
+
+def test_the_bounded_event_loss_still_sends_a_gradient_where_the_change_falls_short() -> None:
+    start = torch.zeros(2, 1)
+    end = torch.tensor([[0.1], [1.0]], requires_grad=True)
+    on = torch.tensor([[2.0], [2.0]])
+    losses.event_loss(start, end, on, torch.zeros(2, 1), C, C, lower_bound=True).backward()
+    assert end.grad is not None
+    assert float(end.grad[0, 0]) < 0.0  # short of 2C: pushed up
+    assert float(end.grad[1, 0]) == 0.0  # beyond 2C in the ON direction: left alone
 
 
 def test_log_luminance_is_finite_at_black_and_exposure_invariant_in_differences() -> None:

@@ -22,11 +22,12 @@ from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES, AgriNeRFModel
 SMALL = {**SMALL_MODEL, "density_shift": 0.0}  # dense enough at initialisation that every ray has weight to route
 
 
-def _model(modalities=("rgb", "thermal", "events"), **kw) -> AgriNeRFModel:
+def _model(modalities=("rgb", "thermal", "events"), rgb_level: float = 0.4, **kw) -> AgriNeRFModel:
     torch.manual_seed(0)
     cfg = AgriNeRFModelConfig(modalities=modalities, **{**SMALL, **kw})
     box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
-    model = cfg.setup(scene_box=box, num_train_data=4, metadata={"modalities": ("rgb", "thermal", "events")})
+    metadata = {"modalities": ("rgb", "thermal", "events"), "rgb_level": rgb_level}
+    model = cfg.setup(scene_box=box, num_train_data=4, metadata=metadata)
     model.train()
     return model
 
@@ -82,6 +83,23 @@ def test_the_thermal_camera_term_can_carry_geometry_without_the_cross_spectral_t
                                                               "reg_rgb_loss": 0.0, "reg_event_loss": 0.0})))  # fmt: skip
     assert reached["thermal_camera_loss"] == {"density", "thermal_volume", "thermal_mlp"}
     assert all("density" not in reached[t] for t in ("thermal_loss", "reg_rgb_loss", "reg_event_loss"))
+
+
+@pytest.mark.parametrize("rgb_level, thermal_geometry", [(0.01, True), (0.039, True), (0.041, False), (0.4, False)])
+def test_low_light_routing_lets_the_thermal_camera_move_the_density_only_below_the_level(
+    rgb_level: float, thermal_geometry: bool
+) -> None:
+    reached = _reached(_norms(_model(rgb_level=rgb_level, low_light_level=0.04)))
+    assert ("density" in reached["thermal_camera_loss"]) is thermal_geometry
+    assert all("density" not in reached[t] for t in ("thermal_loss", "reg_rgb_loss", "reg_event_loss"))
+    assert "density" in reached["rgb_loss"]
+
+
+def test_low_light_routing_needs_thermal_frames_and_a_recorded_level() -> None:
+    reached = _reached(_norms(_model(rgb_level=float("nan"), low_light_level=0.04)))
+    assert "density" not in reached["thermal_camera_loss"]  # no level recorded: the configured routing
+    model = _model(modalities=("rgb", "events"), rgb_level=0.01, low_light_level=0.04)
+    assert not model.low_light  # no thermal frames: nothing to route
 
 
 def test_paper_routing_sends_every_term_into_the_density() -> None:

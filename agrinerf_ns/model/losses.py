@@ -58,15 +58,24 @@ def event_loss(
     c_on: Union[float, Float[Tensor, ""]],
     c_off: Union[float, Float[Tensor, ""]],
     mask: Optional[Float[Tensor, "*bs 1"]] = None,
+    lower_bound: bool = False,
 ) -> Float[Tensor, ""]:
     """EvDeblurNeRF-style event loss: mean (log L(t_end) - log L(t_start) - (C_on N_on - C_off N_off))^2.
 
     The rendered log luminance of one pixel at the two ends of a window, against the contrast thresholds times the ON
     and OFF event counts the pixel fired in it. Pixels without events count too (their target is no change); pixels
     outside the event camera's view are masked out.
+
+    ``lower_bound``: a pixel's count only bounds its change from below. A real pixel drops events (its refractory
+    period after each event, its bandwidth), never adds them beyond noise, so a change larger than C N in the counted
+    direction is not penalised; a smaller one, one of the other sign and any change where no event fired are.
     """
     target = c_on * on_counts.float() - c_off * off_counts.float()
-    return masked_mse(log_end.float() - log_start.float(), target, mask)
+    pred = log_end.float() - log_start.float()
+    if lower_bound:
+        beyond = (target != 0) & (torch.sign(pred - target) == torch.sign(target))
+        pred = torch.where(beyond, target, pred)
+    return masked_mse(pred, target, mask)
 
 
 def masked_mse(

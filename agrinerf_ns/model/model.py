@@ -24,6 +24,7 @@ from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRen
 from nerfstudio.model_components.scene_colliders import AABBBoxCollider, NearFarCollider
 from nerfstudio.models.base_model import Model, ModelConfig
 from nerfstudio.utils import colormaps
+from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 from torch.nn import Parameter
 
@@ -114,6 +115,11 @@ class AgriNeRFModelConfig(ModelConfig):
     on it, since the thermal routes into the density lowered the RGB reconstruction in most scenes measured
     (docs/model.md, Loss routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
     counts as 1."""
+    low_light_level: float = 0.0
+    """Low-light routing: where the training RGB frames' mean value is below this fraction of full scale (dataparser
+    metadata `rgb_level`; 0.04 is about 10 DN of 255), the thermal-camera term moves the density at full strength,
+    whatever `density_gradient_scales` says of it: frames of a few DN are mostly noise and give the density little,
+    while the thermal frames see the scene at any light (docs/model.md, Loss routing). 0: never."""
     temperature_output: bool = True
     """A `temperature` output in degrees C, where the dataset has temperature images (its thermal camera has a
     radiometric calibration): a small head on the thermal appearance (`temperature_head.*`, none without them), trained
@@ -190,6 +196,10 @@ class AgriNeRFModelConfig(ModelConfig):
     Where the sensor under-reports large changes (refractory period, bandwidth), fixed thresholds pull the
     reconstruction towards less contrast; learnt ones follow the contrast the frames give, and the events then say
     where and when the log luminance changes (E-NeRF and Robust e-NeRF treat unknown thresholds this way)."""
+    event_loss_bound: bool = False
+    """Read each event count as a lower bound on the change in its direction (`losses.event_loss`, `lower_bound`):
+    the sensor drops events at large, fast changes (refractory period), so a squared loss on the count pulls strong
+    edges towards less contrast."""
     event_loss_weighting: Literal["fixed", "noise"] = "fixed"
     """fixed: the event term weighs loss_coefficients["event_loss"] (EvDeblurNeRF's 0.1). noise: that coefficient times
     (event pixels / RGB rays) x (running mean RGB loss / running mean event loss), the maximum-likelihood balance of
@@ -223,6 +233,14 @@ class AgriNeRFModel(Model):
         self.use_events = "events" in self.modalities
         self.has_thermal_head = self.use_thermal or (self.use_events and config.cross_spectral_output)
         self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
+        rgb_level = float(metadata.get("rgb_level", float("nan")))
+        # NaN (no level recorded) compares False: no low-light routing
+        self.low_light = self.has_thermal_camera and rgb_level < config.low_light_level
+        if self.low_light:
+            CONSOLE.print(
+                f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
+                f"{config.low_light_level}), so the thermal-camera term shapes the geometry too."
+            )
         # dataset temperatures in degrees C (mean_c, std_c, min_c, max_c): only with a radiometric calibration
         self.temperature_stats: Optional[Dict[str, float]] = metadata.get("temperature_stats")
         self.has_temperature = self.use_thermal and config.temperature_output and self.temperature_stats is not None
@@ -586,8 +604,10 @@ class AgriNeRFModel(Model):
         return (weights * values).sum(dim=-2) + self._background(values) * (1.0 - accumulation)
 
     def density_gradient_scale(self, term: str) -> float:
-        """The configured scale of `term`'s gradient into the density (1 when not configured)."""
-        return float(self.config.density_gradient_scales.get(term, 1.0))
+        """The scale of `term`'s gradient into the density: the configured one (1 when not configured), and full
+        strength for the thermal-camera term in low light (`low_light_level`)."""
+        scale = float(self.config.density_gradient_scales.get(term, 1.0))
+        return max(scale, 1.0) if term == "thermal_camera_loss" and self.low_light else scale
 
     def _routed_outputs(self, weights: Float[Tensor, "rays samples 1"], dense: Dict[str, Tensor]) -> Dict[str, Tensor]:
         """Training only: for each data term whose density gradient scale is not 1, its output composited with weights
@@ -632,6 +652,7 @@ class AgriNeRFModel(Model):
                 outputs["event_on"],
                 outputs["event_off"],
                 *self._event_thresholds(),
+                lower_bound=self.config.event_loss_bound,
             )
         elif "event_log_start" in outputs and "event_on" in batch:
             m = outputs["event_log_start"].shape[0]
@@ -643,6 +664,7 @@ class AgriNeRFModel(Model):
                 batch["event_off"][:m].to(self.device),
                 *self._event_thresholds(),
                 None if mask is None else mask[:m],
+                lower_bound=self.config.event_loss_bound,
             )
         if not self.has_thermal_head:
             return terms
