@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Tuple
+from typing import Dict, List, Tuple
 
 import tyro
 
@@ -21,8 +21,10 @@ from agrinerf_ns.bench import results
 from agrinerf_ns.bench.cli import prepare_scene, run_method
 from agrinerf_ns.bench.methods import BenchMethod
 from agrinerf_ns.bench.profiles import PROFILES
+from agrinerf_ns.dataparsers.agrinerf_dataparser import rgb_level
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
+from agrinerf_ns.model.model import AgriNeRFModelConfig
 
 SCALES = "--pipeline.model.density-gradient-scales."
 
@@ -42,11 +44,13 @@ ROUTINGS: Dict[str, Tuple[str, ...]] = {
     "camera": _scales(0.0, 0.0, 1.0),
     "camera-0.3": _scales(0.0, 0.0, 0.3),
     "camera+reg": _scales(0.0, 1.0, 1.0),
+    "default": (),
 }
 """Routing name -> ``ns-train`` options. paper: every term moves the density (the loss as written, one thermal
-output). detach-reg: L_reg trains the thermal appearance only. rgb-geometry: only L_rgb moves the density. camera: the
-thermal-camera channel carries the thermal geometry, the cross-spectral terms none (the default). camera-0.3: the same
-at 0.3 strength. camera+reg: the camera channel and L_reg move the density."""
+output). detach-reg: L_reg trains the thermal appearance only. rgb-geometry: only L_rgb moves the density, in any
+light. camera: the thermal-camera channel carries the thermal geometry, the cross-spectral terms none. camera-0.3: the
+same at 0.3 strength. camera+reg: the camera channel and L_reg move the density. default: the model's defaults
+(rgb-geometry's routing, and camera's where the RGB frames are dark: ``low_light_level``)."""
 
 SETS: Dict[str, str] = {"rgb-events": "RGB+Events", "rgb-thermal": "RGB+Thermal", "all": "All"}
 
@@ -138,13 +142,45 @@ def report(rows, args: Args, profile, device: str) -> str:
     for routing in args.routings:
         keys = ["rgb"] + [method(routing, s)[0] for s in args.sets]
         labels = {"rgb": "RGB", **{method(routing, s)[0]: SETS[s] for s in args.sets}}
-        text += f"Routing `{routing}`:\n\n" + results.ablation_table(rows, keys, "rgb", labels, (sd, dof)) + "\n"
+        table_rows, note = rows, ""
+        if routing == "default":
+            table_rows, borrowed = default_rows(rows, args.out / "scenes")
+            if borrowed:
+                note = f"Scenes {', '.join(borrowed)}: frames above the low-light level. "
+            note += (
+                "Where the frames are above it, and in RGB+Events (no thermal frames) everywhere, the default routes "
+                "as `rgb-geometry` (the same RGB gradient), and the cells are the `rgb-geometry` runs.\n"
+            )
+        table = results.ablation_table(table_rows, keys, "rgb", labels, (sd, dof))
+        text += f"Routing `{routing}`:\n\n" + table + ("\n" + note if note else "") + "\n"
     keys = [method(r, s)[0] for s in args.sets for r in args.routings]
     return (
         text
         + "Thermal-camera and cross-spectral thermal PSNR (against the rescaled thermal frames):\n\n"
         + thermal_table(rows, keys)
     )
+
+
+def default_rows(rows, scenes: Path) -> Tuple[list, List[str]]:
+    """The rows with `default` runs borrowed from `rgb-geometry` in the scenes that have none and whose training
+    frames (``scenes/<scene>/data/images``) are above the model's low-light level: there the low-light rule does not
+    fire and both routings send the density only L_rgb's gradient. Returns the rows and the scenes borrowed for."""
+    level = AgriNeRFModelConfig().low_light_level
+    have = {r["scene"] for r in rows if r["method"].startswith("default:")}
+    bright = set()
+    for scene in {r["scene"] for r in rows} - have:
+        images = sorted((scenes / scene / "data" / "images").glob("*.png"))
+        if images and rgb_level(images) >= level:
+            bright.add(scene)
+    have_runs = {(r["scene"], r["method"]) for r in rows}
+    extra = []
+    for r in rows:
+        routing, _, modality_set = r["method"].partition(":")
+        no_thermal = "thermal" not in TABLE_IV_ABLATIONS[SETS.get(modality_set, "All")]
+        if routing == "rgb-geometry" and (r["scene"] in bright or no_thermal):
+            if (r["scene"], f"default:{modality_set}") not in have_runs:
+                extra.append({**r, "method": f"default:{modality_set}"})
+    return list(rows) + extra, sorted(bright)
 
 
 def thermal_table(rows, keys) -> str:

@@ -115,11 +115,12 @@ class AgriNeRFModelConfig(ModelConfig):
     on it, since the thermal routes into the density lowered the RGB reconstruction in most scenes measured
     (docs/model.md, Loss routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
     counts as 1."""
-    low_light_level: float = 0.0
+    low_light_level: float = 0.04
     """Low-light routing: where the training RGB frames' mean value is below this fraction of full scale (dataparser
     metadata `rgb_level`; 0.04 is about 10 DN of 255), the thermal-camera term moves the density at full strength,
     whatever `density_gradient_scales` says of it: frames of a few DN are mostly noise and give the density little,
-    while the thermal frames see the scene at any light (docs/model.md, Loss routing). 0: never."""
+    while the thermal frames see the scene at any light (docs/model.md, Loss routing). 0: never (the geometry then
+    follows `density_gradient_scales` in any light)."""
     temperature_output: bool = True
     """A `temperature` output in degrees C, where the dataset has temperature images (its thermal camera has a
     radiometric calibration): a small head on the thermal appearance (`temperature_head.*`, none without them), trained
