@@ -46,8 +46,10 @@ def write_events(path: Path, n: int, t0_us: int, t1_us: int, w: int, h: int, see
     edges = np.linspace(t0_us, t1_us, n // chunk + 2).astype(np.int64)
     with h5py.File(path, "w") as f:
         g = f.create_group("events")
-        ds = {k: g.create_dataset(k, shape=(n,), dtype=dt, chunks=(min(n, 1 << 20),))
-              for k, dt in (("x", np.uint16), ("y", np.uint16), ("t", np.int64), ("p", np.uint8))}
+        ds = {
+            k: g.create_dataset(k, shape=(n,), dtype=dt, chunks=(min(n, 1 << 20),))
+            for k, dt in (("x", np.uint16), ("y", np.uint16), ("t", np.int64), ("p", np.uint8))
+        }
         for i, s in enumerate(range(0, n, chunk)):
             m = min(chunk, n - s)
             ds["t"][s : s + m] = np.sort(rng.integers(edges[i], edges[i + 1], m))
@@ -88,11 +90,22 @@ def main(args: Args) -> dict:
     t0 = time.perf_counter()
     writer = {"h5": write_events, "raw": write_events_raw}[args.format]
     event_file = raw / "events" / f"events.{args.format}"
-    writer(event_file, args.num_events, int((times[0] - 0.1) * 1e6), int(times[-1] * 1e6), cam.width, cam.height,
-           args.seed)
+    writer(
+        event_file, args.num_events, int((times[0] - 0.1) * 1e6), int(times[-1] * 1e6), cam.width, cam.height, args.seed
+    )
     write_s = time.perf_counter() - t0
-    cmd = ["/usr/bin/time", "-v", "agrinerf-process", "--raw", str(raw), "--out", str(args.work / "ds"),
-           "--poses", "given", "--no-show-progress"]
+    cmd = [
+        "/usr/bin/time",
+        "-v",
+        "agrinerf-process",
+        "--raw",
+        str(raw),
+        "--out",
+        str(args.work / "ds"),
+        "--poses",
+        "given",
+        "--no-show-progress",
+    ]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -123,8 +136,14 @@ def write_table(args: Args, result: dict) -> None:
     import platform
     import sys
 
-    cpu = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                if ln.startswith("model name")), platform.processor())
+    cpu = next(
+        (
+            ln.split(":", 1)[1].strip()
+            for ln in Path("/proc/cpuinfo").read_text().splitlines()
+            if ln.startswith("model name")
+        ),
+        platform.processor(),
+    )
     rows = "\n".join(f"| {k} | {v} |" for k, v in result.items())
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(

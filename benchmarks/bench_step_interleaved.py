@@ -88,9 +88,7 @@ def report(rows: List[Dict[str, object]], args: Args, device: str) -> str:
         mine = times[key]
         q1, _, q3 = statistics.quantiles(mine, n=4) if len(mine) > 1 else (mine[0], mine[0], mine[0])
         ratio = statistics.median(m / b for m, b in zip(mine, base, strict=True))
-        lines.append(
-            f"| {METHODS[key].label} | {statistics.median(mine):.3f} | {q1:.3f} - {q3:.3f} | {ratio:.3f} |"
-        )
+        lines.append(f"| {METHODS[key].label} | {statistics.median(mine):.3f} | {q1:.3f} - {q3:.3f} | {ratio:.3f} |")
     return "\n".join(lines) + "\n"
 
 

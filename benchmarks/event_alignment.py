@@ -58,7 +58,10 @@ def main(args: Args) -> None:
     rows: List[Tuple[str, float, float, int, int, float]] = []
     for prev, frame in zip(frames, frames[1:], strict=False):
         sums = np.load(args.data / frame["event_sums_path"])
-        if abs(float(sums["t_start"]) - prev["timestamp"]) > 1e-3 or abs(float(sums["t_end"]) - frame["timestamp"]) > 1e-3:
+        if (
+            abs(float(sums["t_start"]) - prev["timestamp"]) > 1e-3
+            or abs(float(sums["t_end"]) - frame["timestamp"]) > 1e-3
+        ):
             continue  # the window does not span these two frames
         mask = sums["mask"].astype(bool)
         target = args.threshold * (sums["pos"].astype(np.float64) - sums["neg"].astype(np.float64))
@@ -66,7 +69,9 @@ def main(args: Args) -> None:
         change -= np.median(change[mask])  # the two frames' auto-exposures differ by a global factor
         here = float(np.corrcoef(change[mask], target[mask])[0, 1])
         corr, dy, dx = best_shift(change, target, mask, args.max_shift)
-        rows.append((Path(frame["file_path"]).name, here, corr, dy, dx, float((sums["pos"] + sums["neg"])[mask].mean())))
+        rows.append(
+            (Path(frame["file_path"]).name, here, corr, dy, dx, float((sums["pos"] + sums["neg"])[mask].mean()))
+        )
     args.out.mkdir(parents=True, exist_ok=True)
     lines = [
         "# Event counts against the RGB frames' log-luminance change",

@@ -228,9 +228,7 @@ def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
     return {"event_sums_filenames": paths, "event_windows": torch.from_numpy(windows)}
 
 
-def _event_camera(
-    block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any]
-) -> Optional[Dict[str, Any]]:
+def _event_camera(block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any]) -> Optional[Dict[str, Any]]:
     """Where the event frames' rays start: ``camera_centre``, the event camera's centre in the RGB camera's frame
     (OpenGL axes, this parser's scale, float64 [3]), and ``plane_depth``, the depth (same scale) of the plane the frames were
     warped into the RGB camera at (inf: at infinity). None when the calibration has no event camera."""

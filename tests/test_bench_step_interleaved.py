@@ -29,8 +29,12 @@ def test_interleaved_steps_of_agrinerf_lite_and_tensorf(tmp_path: Path) -> None:
     with open(tmp_path / "out" / "step_speed.csv") as handle:
         rows = list(csv.DictReader(handle))
     assert [(r["round"], r["method"]) for r in rows] == [
-        ("0", "tensorf"), ("0", "agrinerf-lite"), ("1", "agrinerf-lite"), ("1", "tensorf"),
-        ("2", "tensorf"), ("2", "agrinerf-lite"),
+        ("0", "tensorf"),
+        ("0", "agrinerf-lite"),
+        ("1", "agrinerf-lite"),
+        ("1", "tensorf"),
+        ("2", "tensorf"),
+        ("2", "agrinerf-lite"),
     ]  # fmt: skip  (round 0 of the timed ones is the second overall: its order is rotated)
     assert all(float(r["seconds"]) > 0 for r in rows)
     table = (tmp_path / "out" / "step_speed.md").read_text()

@@ -179,7 +179,11 @@ def test_ignored_boxes_match_cocoeval_area_range(seed: int):
                     "categories": [{"id": 1, "name": "fruit"}]}  # fmt: skip
     coco.createIndex()
     evaluation = COCOeval(coco, coco.loadRes(dts), "bbox")
-    evaluation.params.areaRng, evaluation.params.areaRngLbl, evaluation.params.maxDets = [[min_area, 1e10]], ["all"], [100]
+    evaluation.params.areaRng, evaluation.params.areaRngLbl, evaluation.params.maxDets = (
+        [[min_area, 1e10]],
+        ["all"],
+        [100],
+    )
     evaluation.evaluate()
     evaluation.accumulate()
     precision = evaluation.eval["precision"][:, :, 0, 0, 0]  # (IoU thresholds, recall points)

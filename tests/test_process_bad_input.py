@@ -113,8 +113,9 @@ def test_event_times_do_not_overlap(raw, tmp_path):
 
 def test_odometry_does_not_overlap(raw, tmp_path):
     odo = raw / "odometry.txt"
-    odo.write_text("".join(f"{float(ln.split()[0]) + 50} {' '.join(ln.split()[1:])}\n"
-                           for ln in odo.read_text().splitlines()))
+    odo.write_text(
+        "".join(f"{float(ln.split()[0]) + 50} {' '.join(ln.split()[1:])}\n" for ln in odo.read_text().splitlines())
+    )
     _expect_error(raw, tmp_path, r"odometry.txt: no pose within .* timestamps do not overlap")
 
 

@@ -137,8 +137,14 @@ def test_frame_without_pose_is_dropped_from_every_modality(tmp_path: Path):
     meta = json.loads((out / "transforms.json").read_text())
     assert [f["file_path"] for f in meta["frames"]] == [f"images/{i:06d}.png" for i in (0, 1, 3, 4, 5)]
     assert meta["agrinerf"]["poses"]["dropped_frames"] == [{"file": "rgb/000002.png", "reason": "no pose"}]
-    for sub, ext in (("images", "png"), ("thermal", "png"), ("thermal_masks", "png"), ("events", "png"),
-                     ("events", "npz"), ("event_masks", "png")):
+    for sub, ext in (
+        ("images", "png"),
+        ("thermal", "png"),
+        ("thermal_masks", "png"),
+        ("events", "png"),
+        ("events", "npz"),
+        ("event_masks", "png"),
+    ):
         assert not (out / sub / f"000002.{ext}").exists(), sub
     th = json.loads((out / "transforms_thermal.json").read_text())
     assert len(th["frames"]) == 5 and all(n in [f["file_path"] for f in th["frames"]] for n in th["train_filenames"])

@@ -309,7 +309,9 @@ def test_the_event_loss_counts_a_real_recording_like_brute_force(tmp_path: Path)
         x, y, t, p = (f[f"events/{k}"][:].astype(np.int64) for k in "xytp")
     stream = EventStream(x, y, t, p, 640, 480)
     pixel_all = torch.arange(640 * 480)
-    on, off = stream.counts(pixel_all, torch.full_like(pixel_all, int(t.min())), torch.full_like(pixel_all, int(t.max()) + 1))
+    on, off = stream.counts(
+        pixel_all, torch.full_like(pixel_all, int(t.min())), torch.full_like(pixel_all, int(t.max()) + 1)
+    )
     assert (int(off.sum()), int(on.sum())) == (218_291, 125_183)
     rng = np.random.default_rng(0)
     busiest = np.argsort(np.bincount(y * 640 + x, minlength=640 * 480))[-200:]  # the hot and busy pixels

@@ -16,8 +16,12 @@ from agrinerf_ns.process.readers import EventChunk
 def _stream(n=20000, w=12, h=9, seed=0):
     rng = np.random.default_rng(seed)
     t = np.sort(rng.integers(0, 1_000_000, n)).astype(np.int64)
-    return (rng.integers(0, w, n).astype(np.uint16), rng.integers(0, h, n).astype(np.uint16), t,
-            rng.integers(0, 2, n).astype(np.uint8))
+    return (
+        rng.integers(0, w, n).astype(np.uint16),
+        rng.integers(0, h, n).astype(np.uint16),
+        t,
+        rng.integers(0, 2, n).astype(np.uint8),
+    )
 
 
 def _chunks(x, y, t, p, size):

@@ -22,8 +22,12 @@ def _write_bag(raw: Path, bag: Path) -> None:
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
-    ts.register({**get_types_from_msg(EVENT_MSG, "dvs_msgs/msg/Event"),
-                 **get_types_from_msg(EVENT_ARRAY_MSG, "dvs_msgs/msg/EventArray")})
+    ts.register(
+        {
+            **get_types_from_msg(EVENT_MSG, "dvs_msgs/msg/Event"),
+            **get_types_from_msg(EVENT_ARRAY_MSG, "dvs_msgs/msg/EventArray"),
+        }
+    )
     T = ts.types
     Time, Header, Image = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"], T["sensor_msgs/msg/Image"]
     Event, EventArray = T["dvs_msgs/msg/Event"], T["dvs_msgs/msg/EventArray"]
@@ -44,20 +48,39 @@ def _write_bag(raw: Path, bag: Path) -> None:
             for path, t in zip(frames.paths, frames.times, strict=True):
                 img = readers.read_rgb(path) if kind == "rgb" else readers.read_thermal(path)
                 step = img.shape[1] * (3 if kind == "rgb" else 2)
-                msg = Image(header=Header(stamp=stamp(t), frame_id=kind), height=img.shape[0], width=img.shape[1],
-                            encoding=enc, is_bigendian=0, step=step,
-                            data=np.frombuffer(img.astype("<u2").tobytes() if kind == "thermal" else img.tobytes(),
-                                               np.uint8))
+                msg = Image(
+                    header=Header(stamp=stamp(t), frame_id=kind),
+                    height=img.shape[0],
+                    width=img.shape[1],
+                    encoding=enc,
+                    is_bigendian=0,
+                    step=step,
+                    data=np.frombuffer(img.astype("<u2").tobytes() if kind == "thermal" else img.tobytes(), np.uint8),
+                )
                 msgs.append((t, kind, msg, "sensor_msgs/msg/Image"))
         with h5py.File(raw / "events" / "events.h5", "r") as f:
             x, y, t_us, p = (f["events"][k][:] for k in "xytp")
         for s in range(0, len(t_us), 5000):  # packets of 5000 events
-            evs = [Event(x=int(a), y=int(b), ts=Time(sec=int(c // 1_000_000), nanosec=int(c % 1_000_000) * 1000),
-                         polarity=bool(d)) for a, b, c, d in zip(x[s:s + 5000], y[s:s + 5000], t_us[s:s + 5000],
-                                                                 p[s:s + 5000], strict=True)]
+            evs = [
+                Event(
+                    x=int(a),
+                    y=int(b),
+                    ts=Time(sec=int(c // 1_000_000), nanosec=int(c % 1_000_000) * 1000),
+                    polarity=bool(d),
+                )
+                for a, b, c, d in zip(
+                    x[s : s + 5000], y[s : s + 5000], t_us[s : s + 5000], p[s : s + 5000], strict=True
+                )
+            ]
             tt = t_us[min(s + 4999, len(t_us) - 1)] / 1e6
-            msgs.append((tt, "events", EventArray(header=Header(stamp=stamp(tt), frame_id="ev"), height=42, width=56,
-                                                  events=evs), "dvs_msgs/msg/EventArray"))
+            msgs.append(
+                (
+                    tt,
+                    "events",
+                    EventArray(header=Header(stamp=stamp(tt), frame_id="ev"), height=42, width=56, events=evs),
+                    "dvs_msgs/msg/EventArray",
+                )
+            )
         for t, kind, msg, typ in sorted(msgs, key=lambda m: m[0]):
             w.write(conns[kind], int(t * 1e9), ts.serialize_cdr(msg, typ))
 

@@ -51,8 +51,9 @@ def test_ns_train_nerfacto_on_thermal_transforms(tiny, tmp_path: Path):
     from agrinerf_ns.bench.ns_commands import ns_train
 
     _, out = tiny
-    run = ns_train("nerfacto", out / "transforms_thermal.json", tmp_path / "outputs", "thermal", max_steps=2,
-                   rays_per_batch=128)
+    run = ns_train(
+        "nerfacto", out / "transforms_thermal.json", tmp_path / "outputs", "thermal", max_steps=2, rays_per_batch=128
+    )
     ckpts = list((run.config.parent / "nerfstudio_models").glob("*.ckpt"))
     assert ckpts, "ns-train wrote a checkpoint"
 

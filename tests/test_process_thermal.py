@@ -71,7 +71,9 @@ def test_flat_frames_give_valid_images(method):
 
 
 def test_params_recorded():
-    r = ThermalRescaler(ThermalRescaleConfig(temporal_sigma=float("inf"))).fit([np.arange(1200, dtype=np.uint16).reshape(30, 40)])
+    r = ThermalRescaler(ThermalRescaleConfig(temporal_sigma=float("inf"))).fit(
+        [np.arange(1200, dtype=np.uint16).reshape(30, 40)]
+    )
     p = r.params()
     assert p["method"] == "fieldscale" and p["grid"] == [8, 8] and p["temporal_sigma"] == "inf"
     assert p["global_hi"] > p["global_lo"]

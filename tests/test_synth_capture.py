@@ -132,14 +132,22 @@ def test_cli_errors_and_preview(tmp_path: Path) -> None:
     env = dict(os.environ)
     cmd = [sys.executable, "-m", "agrinerf_ns.synth.cli"]
     tiny = ["--views", "3", "--width", "48", "--height", "36", "--heldout", "1", "--event-substeps", "2"]
-    bad = subprocess.run(cmd + ["--out", str(tmp_path / "a"), "--lighting", "noon"], check=False, capture_output=True, text=True,
-                         env=env)
+    bad = subprocess.run(
+        cmd + ["--out", str(tmp_path / "a"), "--lighting", "noon"], check=False, capture_output=True, text=True, env=env
+    )
     assert bad.returncode != 0 and "noon" in bad.stderr
-    bad = subprocess.run(cmd + ["--out", str(tmp_path / "a"), "--views", "0"], check=False, capture_output=True, text=True, env=env)
+    bad = subprocess.run(
+        cmd + ["--out", str(tmp_path / "a"), "--views", "0"], check=False, capture_output=True, text=True, env=env
+    )
     assert bad.returncode == 2 and "views must be" in bad.stderr
     assert list(tmp_path.iterdir()) == []
-    ok = subprocess.run(cmd + ["--out", str(tmp_path / "b"), "--preview", "--preview-rows", "2"] + tiny,
-                        check=False, capture_output=True, text=True, env=env)
+    ok = subprocess.run(
+        cmd + ["--out", str(tmp_path / "b"), "--preview", "--preview-rows", "2"] + tiny,
+        check=False,
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert ok.returncode == 0, ok.stderr
     sheet = Image.open(tmp_path / "b" / "preview.png")
     assert sheet.mode == "RGB" and sheet.height > 2 * 100
@@ -161,7 +169,8 @@ def test_garden_scene_and_motion_blur(tmp_path: Path) -> None:
     blurred = generate_capture(cfg, tmp_path / "blur")  # motion blur is on by default
     # same truth, different camera frames: the long dark exposure smears the noisy frame
     assert (blurred / "truth" / "rgb_clean" / "000001.png").read_bytes() == (
-        sharp / "truth" / "rgb_clean" / "000001.png").read_bytes()
+        sharp / "truth" / "rgb_clean" / "000001.png"
+    ).read_bytes()
     a = np.asarray(Image.open(blurred / "rgb" / "000001.png")).astype(np.float64)
     b = np.asarray(Image.open(sharp / "rgb" / "000001.png")).astype(np.float64)
     assert not np.array_equal(a, b)

@@ -147,7 +147,7 @@ def test_events_where_image_changes_not_in_static_sky(event_capture: Path) -> No
     assert core.sum() >= 20 and never_sky.sum() >= 200
     x, y, t, _ = _events(event_capture)
     per_px = np.bincount(y * cam.width + x, minlength=cam.width * cam.height)
-    duration = (times[-1] - times[0])
+    duration = times[-1] - times[0]
     noise_hz = EVENTS.event_noise_hz * LIGHTING_PRESETS[EVENTS.lighting].event_noise_scale
     sky_rate = per_px[core.ravel()].mean() / duration
     scene_rate = per_px[never_sky].mean() / duration

@@ -31,11 +31,13 @@ def _K_D(cam: dict) -> tuple:
 
 def _tum_T(row: np.ndarray) -> np.ndarray:
     x, y, z, w = row[4:8]
-    R = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, row[1:4]
     return T
@@ -97,7 +99,7 @@ def test_calibration_round_trip(capture: Path) -> None:
         depth = np.load(capture / "truth" / "depth" / f"{i:06d}.npy").astype(np.float64)
         # pixels on smooth surfaces (no depth edge nearby)
         pad = np.pad(np.where(np.isfinite(depth), depth, 1e6), 2, mode="edge")
-        win = np.stack([pad[dy:dy + depth.shape[0], dx:dx + depth.shape[1]] for dy in range(5) for dx in range(5)])
+        win = np.stack([pad[dy : dy + depth.shape[0], dx : dx + depth.shape[1]] for dy in range(5) for dx in range(5)])
         smooth = np.isfinite(depth) & (win.max(0) - win.min(0) < 0.02 * depth)
         vs, us = np.nonzero(smooth)
         pick = rng.choice(us.size, size=min(60, us.size), replace=False)

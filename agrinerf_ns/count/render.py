@@ -133,7 +133,9 @@ def render_run(
     config_path = Path(config_path)
     transforms = config_path.parent / "dataparser_transforms.json"
     if not transforms.is_file():
-        raise CountInputError(f"{transforms}: missing; the run folder of {config_path} must hold it (ns-train writes it)")
+        raise CountInputError(
+            f"{transforms}: missing; the run folder of {config_path} must hold it (ns-train writes it)"
+        )
     frame = WorldFrame.read(transforms)
     run = load_run(config_path, eval_num_rays_per_chunk)
     datamanager = run.pipeline.datamanager
@@ -224,8 +226,10 @@ def load_renders(folder: Path) -> RenderSet:
     folder = Path(folder)
     meta_path = folder / RENDERS_JSON
     if not folder.is_dir() or not any(folder.glob("*.npz")):
-        raise CountInputError(f"{folder}: empty render folder (no <split>_<frame>.npz views; agrinerf-count --config "
-                              "writes them under OUT/renders)")
+        raise CountInputError(
+            f"{folder}: empty render folder (no <split>_<frame>.npz views; agrinerf-count --config "
+            "writes them under OUT/renders)"
+        )
     if not meta_path.is_file():
         raise CountInputError(f"{meta_path}: missing; a render folder needs it beside the .npz views")
     try:

@@ -128,8 +128,13 @@ def draw_map(
                   interpolation="nearest", alpha=0.8)  # fmt: skip
     if truth is not None:
         vis = np.ones(len(truth.ids), bool) if visible is None else visible
-        for keep, colour, label in ((~vis, "0.6", "true fruit, not visible"), (vis, "limegreen", "true fruit, visible")):
-            rings = [Circle(tuple(c[:2]), d / 2) for c, d in zip(truth.centres[keep], truth.diameters[keep], strict=True)]
+        for keep, colour, label in (
+            (~vis, "0.6", "true fruit, not visible"),
+            (vis, "limegreen", "true fruit, visible"),
+        ):
+            rings = [
+                Circle(tuple(c[:2]), d / 2) for c, d in zip(truth.centres[keep], truth.diameters[keep], strict=True)
+            ]
             ax.add_collection(PatchCollection(rings, facecolor="none", edgecolor=colour, linewidth=1.0, label=label))
     temps = np.array([np.nan if f.temperature is None else f.temperature for f in fruit])
     discs = [Circle(tuple(c[:2]), max(f.diameter * scale, 0.01) / 2) for c, f in zip(centres, fruit, strict=True)]

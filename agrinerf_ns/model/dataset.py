@@ -81,7 +81,9 @@ def load_temperature_frame(
         raise AgriNeRFDataError(f"{path}: cannot read image: {error}") from error
     array = np.asarray(pil_image)
     if array.ndim != 2 or array.dtype not in (np.uint16, np.int32, np.uint32):
-        raise AgriNeRFDataError(f"{path}: a temperature image is a 16-bit single-channel PNG, got mode {pil_image.mode}")
+        raise AgriNeRFDataError(
+            f"{path}: a temperature image is a 16-bit single-channel PNG, got mode {pil_image.mode}"
+        )
     celsius, valid = decode_celsius(array.astype(np.uint16))
     file_width, file_height = pil_image.size
     if (file_height, file_width) != (height, width):

@@ -510,7 +510,9 @@ class AgriNeRFModel(Model):
         t0, t1 = sample_windows(self.event_windows, frames, self.config.event_window_min_fraction, None)
         pixel = torch.randint(0, self.event_stream.width * self.event_stream.height, (m,))
         on, off = self.event_stream.counts(pixel, t0, t1)
-        origins, directions = event_rays(self.trajectory, self.event_camera_native, pixel, torch.stack([t0, t1], -1).double() * 1e-6)
+        origins, directions = event_rays(
+            self.trajectory, self.event_camera_native, pixel, torch.stack([t0, t1], -1).double() * 1e-6
+        )
         device, dtype = like.origins.device, like.origins.dtype
         bundle = RayBundle(
             origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),

@@ -22,7 +22,9 @@ from jaxtyping import Bool, Float
 from agrinerf_ns.process.readers import CameraCalib
 
 
-def plane_homography(rgb: CameraCalib, other: CameraCalib, plane_depth: float = float("inf")) -> Float[np.ndarray, "3 3"]:
+def plane_homography(
+    rgb: CameraCalib, other: CameraCalib, plane_depth: float = float("inf")
+) -> Float[np.ndarray, "3 3"]:
     """Homography from RGB pixels to the other camera's undistorted pixels, for the plane z = plane_depth."""
     R = other.T_cam_rgb[:3, :3]
     t = other.T_cam_rgb[:3, 3:4]
@@ -34,9 +36,7 @@ def plane_homography(rgb: CameraCalib, other: CameraCalib, plane_depth: float = 
     return other.K @ M @ np.linalg.inv(rgb.K)
 
 
-def distort_normalized(
-    xy: Float[np.ndarray, "*b 2"], dist: Float[np.ndarray, "4"]
-) -> Float[np.ndarray, "*b 2"]:
+def distort_normalized(xy: Float[np.ndarray, "*b 2"], dist: Float[np.ndarray, "4"]) -> Float[np.ndarray, "*b 2"]:
     """Apply radtan distortion (k1, k2, p1, p2) to normalised image coordinates."""
     k1, k2, p1, p2 = dist
     x, y = xy[..., 0], xy[..., 1]
@@ -70,9 +70,7 @@ def warp_maps(
     return mx, my, valid
 
 
-def warp_image(
-    image: np.ndarray, maps: Tuple[np.ndarray, np.ndarray, np.ndarray], nearest: bool = False
-) -> np.ndarray:
+def warp_image(image: np.ndarray, maps: Tuple[np.ndarray, np.ndarray, np.ndarray], nearest: bool = False) -> np.ndarray:
     """Resample ``image`` (the other camera's raw frame) into the RGB camera; invalid pixels become 0."""
     mx, my, valid = maps
     interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR

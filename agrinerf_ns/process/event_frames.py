@@ -136,13 +136,9 @@ def window_percentile(value: Float[np.ndarray, "h w"], q: float = 99.0) -> float
     return float(np.percentile(nz, q)) if nz.size else 0.0
 
 
-def to_unit_frame(
-    value: Float[np.ndarray, "h w"], scale: float, representation: str
-) -> Float[np.ndarray, "h w"]:
+def to_unit_frame(value: Float[np.ndarray, "h w"], scale: float, representation: str) -> Float[np.ndarray, "h w"]:
     """Map the per-pixel value to [0, 1] per the representation (module docstring)."""
     scale = max(float(scale), 1e-6)
     if representation == "signed":
         return 0.5 + 0.5 * np.clip(value / scale, -1.0, 1.0)
     return np.clip(value / scale, 0.0, 1.0)
-
-

@@ -102,7 +102,9 @@ def inspect_capture(raw: Path) -> _Capture:
     thermal = None
     if (raw / "thermal").is_dir():
         if calib.thermal is None:
-            raise RawInputError(f"{calib_path}: thermal frames in {raw / 'thermal'} but no camera with modality: thermal")
+            raise RawInputError(
+                f"{calib_path}: thermal frames in {raw / 'thermal'} but no camera with modality: thermal"
+            )
         thermal = readers.read_timestamps(raw / "thermal")
     elif calib.thermal is not None:
         warnings.append(f"{calib_path}: a thermal camera is calibrated but {raw / 'thermal'} does not exist")
@@ -167,8 +169,12 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         if cap.event_file is None:
             raise RawInputError(f"{raw / 'events'}: --sync trigger needs an event file with trigger events")
         cap.sync = fit_trigger_sync(
-            cap.rgb.times, readers.read_triggers(cap.event_file), cap.event_file, config.trigger_edge,
-            config.trigger_channel, config.trigger_offset_s,
+            cap.rgb.times,
+            readers.read_triggers(cap.event_file),
+            cap.event_file,
+            config.trigger_edge,
+            config.trigger_channel,
+            config.trigger_offset_s,
         )
         CONSOLE.log(
             f"Trigger sync: {cap.sync.matched} of {cap.sync.frames} frames matched, residual rms "
@@ -176,8 +182,12 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         )
 
     progress = Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-        console=CONSOLE, disable=not config.show_progress,
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=CONSOLE,
+        disable=not config.show_progress,
     )
     with atomic_output_dir(out, config.overwrite) as tmp, progress:
         return _process(raw, out, tmp, cap, config, progress)
@@ -189,8 +199,11 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
     n = len(cap.rgb)
     names = [f"{i:06d}" for i in range(n)]
     frames: List[Dict] = [
-        {"file_path": f"images/{names[i]}.png", "timestamp": float(cap.rgb.times[i]),
-         "raw_rgb": str(cap.rgb.paths[i].relative_to(raw))}
+        {
+            "file_path": f"images/{names[i]}.png",
+            "timestamp": float(cap.rgb.times[i]),
+            "raw_rgb": str(cap.rgb.paths[i].relative_to(raw)),
+        }
         for i in range(n)
     ]
     if cap.exposure is not None:
@@ -307,8 +320,11 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
 
     meta.update(
         modalities=modalities,
-        calibration={k: c.as_dict() for k, c in (("rgb", calib.rgb), ("thermal", calib.thermal),
-                                                   ("event", calib.event)) if c is not None},
+        calibration={
+            k: c.as_dict()
+            for k, c in (("rgb", calib.rgb), ("thermal", calib.thermal), ("event", calib.event))
+            if c is not None
+        },
         alignment={
             "target": "rgb",
             "method": "plane homography + radtan distortion, one cv2.remap",
@@ -317,14 +333,22 @@ def _process(raw: Path, out: Path, tmp: Path, cap: _Capture, config: ProcessConf
         poses=pose_meta,
         raw=str(raw.resolve()),
     )
-    write_transforms(tmp, intrinsics_block(rgb_cam.K, rgb_cam.width, rgb_cam.height), kept_frames, meta,
-                     config.eval_every)
+    write_transforms(
+        tmp, intrinsics_block(rgb_cam.K, rgb_cam.width, rgb_cam.height), kept_frames, meta, config.eval_every
+    )
     CONSOLE.log(f"Wrote {len(kept_frames)} frames ({', '.join(modalities)}) to {out}")
     return out
 
 
-_FILE_KEYS = ("file_path", "thermal_file_path", "thermal_mask_path", "thermal_temperature_path", "event_file_path",
-              "event_mask_path", "event_sums_path")
+_FILE_KEYS = (
+    "file_path",
+    "thermal_file_path",
+    "thermal_mask_path",
+    "thermal_temperature_path",
+    "event_file_path",
+    "event_mask_path",
+    "event_sums_path",
+)
 
 
 def _temperature_image(calibration: radiometric.RadiometricCalibration, counts: np.ndarray, maps) -> np.ndarray:
@@ -386,7 +410,10 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
     stream = EventH5Writer(tmp / "events", ecfg.chunk_size, STREAM_FILE)
     chunks = _stream_copy(
         readers.iter_event_chunks(cap.event_file, ecfg.chunk_size, sensor_wh=(ev_cam.width, ev_cam.height)),
-        stream, cap.sync, float(to_event_clock(t_start[:1])[0]), float(to_event_clock(t_end[-1:])[0]),
+        stream,
+        cap.sync,
+        float(to_event_clock(t_start[:1])[0]),
+        float(to_event_clock(t_end[-1:])[0]),
     )
     task = progress.add_task("event windows", total=len(names))
     percentiles = []
@@ -398,8 +425,9 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
         total_in_windows += int(pos.sum() + neg.sum())
         pos_al = align.warp_image(pos.astype(np.float32), maps, nearest=True)
         neg_al = align.warp_image(neg.astype(np.float32), maps, nearest=True)
-        percentiles.append(event_frames.window_percentile(event_frames.frame_value(pos_al, neg_al,
-                                                                                   ecfg.representation)))
+        percentiles.append(
+            event_frames.window_percentile(event_frames.frame_value(pos_al, neg_al, ecfg.representation))
+        )
         rel = f"events/{names[k]}.npz"
         (tmp / "events").mkdir(exist_ok=True)
         np.savez_compressed(
@@ -422,8 +450,9 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
     task = progress.add_task("event frames", total=len(names))
     for k in range(len(names)):
         with np.load(tmp / frames[k]["event_sums_path"]) as z:
-            value = event_frames.frame_value(z["pos"].astype(np.float32), z["neg"].astype(np.float32),
-                                             ecfg.representation)
+            value = event_frames.frame_value(
+                z["pos"].astype(np.float32), z["neg"].astype(np.float32), ecfg.representation
+            )
         png = to_uint8(event_frames.to_unit_frame(value, scale, ecfg.representation))
         frames[k]["event_file_path"] = f"events/{names[k]}.png"
         frames[k]["event_mask_path"] = f"event_masks/{names[k]}.png"
@@ -442,7 +471,7 @@ def _process_events(raw, tmp, cap: _Capture, config: ProcessConfig, names, frame
         else {"method": "recorded"},
         "png_encoding": "value = png / 255; signed: 0.5 (png 128) = no change",
         "sums": "event_sums_path: npz with pos, neg (uint16 ON/OFF counts in RGB pixels, nearest warp), mask, "
-                "t_start, t_end (s, frame clock)",
+        "t_start, t_end (s, frame clock)",
         "stream": f"events/{STREAM_FILE}",
     }
 

@@ -24,9 +24,7 @@ def opencv_to_opengl(c2w: Float[np.ndarray, "*b 4 4"]) -> Float[np.ndarray, "*b 
     return out
 
 
-def match_times(
-    query: Float[np.ndarray, " n"], ref: Float[np.ndarray, " m"], tol: float
-) -> np.ndarray:
+def match_times(query: Float[np.ndarray, " n"], ref: Float[np.ndarray, " m"], tol: float) -> np.ndarray:
     """Index into ``ref`` of the nearest time to each query time, or -1 when farther than ``tol``."""
     idx = np.clip(np.searchsorted(ref, query), 1, max(1, len(ref) - 1))
     if len(ref) == 1:

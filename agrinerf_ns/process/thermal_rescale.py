@@ -139,8 +139,13 @@ class ThermalRescaler:
     def params(self) -> Dict:
         """Configuration plus the fitted sequence statistics, for the dataset metadata."""
         grid = list(effective_grid(self.shape, self.config)) if self.shape else list(self.config.grid)
-        return {**self.config.as_dict(), "effective_grid": grid, "global_lo": self.global_lo, "global_hi": self.global_hi,
-                "min_range": self.min_range}
+        return {
+            **self.config.as_dict(),
+            "effective_grid": grid,
+            "global_lo": self.global_lo,
+            "global_hi": self.global_hi,
+            "min_range": self.min_range,
+        }
 
 
 def rescale_sequence(frames: List[UInt16[np.ndarray, "h w"]], config: ThermalRescaleConfig) -> List[np.ndarray]:

@@ -87,8 +87,11 @@ def fruit_boxes(ids: Int[np.ndarray, "h w"], min_pixels: int) -> List[BOX]:
     np.minimum.at(y0, inv, ys)
     np.maximum.at(x1, inv, xs)
     np.maximum.at(y1, inv, ys)
-    return [(int(f), int(a), int(b), int(c), int(d), int(n))
-            for f, a, b, c, d, n in zip(uniq, x0, y0, x1, y1, counts, strict=True) if n >= min_pixels]
+    return [
+        (int(f), int(a), int(b), int(c), int(d), int(n))
+        for f, a, b, c, d, n in zip(uniq, x0, y0, x1, y1, counts, strict=True)
+        if n >= min_pixels
+    ]
 
 
 def event_substeps(config: SynthConfig, scene: Scene, rig: Rig) -> Tuple[int, float]:
@@ -133,8 +136,15 @@ def simulate_events(
     interval."""
     cam = rig.cams["event"]
     rng = np.random.default_rng([config.seed, 47])
-    sim = EventSimulator(cam.width, cam.height, config.event_threshold, config.event_threshold_sigma,
-                         config.event_refractory_us, EVENT_EPS, rng)
+    sim = EventSimulator(
+        cam.width,
+        cam.height,
+        config.event_threshold,
+        config.event_threshold_sigma,
+        config.event_refractory_us,
+        EVENT_EPS,
+        rng,
+    )
     times = event_times(config, substeps)
     for k, t in enumerate(times):
         lum = event_luminance(config, scene, rig, light, float(t))
@@ -180,8 +190,9 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
     # exposure from the first frame: the truth is auto-exposed, the camera is capped (dark stays dark)
     rad0, _ = render_radiance(scene, cam_rgb, rig.pose(float(times[0])), light, s)
     rad0_bright, _ = render_radiance(scene, cam_rgb, rig.pose(float(times[0])), LIGHTING_PRESETS["bright"], s)
-    gain, truth_gain = exposure_gains(float(rec709_luminance(rad0.reshape(-1, 3)).mean()),
-                                      float(rec709_luminance(rad0_bright.reshape(-1, 3)).mean()))
+    gain, truth_gain = exposure_gains(
+        float(rec709_luminance(rad0.reshape(-1, 3)).mean()), float(rec709_luminance(rad0_bright.reshape(-1, 3)).mean())
+    )
 
     exposure = config.rgb_exposure_s(light.exposure_s)
     rng_rgb = np.random.default_rng([config.seed, 41])
@@ -192,15 +203,28 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
 
     if progress:
         from rich.progress import Progress
+
         ctx = Progress(transient=True)
     else:
         ctx = nullcontext()
     with ctx as prog, W.atomic_folder(out) as tmp:
         if prog is not None:
             prog.add_task(f"synth {config.scene}/{config.lighting}", total=n_steps)
-        dirs = {d: tmp / d for d in ("rgb", "thermal", "events", "truth/rgb_clean", "truth/depth",
-                                     "truth/boxes_yolo", "truth/fruit_ids", "truth/temperature",
-                                     "truth/heldout/boxes_yolo", "truth/heldout/temperature")}
+        dirs = {
+            d: tmp / d
+            for d in (
+                "rgb",
+                "thermal",
+                "events",
+                "truth/rgb_clean",
+                "truth/depth",
+                "truth/boxes_yolo",
+                "truth/fruit_ids",
+                "truth/temperature",
+                "truth/heldout/boxes_yolo",
+                "truth/heldout/temperature",
+            )
+        }
         for d in dirs.values():
             d.mkdir(parents=True, exist_ok=True)
         names = [W.frame_name(i) for i in range(config.views)]
@@ -209,8 +233,9 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             T = rig.pose(float(t))
             poses.append(T)
             rad, hits = render_radiance(scene, cam_rgb, T, light, s)
-            np.save(dirs["truth/temperature"] / names[i].replace(".png", ".npy"),
-                    truth_temperature(scene, hits, cam_rgb, s))
+            np.save(
+                dirs["truth/temperature"] / names[i].replace(".png", ".npy"), truth_temperature(scene, hits, cam_rgb, s)
+            )
             if s > 1:
                 hits = cast(scene.prims, cam_rgb, T)
             # the camera frame integrates the moving scene over its exposure; the truth stays the sharp frame at t
@@ -224,8 +249,9 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
                                        rad, float(t), exposure, subframes[-1])  # fmt: skip
             write_png(dirs["rgb"] / names[i], noisy_rgb(rad_cam, gain, rng_rgb))
             write_png(dirs["truth/rgb_clean"] / names[i], clean_rgb(rad, truth_gain))
-            np.save(dirs["truth/depth"] / names[i].replace(".png", ".npy"),
-                    hits.zdepth.reshape(H, Wd).astype(np.float32))
+            np.save(
+                dirs["truth/depth"] / names[i].replace(".png", ".npy"), hits.zdepth.reshape(H, Wd).astype(np.float32)
+            )
             ids = fruit_ids(scene, hits).reshape(H, Wd)
             write_png(dirs["truth/fruit_ids"] / names[i], (ids + 1).astype(np.uint16))
             boxes = fruit_boxes(ids, config.min_box_pixels)
@@ -254,15 +280,18 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         ho_names = [W.frame_name(k) for k in range(config.num_heldout)]
         for k, (t, T) in enumerate(heldout_poses(rig, config)):
             rad, hits = render_radiance(scene, cam_rgb, T, light, s)
-            np.save(dirs["truth/heldout/temperature"] / ho_names[k].replace(".png", ".npy"),
-                    truth_temperature(scene, hits, cam_rgb, s))
+            np.save(
+                dirs["truth/heldout/temperature"] / ho_names[k].replace(".png", ".npy"),
+                truth_temperature(scene, hits, cam_rgb, s),
+            )
             if s > 1:
                 hits = cast(scene.prims, cam_rgb, T)
             write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, truth_gain))
             boxes = fruit_boxes(fruit_ids(scene, hits).reshape(H, Wd), config.min_box_pixels)
             ho_boxes.append(boxes)
             (dirs["truth/heldout/boxes_yolo"] / ho_names[k].replace(".png", ".txt")).write_text(
-                W.yolo_lines(boxes, Wd, H))
+                W.yolo_lines(boxes, Wd, H)
+            )
             ho_times.append(t)
             ho_poses.append(T)
             if prog is not None:
@@ -276,15 +305,22 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
 
         W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION))
         W.write_json(tmp / "truth" / "fruits.json", scene.fruits)
-        W.write_json(tmp / "truth" / "scene.json", {
-            "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
-            "temperatures_c": {k: round(v, 4) for k, v in scene.temps.items()},
-            "thermal_counts": {"offset_at_0c": RADIOMETRIC_CALIBRATION["counts_at_0c"],
-                               "per_kelvin": RADIOMETRIC_CALIBRATION["counts_per_kelvin"]},
-            "rgb_gain": gain, "truth_gain": truth_gain, "num_events": int(et.size),
-            "event_sampling": {"substeps_per_frame": ev_substeps, "step_px_p95": round(ev_step_px, 4)},
-            "rgb_motion_blur": blur_summary(config.motion_blur, exposure, subframes, blur_px),
-            "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
-            "world": "x along the row, y across it away from the rig, z up; metres",
-        })
+        W.write_json(
+            tmp / "truth" / "scene.json",
+            {
+                "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
+                "temperatures_c": {k: round(v, 4) for k, v in scene.temps.items()},
+                "thermal_counts": {
+                    "offset_at_0c": RADIOMETRIC_CALIBRATION["counts_at_0c"],
+                    "per_kelvin": RADIOMETRIC_CALIBRATION["counts_per_kelvin"],
+                },
+                "rgb_gain": gain,
+                "truth_gain": truth_gain,
+                "num_events": int(et.size),
+                "event_sampling": {"substeps_per_frame": ev_substeps, "step_px_p95": round(ev_step_px, 4)},
+                "rgb_motion_blur": blur_summary(config.motion_blur, exposure, subframes, blur_px),
+                "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
+                "world": "x along the row, y across it away from the rig, z up; metres",
+            },
+        )
     return out

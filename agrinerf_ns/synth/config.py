@@ -137,7 +137,11 @@ class SynthConfig:
             raise SynthConfigError(f"unknown lighting {self.lighting!r}: choose one of {', '.join(LIGHTINGS)}")
         if not isinstance(self.views, int) or self.views < 2:
             raise SynthConfigError(f"views must be an integer >= 2, got {self.views!r}")
-        for name, (w, h) in (("RGB", (self.width, self.height)), ("thermal", self.thermal_wh), ("event", self.event_wh)):
+        for name, (w, h) in (
+            ("RGB", (self.width, self.height)),
+            ("thermal", self.thermal_wh),
+            ("event", self.event_wh),
+        ):
             if not (isinstance(w, int) and isinstance(h, int)) or w < 8 or h < 8:
                 raise SynthConfigError(f"{name} resolution must be at least 8x8 pixels, got {w}x{h}")
             if w * h > 4096 * 4096:

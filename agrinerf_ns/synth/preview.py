@@ -73,4 +73,3 @@ def contact_sheet(raw: Union[str, Path], out_png: Union[str, Path], rows: int = 
     out_png.parent.mkdir(parents=True, exist_ok=True)
     sheet.save(out_png, format="PNG", optimize=True)
     return out_png
-

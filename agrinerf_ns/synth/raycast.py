@@ -36,8 +36,13 @@ class PinholeRadtan:
     def scaled(self, s: int) -> "PinholeRadtan":
         """The same lens sampled ``s`` times denser per axis (for supersampling)."""
         return PinholeRadtan(
-            self.width * s, self.height * s, self.fx * s, self.fy * s,
-            self.cx * s + (s - 1) / 2, self.cy * s + (s - 1) / 2, self.dist,
+            self.width * s,
+            self.height * s,
+            self.fx * s,
+            self.fy * s,
+            self.cx * s + (s - 1) / 2,
+            self.cy * s + (s - 1) / 2,
+            self.dist,
         )
 
     def distort(self, x: Float[np.ndarray, "*n"], y: Float[np.ndarray, "*n"]) -> Tuple[np.ndarray, np.ndarray]:
@@ -87,8 +92,12 @@ class PinholeRadtan:
     def _column_row_bounds(self) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         x, y = self.normalized_grid
         # running extrema make the bounds monotonic, so searchsorted gives conservative pixel ranges
-        return (np.minimum.accumulate(x.min(0)[::-1])[::-1], np.maximum.accumulate(x.max(0)),
-                np.minimum.accumulate(y.min(1)[::-1])[::-1], np.maximum.accumulate(y.max(1)))
+        return (
+            np.minimum.accumulate(x.min(0)[::-1])[::-1],
+            np.maximum.accumulate(x.max(0)),
+            np.minimum.accumulate(y.min(1)[::-1])[::-1],
+            np.maximum.accumulate(y.max(1)),
+        )
 
     def pixel_boxes(
         self, lo: Float[np.ndarray, "n 2"], hi: Float[np.ndarray, "n 2"]
@@ -116,10 +125,8 @@ class Primitives:
 
     def __post_init__(self) -> None:
         r = self.cyl_radius[:, None]
-        self.aabb_lo = np.concatenate(
-            [self.ell_center - self.ell_radii, np.minimum(self.cyl_p0, self.cyl_p1) - r], 0)
-        self.aabb_hi = np.concatenate(
-            [self.ell_center + self.ell_radii, np.maximum(self.cyl_p0, self.cyl_p1) + r], 0)
+        self.aabb_lo = np.concatenate([self.ell_center - self.ell_radii, np.minimum(self.cyl_p0, self.cyl_p1) - r], 0)
+        self.aabb_hi = np.concatenate([self.ell_center + self.ell_radii, np.maximum(self.cyl_p0, self.cyl_p1) + r], 0)
 
     @property
     def num_ellipsoids(self) -> int:

@@ -69,17 +69,28 @@ def quat_from_R(R: Float[np.ndarray, "3 3"]) -> Float[np.ndarray, "4"]:
 def R_from_quat(q: Float[np.ndarray, "4"]) -> Float[np.ndarray, "3 3"]:
     """Rotation matrix of a unit quaternion (qx, qy, qz, qw)."""
     x, y, z, w = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
-def _pinhole(w: int, h: int, hfov_deg: float, aspect_f: float, c_off: Tuple[float, float], dist: tuple) -> PinholeRadtan:
+def _pinhole(
+    w: int, h: int, hfov_deg: float, aspect_f: float, c_off: Tuple[float, float], dist: tuple
+) -> PinholeRadtan:
     fx = w / 2 / np.tan(np.radians(hfov_deg) / 2)
-    return PinholeRadtan(w, h, round(fx, 4), round(fx * aspect_f, 4), round((w - 1) / 2 + c_off[0] * w, 4),
-                         round((h - 1) / 2 + c_off[1] * h, 4), dist)
+    return PinholeRadtan(
+        w,
+        h,
+        round(fx, 4),
+        round(fx * aspect_f, 4),
+        round((w - 1) / 2 + c_off[0] * w, 4),
+        round((h - 1) / 2 + c_off[1] * h, 4),
+        dist,
+    )
 
 
 @dataclass
@@ -102,11 +113,13 @@ class Rig:
         """Camera-to-world pose of ``cam`` at time ``t`` (seconds)."""
         ph, sc = self.wobble[:, 0], self.wobble[:, 1]
         tt = t - T0
-        pos = np.array([
-            self.start_x + self.speed * tt,
-            -self.distance + 0.04 * sc[0] * np.sin(2 * np.pi * 0.23 * tt + ph[0]),
-            self.height + 0.03 * sc[1] * np.sin(2 * np.pi * 0.41 * tt + ph[1]),
-        ])
+        pos = np.array(
+            [
+                self.start_x + self.speed * tt,
+                -self.distance + 0.04 * sc[0] * np.sin(2 * np.pi * 0.23 * tt + ph[0]),
+                self.height + 0.03 * sc[1] * np.sin(2 * np.pi * 0.41 * tt + ph[1]),
+            ]
+        )
         base = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # columns: cam x, y, z in the world
         yaw = np.radians(1.5) * sc[2] * np.sin(2 * np.pi * 0.17 * tt + ph[2])
         pitch = self.pitch + np.radians(1.0) * sc[3] * np.sin(2 * np.pi * 0.29 * tt + ph[3])

@@ -45,17 +45,53 @@ def _dir(elev_deg: float, azim_deg: float) -> tuple:
 
 LIGHTING_PRESETS: Dict[str, Lighting] = {
     # sun high behind the rig: the camera sees the lit side of the row
-    "bright": Lighting("bright", _dir(55.0, -110.0), (2.6, 2.5, 2.3), (0.30, 0.48, 0.95), (0.85, 0.92, 1.05),
-                       (0.40, 0.48, 0.62), 2.0, 1.0, 0.002),
+    "bright": Lighting(
+        "bright",
+        _dir(55.0, -110.0),
+        (2.6, 2.5, 2.3),
+        (0.30, 0.48, 0.95),
+        (0.85, 0.92, 1.05),
+        (0.40, 0.48, 0.62),
+        2.0,
+        1.0,
+        0.002,
+    ),
     # lower sun behind the row: the camera sees the shaded side, with sunlit patches through the gaps
-    "shadowed": Lighting("shadowed", _dir(28.0, 75.0), (2.8, 2.6, 2.3), (0.25, 0.40, 0.85), (0.75, 0.82, 0.95),
-                         (0.16, 0.19, 0.26), 3.0, 1.0, 0.004),
+    "shadowed": Lighting(
+        "shadowed",
+        _dir(28.0, 75.0),
+        (2.8, 2.6, 2.3),
+        (0.25, 0.40, 0.85),
+        (0.75, 0.82, 0.95),
+        (0.16, 0.19, 0.26),
+        3.0,
+        1.0,
+        0.004,
+    ),
     # sun on the horizon, warm and dim
-    "dusk": Lighting("dusk", _dir(5.0, -150.0), (0.30, 0.15, 0.06), (0.035, 0.04, 0.08), (0.20, 0.11, 0.06),
-                     (0.030, 0.026, 0.035), 2.5, 2.0, 0.060),
+    "dusk": Lighting(
+        "dusk",
+        _dir(5.0, -150.0),
+        (0.30, 0.15, 0.06),
+        (0.035, 0.04, 0.08),
+        (0.20, 0.11, 0.06),
+        (0.030, 0.026, 0.035),
+        2.5,
+        2.0,
+        0.060,
+    ),
     # night: faint sky light only
-    "dark": Lighting("dark", _dir(-20.0, 0.0), (0.0, 0.0, 0.0), (0.0012, 0.0016, 0.003), (0.002, 0.0022, 0.003),
-                     (0.001, 0.0012, 0.0016), 2.5, 5.0, 0.100),
+    "dark": Lighting(
+        "dark",
+        _dir(-20.0, 0.0),
+        (0.0, 0.0, 0.0),
+        (0.0012, 0.0016, 0.003),
+        (0.002, 0.0022, 0.003),
+        (0.001, 0.0012, 0.0016),
+        2.5,
+        5.0,
+        0.100,
+    ),
 }
 
 
@@ -105,8 +141,9 @@ def _plant(
         h_env = rng.uniform(0.6, 0.8)
         env_r = np.array([rng.uniform(0.30, 0.38), rng.uniform(0.26, 0.32), rng.uniform(0.42, 0.55)])
         n_clusters, cl_r, n_fruit, fruit_r = rng.integers(34, 44), (0.07, 0.13), rng.integers(8, 14), (0.026, 0.036)
-        out["cyl"].append((np.array([x + 0.05, y - 0.12, -0.05]), np.array([x + 0.05, y - 0.12, 1.45]),
-                           0.014, STAKE, tree_index))
+        out["cyl"].append(
+            (np.array([x + 0.05, y - 0.12, -0.05]), np.array([x + 0.05, y - 0.12, 1.45]), 0.014, STAKE, tree_index)
+        )
         out["cyl"].append((np.array([x, y, -0.05]), np.array([x, y, h_env + 0.3]), 0.012, BARK, tree_index))
     center = np.array([x, y, h_env])
     out["env"].append((center, env_r))
@@ -136,14 +173,23 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
     spacing, back_y = (1.6, 3.8) if kind == "orchard" else (0.75, 1.7)
     varieties = (
         [np.array([0.62, 0.07, 0.05]), np.array([0.80, 0.33, 0.04]), np.array([0.55, 0.55, 0.08])]
-        if kind == "orchard" else [np.array([0.72, 0.06, 0.04]), np.array([0.85, 0.45, 0.03])]
+        if kind == "orchard"
+        else [np.array([0.72, 0.06, 0.04]), np.array([0.85, 0.45, 0.03])]
     )
     fruit_color = varieties[int(rng.choice(len(varieties), p=[0.5, 0.3, 0.2] if kind == "orchard" else [0.7, 0.3]))]
     air = float(rng.uniform(12.0, 24.0))
     leaf = air - float(rng.uniform(0.5, 2.0))
     delta = float(rng.uniform(2.0, 5.0)) * (1.0 if rng.random() < 0.5 else -1.0)
-    temps = {"air": air, "leaf": leaf, "fruit": leaf + delta, "bark": air + float(rng.uniform(0.0, 2.0)),
-             "ground": air + float(rng.uniform(1.0, 5.0)), "stake": air + 1.0, "sky_zenith": -10.0, "sky_horizon": 2.0}
+    temps = {
+        "air": air,
+        "leaf": leaf,
+        "fruit": leaf + delta,
+        "bark": air + float(rng.uniform(0.0, 2.0)),
+        "ground": air + float(rng.uniform(1.0, 5.0)),
+        "stake": air + 1.0,
+        "sky_zenith": -10.0,
+        "sky_horizon": 2.0,
+    }
     noise = ValueNoise(np.random.default_rng([seed, 11]))
     out: dict = {"ell": [], "cyl": [], "env": [], "fruits": []}
     tree_index = 0
@@ -165,8 +211,10 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
         out["ell"].append((c, r, LEAF, col, float(hrng.normal(0, 0.4)), -1, -1))
     ell, cyl = out["ell"], out["cyl"]
     prims = Primitives(
-        ell_center=np.array([e[0] for e in ell]), ell_radii=np.array([e[1] for e in ell]),
-        cyl_p0=np.array([c[0] for c in cyl]), cyl_p1=np.array([c[1] for c in cyl]),
+        ell_center=np.array([e[0] for e in ell]),
+        ell_radii=np.array([e[1] for e in ell]),
+        cyl_p0=np.array([c[0] for c in cyl]),
+        cyl_p1=np.array([c[1] for c in cyl]),
         cyl_radius=np.array([c[2] for c in cyl], dtype=np.float64),
     )
     cyl_col = {BARK: np.array([0.24, 0.17, 0.11]), STAKE: np.array([0.50, 0.40, 0.26])}
@@ -174,9 +222,15 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
     fruit_ell = {e[5]: e for e in ell if e[5] >= 0}
     for i, f in enumerate(out["fruits"]):
         e = fruit_ell[i]
-        fruits.append({"id": i, "center": [round(float(v), 6) for v in f["center"]],
-                       "radii": [round(float(v), 6) for v in f["radii"]], "plant": int(f["tree"]),
-                       "temperature_c": round(temps["fruit"] + float(e[4]), 4)})
+        fruits.append(
+            {
+                "id": i,
+                "center": [round(float(v), 6) for v in f["center"]],
+                "radii": [round(float(v), 6) for v in f["radii"]],
+                "plant": int(f["tree"]),
+                "temperature_c": round(temps["fruit"] + float(e[4]), 4),
+            }
+        )
     return Scene(
         prims=prims,
         material=np.array([e[2] for e in ell] + [c[3] for c in cyl], dtype=np.int64),
@@ -186,7 +240,10 @@ def build_scene(kind: str, seed: int, x_min: float, x_max: float) -> Scene:
         tree=np.array([e[6] for e in ell] + [c[4] for c in cyl], dtype=np.int64),
         env_center=np.array([e[0] for e in out["env"]]),
         env_radii=np.array([e[1] for e in out["env"]]),
-        temps=temps, fruits=fruits, kind=kind, noise=noise,
+        temps=temps,
+        fruits=fruits,
+        kind=kind,
+        noise=noise,
     )
 
 

@@ -96,8 +96,15 @@ class EventSimulator:
     """
 
     def __init__(
-        self, width: int, height: int, threshold: float, sigma: float, refractory_us: int, eps: float,
-        rng: np.random.Generator, max_per_step: int = 8,
+        self,
+        width: int,
+        height: int,
+        threshold: float,
+        sigma: float,
+        refractory_us: int,
+        eps: float,
+        rng: np.random.Generator,
+        max_per_step: int = 8,
     ) -> None:
         n = width * height
         self.width, self.height = width, height
@@ -176,9 +183,7 @@ class EventSimulator:
         return x, y, t_us, p
 
 
-def event_frame(
-    x: np.ndarray, y: np.ndarray, p: np.ndarray, width: int, height: int
-) -> Float[np.ndarray, "h w"]:
+def event_frame(x: np.ndarray, y: np.ndarray, p: np.ndarray, width: int, height: int) -> Float[np.ndarray, "h w"]:
     """Signed event count image (ON - OFF) of a set of events."""
     img = np.zeros(height * width)
     np.add.at(img, y.astype(np.int64) * width + x.astype(np.int64), np.where(p > 0, 1.0, -1.0))
