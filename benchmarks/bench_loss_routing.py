@@ -184,14 +184,21 @@ def default_rows(rows, scenes: Path) -> Tuple[list, List[str]]:
 
 
 def thermal_table(rows, keys) -> str:
-    """Final thermal PSNR of the cross-spectral `thermal` output and of `thermal_camera`, per scene and run."""
+    """Final PSNR / SSIM of the cross-spectral `thermal` output and PSNR of `thermal_camera` (against the rescaled
+    thermal frames), per scene and run."""
     last = results.final_rows(rows)
-    lines = ["| scene | run | thermal PSNR (cross-spectral) | thermal_camera PSNR |", "|---|---|---|---|"]
+    lines = [
+        "| scene | run | thermal PSNR / SSIM (cross-spectral) | thermal_camera PSNR |",
+        "|---|---|---|---|",
+    ]
     for (scene, key), row in sorted(last.items()):
         if key not in keys:
             continue
-        cells = [results.as_float(row, k) for k in ("thermal_psnr", "thermal_camera_psnr")]
-        lines.append(f"| {scene} | {key} | " + " | ".join("-" if c != c else f"{c:.2f}" for c in cells) + " |")
+        psnr, ssim, camera = (results.as_float(row, k) for k in ("thermal_psnr", "thermal_ssim", "thermal_camera_psnr"))
+        if psnr != psnr:
+            continue  # no thermal frames in this set (RGB+Events)
+        camera_cell = "-" if camera != camera else f"{camera:.2f}"
+        lines.append(f"| {scene} | {key} | {psnr:.2f} / {ssim:.3f} | {camera_cell} |")
     return "\n".join(lines) + "\n"
 
 
