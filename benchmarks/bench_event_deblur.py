@@ -74,6 +74,10 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
         "+ noise-balanced event loss, counts as lower bounds",
         (*EVENTS, *_events(256, 1.0), *NOISE, f"{MODEL}event-loss-bound", "True"),
     ),
+    "blur-events-bound": (
+        "blur + noise-balanced events, counts as lower bounds",
+        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, f"{MODEL}event-loss-bound", "True"),
+    ),
     "thermal-geometry": (
         "All, the thermal-camera term moves the density",
         (f"{MODEL}density-gradient-scales.thermal-camera-loss", "1.0"),
