@@ -2,22 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
+from helpers.bench_script import load_bench_script
 from PIL import Image
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_loss_routing.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("bench_loss_routing", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_bench_script("bench_loss_routing")
 
 
 def _scene(root: Path, scene: str, level: float) -> None:

@@ -3,21 +3,14 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
-import sys
 from pathlib import Path
 
+from helpers.bench_script import load_bench_script
 from helpers.model_scene import write_model_scene
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_step_interleaved.py"
 
 
 def _load():
-    spec = importlib.util.spec_from_file_location("bench_step_interleaved", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_bench_script("bench_step_interleaved")
 
 
 def test_interleaved_steps_of_agrinerf_lite_and_tensorf(tmp_path: Path) -> None:

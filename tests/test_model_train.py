@@ -5,17 +5,16 @@ an upsampling step continues at the upsampled grid size."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 from typing import Dict
 
 import numpy as np
 import pytest
 import torch
+from helpers.bench_script import load_bench_script
 from helpers.model_scene import tiny_trainer_config, write_model_scene
 from nerfstudio.utils.eval_utils import eval_setup
 
@@ -126,11 +125,7 @@ def test_ns_eval_and_ns_render_load_the_checkpoint(trained: Dict, tmp_path: Path
 
 def test_render_chunk_benchmark_renders_the_same_image_at_every_chunk_size(trained: Dict, tmp_path: Path) -> None:
     """benchmarks/bench_render_chunks.py: one process per chunk size, the renders agree, the table is written."""
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_render_chunks.py"
-    spec = importlib.util.spec_from_file_location("bench_render_chunks", script)
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = bench
-    spec.loader.exec_module(bench)
+    bench = load_bench_script("bench_render_chunks")
     config_path = trained["config"].get_base_dir() / "config.yml"
     args = bench.Args(config=config_path, out=tmp_path / "out", chunks=(4096, 100), views=1, rounds=1)
     bench.main(args)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.bench_script import load_bench_script
 
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.process.evaluate import pose_report
@@ -80,14 +81,8 @@ def test_sfm_scaling_benchmark_with_sequential_matching(tmp_path: Path):
     """The scaling benchmark at toy sizes: sequential matching registers >= 90 % of each sequence with small pose
     error with the incremental and the global mapper, and the table and plot are written."""
     import dataclasses
-    import importlib.util
-    import sys
 
-    path = Path(__file__).parents[1] / "benchmarks" / "bench_sfm_scaling.py"
-    spec = importlib.util.spec_from_file_location("bench_sfm_scaling", path)
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = bench  # dataclasses look their module up
-    spec.loader.exec_module(bench)
+    bench = load_bench_script("bench_sfm_scaling")
     args = bench.Args(
         out=tmp_path / "out",
         work=tmp_path / "work",
