@@ -237,7 +237,13 @@ class AgriNeRFModel(Model):
         rgb_level = float(metadata.get("rgb_level", float("nan")))
         # NaN (no level recorded) compares False: no low-light routing
         self.low_light = self.has_thermal_camera and rgb_level < config.low_light_level
+        # the density gradient scales in force: the configured ones, the thermal-camera term at full strength in low light
+        self.density_gradient_scales: Dict[str, float] = {
+            k: float(v) for k, v in config.density_gradient_scales.items()
+        }
         if self.low_light:
+            camera_scale = self.density_gradient_scales.get("thermal_camera_loss", 1.0)
+            self.density_gradient_scales["thermal_camera_loss"] = max(camera_scale, 1.0)
             CONSOLE.print(
                 f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
                 f"{config.low_light_level}), so the thermal-camera term shapes the geometry too."
@@ -607,10 +613,9 @@ class AgriNeRFModel(Model):
         return (weights * values).sum(dim=-2) + self._background(values) * (1.0 - accumulation)
 
     def density_gradient_scale(self, term: str) -> float:
-        """The scale of `term`'s gradient into the density: the configured one (1 when not configured), and full
-        strength for the thermal-camera term in low light (`low_light_level`)."""
-        scale = float(self.config.density_gradient_scales.get(term, 1.0))
-        return max(scale, 1.0) if term == "thermal_camera_loss" and self.low_light else scale
+        """The scale of `term`'s gradient into the density (1 when not configured; `low_light_level` raises the
+        thermal-camera term's to 1 in low light)."""
+        return self.density_gradient_scales.get(term, 1.0)
 
     def _routed_outputs(self, weights: Float[Tensor, "rays samples 1"], dense: Dict[str, Tensor]) -> Dict[str, Tensor]:
         """Training only: for each data term whose density gradient scale is not 1, its output composited with weights
