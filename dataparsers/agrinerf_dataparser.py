@@ -45,6 +45,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
+from agrinerf_ns.views import evenly_spaced
 
 if TYPE_CHECKING:
     from agrinerf_ns.model.event_stream import EventCamera
@@ -148,10 +149,9 @@ def rgb_level(image_paths: List[Path]) -> float:
 
     if not image_paths:
         return float("nan")
-    picks = np.unique(np.linspace(0, len(image_paths) - 1, min(RGB_LEVEL_FRAMES, len(image_paths))).round().astype(int))
     means = []
-    for k in picks:
-        with Image.open(image_paths[int(k)]) as image:
+    for k in evenly_spaced(len(image_paths), RGB_LEVEL_FRAMES):
+        with Image.open(image_paths[k]) as image:
             array = np.asarray(image.convert("RGB"))
         means.append(float(array.mean()) / 255.0)
     return float(np.mean(means))
