@@ -35,7 +35,7 @@ from agrinerf_ns.count.score import (
     visible_fruit,
 )
 from agrinerf_ns.count.support import keep_supported, views_showing
-from agrinerf_ns.process.readers import CameraCalib
+from agrinerf_ns.process.readers import CameraCalib, read_calibration
 
 IDENTITY = WorldFrame(np.eye(4)[:3], 1.0)
 FRUIT_D = 0.08
@@ -291,7 +291,9 @@ def test_lift_of_the_true_fruit_masks_lands_on_the_true_centres(tiny_capture: Tu
     reconstruction would render them) and aligned to the capture: median 3D error under 3 cm (fruit are 8-11 cm)."""
     raw, data = tiny_capture
     renders = oracle_renders(raw, data)
-    map_x, map_y = undistort_maps(raw, json.loads((data / "transforms.json").read_text()))
+    map_x, map_y = undistort_maps(
+        read_calibration(raw / "calib.yaml").rgb, json.loads((data / "transforms.json").read_text())
+    )
     truth, to_capture = read_truth_fruit(raw), align_to_capture(data, raw)
     errors = []
     for view in renders.views:

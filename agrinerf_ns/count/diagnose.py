@@ -40,13 +40,14 @@ from agrinerf_ns.count.score import (
     score_fruit,
     visible_fruit,
 )
+from agrinerf_ns.process.readers import read_calibration
 
 
 def view_fruit_ids(raw: Path, renders: RenderSet) -> List[Int[np.ndarray, "h w"]]:
     """Per view, the true fruit id of each pixel (-1 none), undistorted onto the dataset's pinhole camera."""
     assert renders.dataset is not None
     meta = json.loads((renders.dataset / "transforms.json").read_text())
-    map_x, map_y = undistort_maps(raw, meta)
+    map_x, map_y = undistort_maps(read_calibration(raw / "calib.yaml").rgb, meta)
     frames = dataset_frames(renders.dataset)
     out = []
     for view in renders.views:

@@ -25,7 +25,6 @@ from typing import List, Literal, Optional, Tuple
 import cv2
 import numpy as np
 import tyro
-import yaml
 from jaxtyping import Float
 
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
@@ -35,16 +34,12 @@ from agrinerf_ns.process.readers import CameraCalib, read_calibration
 ThermalMode = Literal["reprojected", "captured", "true"]
 
 
-def undistort_maps(raw: Path, meta: dict) -> tuple:
-    """OpenCV remap tables from the raw RGB camera (``calib.yaml``, distorted) onto the dataset's pinhole camera."""
-    calib = yaml.safe_load((raw / "calib.yaml").read_text())
-    cam = next(c for c in calib.values() if isinstance(c, dict) and c.get("modality") == "rgb")
-    fx, fy, cx, cy = cam["intrinsics"]
-    k_raw = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+def undistort_maps(rgb: CameraCalib, meta: dict) -> tuple:
+    """OpenCV remap tables from the raw RGB camera (``rgb``, distorted) onto the dataset's pinhole camera."""
     # the dataset's cx, cy follow Nerfstudio's pixel-centre convention (+0.5), OpenCV's do not
     k_new = np.array([[meta["fl_x"], 0, meta["cx"] - 0.5], [0, meta["fl_y"], meta["cy"] - 0.5], [0, 0, 1.0]])
     size = (int(meta["w"]), int(meta["h"]))
-    return cv2.initUndistortRectifyMap(k_raw, np.asarray(cam["distortion_coeffs"]), None, k_new, size, cv2.CV_32FC1)
+    return cv2.initUndistortRectifyMap(rgb.K, rgb.dist, None, k_new, size, cv2.CV_32FC1)
 
 
 def reproject_thermal(
@@ -72,9 +67,17 @@ def reproject_thermal(
 
 
 def oracle_thermal(
-    raw: Path, dataset: Path, frame: dict, z: np.ndarray, meta: dict, maps: Tuple, mode: ThermalMode
+    raw: Path,
+    dataset: Path,
+    frame: dict,
+    z: np.ndarray,
+    meta: dict,
+    maps: Tuple,
+    mode: ThermalMode,
+    camera: Optional[CameraCalib],
 ) -> Tuple[Optional[np.ndarray], Optional[np.ndarray]]:
-    """(thermal, temperature) of one oracle view by ``mode`` (see the module docstring)."""
+    """(thermal, temperature) of one oracle view by ``mode`` (see the module docstring); ``camera`` is the capture's
+    thermal camera (``reprojected`` needs it)."""
     if mode == "true":
         stem = Path(str(frame.get("raw_rgb", frame["file_path"]))).stem
         t = np.load(raw / "truth" / "temperature" / f"{stem}.npy").astype(np.float32)
@@ -90,7 +93,6 @@ def oracle_thermal(
         return image.astype(np.float32), None
     if "raw_thermal" not in frame:
         return None, None
-    camera = read_calibration(raw / "calib.yaml").thermal
     if camera is None:
         raise CountInputError(f"{raw / 'calib.yaml'}: no thermal camera to reproject the thermal frames from")
     counts = cv2.imread(str(raw / frame["raw_thermal"]), cv2.IMREAD_UNCHANGED)
@@ -103,7 +105,8 @@ def oracle_renders(raw: Path, dataset: Path, thermal_mode: ThermalMode = "reproj
     meta = json.loads((dataset / "transforms.json").read_text())
     if not (raw / "truth" / "depth").is_dir():
         raise CountInputError(f"{raw / 'truth' / 'depth'}: missing; the oracle needs a synthetic capture's true depth")
-    map_x, map_y = undistort_maps(raw, meta)
+    calib = read_calibration(raw / "calib.yaml")
+    map_x, map_y = undistort_maps(calib.rgb, meta)
     width, height, fx, fy = int(meta["w"]), int(meta["h"]), float(meta["fl_x"]), float(meta["fl_y"])
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     cam_dirs = np.stack([(u - meta["cx"]) / fx, -(v - meta["cy"]) / fy, -np.ones_like(u)], -1)  # OpenGL camera
@@ -117,7 +120,7 @@ def oracle_renders(raw: Path, dataset: Path, thermal_mode: ThermalMode = "reproj
         hit = np.isfinite(z)
         c2w = np.asarray(frame["transform_matrix"], np.float64)
         rgb = cv2.imread(str(dataset / frame["file_path"]), cv2.IMREAD_COLOR)[..., ::-1] / 255.0
-        thermal, temperature = oracle_thermal(raw, dataset, frame, z, meta, (map_x, map_y), thermal_mode)
+        thermal, temperature = oracle_thermal(raw, dataset, frame, z, meta, (map_x, map_y), thermal_mode, calib.thermal)
         views.append(
             RenderedView(
                 name=Path(frame["file_path"]).stem,
