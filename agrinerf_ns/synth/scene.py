@@ -43,56 +43,23 @@ def _dir(elev_deg: float, azim_deg: float) -> tuple:
     return (float(np.cos(e) * np.cos(a)), float(np.cos(e) * np.sin(a)), float(np.sin(e)))
 
 
+# fmt: off
+# Lighting(name, sun_dir, sun, sky_zenith, sky_horizon, ambient, canopy_density, event_noise_scale, exposure_s)
 LIGHTING_PRESETS: Dict[str, Lighting] = {
     # sun high behind the rig: the camera sees the lit side of the row
-    "bright": Lighting(
-        "bright",
-        _dir(55.0, -110.0),
-        (2.6, 2.5, 2.3),
-        (0.30, 0.48, 0.95),
-        (0.85, 0.92, 1.05),
-        (0.40, 0.48, 0.62),
-        2.0,
-        1.0,
-        0.002,
-    ),
+    "bright": Lighting("bright", _dir(55.0, -110.0), (2.6, 2.5, 2.3), (0.30, 0.48, 0.95), (0.85, 0.92, 1.05),
+                       (0.40, 0.48, 0.62), 2.0, 1.0, 0.002),
     # lower sun behind the row: the camera sees the shaded side, with sunlit patches through the gaps
-    "shadowed": Lighting(
-        "shadowed",
-        _dir(28.0, 75.0),
-        (2.8, 2.6, 2.3),
-        (0.25, 0.40, 0.85),
-        (0.75, 0.82, 0.95),
-        (0.16, 0.19, 0.26),
-        3.0,
-        1.0,
-        0.004,
-    ),
+    "shadowed": Lighting("shadowed", _dir(28.0, 75.0), (2.8, 2.6, 2.3), (0.25, 0.40, 0.85), (0.75, 0.82, 0.95),
+                         (0.16, 0.19, 0.26), 3.0, 1.0, 0.004),
     # sun on the horizon, warm and dim
-    "dusk": Lighting(
-        "dusk",
-        _dir(5.0, -150.0),
-        (0.30, 0.15, 0.06),
-        (0.035, 0.04, 0.08),
-        (0.20, 0.11, 0.06),
-        (0.030, 0.026, 0.035),
-        2.5,
-        2.0,
-        0.060,
-    ),
+    "dusk": Lighting("dusk", _dir(5.0, -150.0), (0.30, 0.15, 0.06), (0.035, 0.04, 0.08), (0.20, 0.11, 0.06),
+                     (0.030, 0.026, 0.035), 2.5, 2.0, 0.060),
     # night: faint sky light only
-    "dark": Lighting(
-        "dark",
-        _dir(-20.0, 0.0),
-        (0.0, 0.0, 0.0),
-        (0.0012, 0.0016, 0.003),
-        (0.002, 0.0022, 0.003),
-        (0.001, 0.0012, 0.0016),
-        2.5,
-        5.0,
-        0.100,
-    ),
+    "dark": Lighting("dark", _dir(-20.0, 0.0), (0.0, 0.0, 0.0), (0.0012, 0.0016, 0.003), (0.002, 0.0022, 0.003),
+                     (0.001, 0.0012, 0.0016), 2.5, 5.0, 0.100),
 }
+# fmt: on
 
 
 @dataclass
