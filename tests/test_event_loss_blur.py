@@ -252,3 +252,16 @@ def test_event_camera_rays_start_at_its_centre_and_meet_the_rgb_ray_on_the_align
     point = bundle.origins.double() + bundle.directions.double() * depth / cos
     to_point = torch.nn.functional.normalize(point - world_centre, dim=-1)
     assert torch.allclose(on_plane.directions.double(), to_point, atol=1e-5)
+
+
+@pytest.mark.parametrize("term", ["rgb_loss", "event_loss"])
+def test_the_blur_and_event_renders_follow_their_terms_density_scale(term: str) -> None:
+    """`density_gradient_scales` of L_rgb (through the blur model's renders) and of the event term hold there too:
+    at 0 the term trains the RGB appearance only."""
+    metadata = _metadata(exposure_s=0.04)
+    blur_events = {"blur_samples": 3, "event_rays_per_batch": 16}
+    full = _model(metadata, **blur_events)
+    off = _model(metadata, **blur_events, density_gradient_scales={term: 0.0})
+    groups = [term_gradient_norms({term: _losses(m, _batch())[term]}, parameter_groups(m))[term] for m in (full, off)]
+    assert groups[0]["density"] > 0 and groups[1]["density"] == 0.0
+    assert groups[1]["rgb_volume"] == pytest.approx(groups[0]["rgb_volume"], rel=1e-5)

@@ -116,6 +116,12 @@ def test_rgb_and_events_without_thermal_frames_leave_the_geometry_to_rgb() -> No
     assert [term for term, groups in reached.items() if "density" in groups] == ["rgb_loss"]
 
 
+def test_the_rgb_term_can_leave_the_geometry_to_the_thermal_camera() -> None:
+    reached = _reached(_norms(_model(density_gradient_scales={"rgb_loss": 0.0, "thermal_camera_loss": 1.0})))
+    assert reached["rgb_loss"] == {"rgb_volume", "rgb_mlp"}
+    assert "density" in reached["thermal_camera_loss"]
+
+
 @pytest.mark.parametrize("scale", [0.5, 0.1])
 def test_a_fractional_scale_scales_the_density_gradient_and_nothing_else(scale: float) -> None:
     full = _norms(_model(density_gradient_scales={"thermal_loss": 1.0, "thermal_camera_loss": 0.0}))["thermal_loss"]

@@ -484,16 +484,19 @@ class AgriNeRFModel(Model):
                 outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
         return outputs
 
-    def _render_at(self, bundle: RayBundle, times: Tensor, **camera: Any) -> Float[Tensor, "n k 3"]:
-        """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k] (`camera`: the
-        `camera_centre` and `plane_depth` of another rig camera whose frames were warped onto these pixels)."""
+    def _render_at(self, bundle: RayBundle, times: Tensor, term: str, **camera: Any) -> Float[Tensor, "n k 3"]:
+        """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k] for the loss `term` (its
+        density gradient scale; `camera`: the `camera_centre` and `plane_depth` of another rig camera whose frames
+        were warped onto these pixels)."""
         from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
 
         assert self.trajectory is not None and self.frame_times is not None
         frame_times = self.frame_times[camera_rows(bundle)]
         moved = self.collider(reposed_rays(bundle, self.trajectory, frame_times, times, **camera))
         n, k = times.shape
-        return self._render(moved, routed=False)["rgb"].reshape(n, k, 3)
+        return self._render(moved, routed=False, density_scale=self.density_gradient_scale(term))["rgb"].reshape(
+            n, k, 3
+        )
 
     def _blurred_rgb(self, bundle: RayBundle) -> Float[Tensor, "n 3"]:
         """The blur model: the mean in linear radiance of `blur_samples` renders across each frame's exposure."""
@@ -501,7 +504,7 @@ class AgriNeRFModel(Model):
 
         assert self.exposure is not None
         times = exposure_times(self.exposure[camera_rows(bundle)], self.config.blur_samples)
-        renders = self._render_at(bundle, times)
+        renders = self._render_at(bundle, times, "rgb_loss")
         return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
 
     def _stream_event_logs(self, like: RayBundle) -> Dict[str, Tensor]:
@@ -526,7 +529,8 @@ class AgriNeRFModel(Model):
             pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
             camera_indices=frames.repeat_interleave(2)[:, None].to(device),
         )
-        rgb = self._render(self.collider(bundle), routed=False)["rgb"].reshape(m, 2, 3)
+        scale = self.density_gradient_scale("event_loss")
+        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale)["rgb"].reshape(m, 2, 3)
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
                 "event_off": off.to(device)}  # fmt: skip
@@ -539,13 +543,16 @@ class AgriNeRFModel(Model):
         assert self.event_windows is not None
         m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
         head = bundle[:m]
-        renders = self._render_at(head, self.event_windows[camera_rows(head)].double(), **self.event_camera)
+        renders = self._render_at(
+            head, self.event_windows[camera_rows(head)].double(), "event_loss", **self.event_camera
+        )
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]
 
-    def _render(self, ray_bundle: RayBundle, routed: bool = True) -> Dict[str, Tensor]:
+    def _render(self, ray_bundle: RayBundle, routed: bool = True, density_scale: float = 1.0) -> Dict[str, Tensor]:
         """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold.
-        `routed`: add the training-only routed copies of the outputs (`density_gradient_scales`)."""
+        `routed`: add the training-only routed copies of the outputs (`density_gradient_scales`). `density_scale`:
+        scale of the gradient every output sends the density (the renders of one loss term: blur, events)."""
         with torch.no_grad():
             samples_coarse = self.sampler_coarse(ray_bundle)
             density_coarse, _ = self.field.get_density(samples_coarse)
@@ -555,6 +562,8 @@ class AgriNeRFModel(Model):
         corners = self.field.corners(coords.reshape(-1, 3))  # shared by the density and both appearance volumes
         density = self.field.density_at(coords, inside, corners)
         weights = torch.nan_to_num(samples.get_weights(density))  # [rays, samples, 1]
+        if density_scale != 1.0:
+            weights = losses.scale_gradient(weights, density_scale)
         num_rays, num_samples = weights.shape[:2]
 
         selected = weights[..., 0] > self.config.weight_threshold
@@ -652,7 +661,7 @@ class AgriNeRFModel(Model):
         terms: Dict[str, Tensor] = {}
         image = batch["image"][..., :3].to(self.device) if "image" in batch else None
         if self.use_rgb and image is not None:
-            terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", outputs["rgb"]), image)
+            terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", pred("rgb_loss")), image)
         if "event_on" in outputs:  # the stream's event pixels carry their own counts
             terms["event_loss"] = losses.event_loss(
                 outputs["event_log_start"],
