@@ -70,22 +70,30 @@ class Args:
     profile: str = "ablation"
     """Scene size, held-out views and step budget (``agrinerf_ns.bench.profiles``)."""
     seed: int = 0
+    """Seed of the synthetic scenes."""
+    run_seeds: Tuple[int, ...] = (0,)
+    """Random streams of the training runs (``--machine.seed``; 0: Nerfstudio's default), each run of stream s > 0
+    keyed ``<key>@s<s>``. A run and its RGB baseline share the stream (common random numbers: an added camera that
+    sends the RGB model the same gradient trains the very same model); with two or more streams the intervals also
+    cover how each difference varies between streams."""
     report_only: bool = False
     """Train nothing: write routing.md from the rows already in results.csv."""
 
 
-def method(routing: str, modality_set: str) -> Tuple[str, BenchMethod]:
-    """Result key and method of one routing and modality set (``rgb`` is the routing-free baseline)."""
+def method(routing: str, modality_set: str, run_seed: int = 0) -> Tuple[str, BenchMethod]:
+    """Result key and method of one routing and modality set (``rgb`` is the routing-free baseline), trained with
+    random stream ``run_seed``."""
+    stream = ("--machine.seed", str(run_seed)) if run_seed else ()
     if modality_set == "rgb":
-        return "rgb", BenchMethod("RGB", "agrinerf-lite", "transforms.json", "rgb",
-                                  train_args=("--pipeline.model.modalities", "rgb"))  # fmt: skip
+        return results.seed_key("rgb", run_seed), BenchMethod("RGB", "agrinerf-lite", "transforms.json", "rgb",
+                                  train_args=("--pipeline.model.modalities", "rgb", *stream))  # fmt: skip
     modalities = TABLE_IV_ABLATIONS[SETS[modality_set]]
-    return f"{routing}:{modality_set}", BenchMethod(
+    return results.seed_key(f"{routing}:{modality_set}", run_seed), BenchMethod(
         f"{SETS[modality_set]}, {routing}",
         "agrinerf-lite",
         "transforms.json",
         "rgb",
-        train_args=("--pipeline.model.modalities", *modalities, *ROUTINGS[routing]),
+        train_args=("--pipeline.model.modalities", *modalities, *ROUTINGS[routing], *stream),
     )
 
 
@@ -96,14 +104,16 @@ def main(args: Args) -> None:
     profile = PROFILES[args.profile]
     csv_path = args.out / "results.csv"
     device = device_name()
-    plan = [("-", "rgb")] + [(r, s) for s in args.sets for r in args.routings]
+    plan = [(seed, "-", "rgb") for seed in args.run_seeds] + [
+        (seed, r, s) for seed in args.run_seeds for s in args.sets for r in args.routings
+    ]
     prepared = (
         {} if args.report_only else {s: prepare_scene(s, profile, args.seed, args.out / "scenes") for s in args.scenes}
     )
     for scene, (raw, data) in prepared.items():
         done = results.done_runs(results.read_rows(csv_path))
-        for routing, modality_set in plan:
-            key, bench_method = method(routing, modality_set)
+        for run_seed, routing, modality_set in plan:
+            key, bench_method = method(routing, modality_set, run_seed)
             if (scene, key) in done:
                 continue
             print(f"{scene}: {key}", flush=True)
@@ -123,17 +133,33 @@ set are replicates of the RGB-only model with other random streams, so they meas
 def report(rows, args: Args, profile, device: str) -> str:
     """routing.md: one Table IV in PSNR per routing (modality sets across), intervals covering the views and the
     run-to-run spread, then the thermal outputs' own PSNR."""
-    replicates = ["rgb"] + [method(r, s)[0] for r in REPLICATE_ROUTINGS for s in SETS]
-    sd, dof = results.run_spread(rows, replicates)
-    spread = (
-        "Run-to-run spread: training is deterministic for one random stream, but the RGB-only model's final PSNR "
-        f"moves with the stream (the rays drawn) by a standard deviation of {sd:.2f} dB ({dof} degrees of freedom, "
-        "pooled over the scenes from the RGB run and the `rgb-geometry` runs, which receive exactly its gradient; "
-        "runs that drew the same stream count once). Each interval below adds that spread for two single runs to the "
-        "paired per-view interval (in quadrature), so a * marks a difference beyond both.\n\n"
-        if dof
-        else "No replicate runs: the intervals cover the held-out views only, not the run-to-run spread.\n\n"
-    )
+    compared = [method(r, s)[0] for r in args.routings for s in args.sets]
+    sd, dof = results.difference_spread(rows, compared, "rgb", args.run_seeds)
+    factor = 1.0
+    streams = ", ".join(str(s) for s in args.run_seeds)
+    if dof:
+        spread = (
+            "Common random numbers: each run draws the same random stream as the RGB-only run it is compared with, so "
+            "an added camera that sends the RGB model the same gradient trains the very same model (`identical`: "
+            "every held-out view the same to the last digit). Where a camera does move the model, the training "
+            f"diverges from there on, and the difference itself varies between streams ({streams}): by a standard "
+            f"deviation of {sd:.2f} dB ({dof} degrees of freedom, pooled over the scenes and the rows that are not "
+            "identical). Each interval below adds that to the paired per-view interval (in quadrature), so a * marks "
+            "a difference beyond both. Cells are the runs of stream 0.\n\n"
+        )
+    else:
+        replicates = ["rgb"] + [method(r, s)[0] for r in REPLICATE_ROUTINGS for s in SETS]
+        sd, dof = results.run_spread(rows, replicates)
+        factor = 2.0**0.5
+        spread = (
+            "Run-to-run spread: training is deterministic for one random stream, but the RGB-only model's final PSNR "
+            f"moves with the stream (the rays drawn) by a standard deviation of {sd:.2f} dB ({dof} degrees of "
+            "freedom, pooled over the scenes from the RGB run and the `rgb-geometry` runs, which receive exactly its "
+            "gradient; runs that drew the same stream count once). Each interval below adds that spread for two "
+            "single runs to the paired per-view interval (in quadrature), so a * marks a difference beyond both.\n\n"
+            if dof
+            else "No replicate runs: the intervals cover the held-out views only, not the run-to-run spread.\n\n"
+        )
     text = (
         "# RGB PSNR per loss routing\n\n"
         f"Command: `python benchmarks/bench_loss_routing.py {' '.join(sys.argv[1:])}`\n\n"
@@ -155,7 +181,7 @@ def report(rows, args: Args, profile, device: str) -> str:
                 "Where the frames are above it, and in RGB+Events (no thermal frames) everywhere, the default routes "
                 "as `rgb-geometry` (the same RGB gradient), and the cells are the `rgb-geometry` runs.\n"
             )
-        table = results.ablation_table(table_rows, keys, "rgb", labels, (sd, dof))
+        table = results.ablation_table(table_rows, keys, "rgb", labels, (sd, dof), factor)
         text += f"Routing `{routing}`:\n\n" + table + ("\n" + note if note else "") + "\n"
     keys = [method(r, s)[0] for s in args.sets for r in args.routings]
     return (

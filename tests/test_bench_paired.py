@@ -49,3 +49,29 @@ def test_interval_with_run_spread_is_wider_and_can_unmark_a_difference() -> None
     assert "*" not in wide
     half = results.difference_interval(0.0, 0.3, 20)
     assert half == pytest.approx(2.085963 * math.sqrt(2) * 0.3, rel=1e-5)  # t(0.975, 20 dof)
+
+
+def test_difference_spread_pools_per_stream_differences_and_leaves_identical_runs_out() -> None:
+    same = "19.0;21.0"
+    rows = [
+        _row("a", "rgb", 20.0, "19;21"), _row("a", "rgb@s1", 21.0, "20;22"), _row("a", "rgb@s2", 19.0, "18;20"),
+        _row("a", "cam", 20.5, "20;21"), _row("a", "cam@s1", 21.1, "21;21.2"), _row("a", "cam@s2", 19.6, "19;20.2"),
+        # the same model as the baseline in every stream: its difference is exactly 0 and says nothing of the spread
+        _row("a", "geo", 20.0, "19;21"), _row("a", "geo@s1", 21.0, "20;22"), _row("a", "geo@s2", 19.0, "18;20"),
+        _row("b", "rgb", 18.0, same), _row("b", "cam", 18.4, "18.1;18.7"),  # one stream: no spread
+    ]  # fmt: skip
+    sd, dof = results.difference_spread(rows, ["cam", "geo"], "rgb", (0, 1, 2))
+    # scene a, cam: differences 0.5, 0.1, 0.6 (mean 0.4; squares 0.01 + 0.09 + 0.04), 2 dof
+    assert dof == 2
+    assert sd == pytest.approx(math.sqrt(0.14 / 2))
+    assert math.isnan(results.difference_spread(rows, ["geo"], "rgb", (0, 1, 2))[0])
+    assert results.seed_key("cam", 0) == "cam" and results.seed_key("cam", 2) == "cam@s2"
+
+
+def test_a_run_identical_to_its_baseline_is_marked_so_without_an_interval() -> None:
+    rows = [_row("a", "rgb", 20.0, "19.5;20.5"), _row("a", "geo", 20.0, "19.5;20.5"), _row("a", "cam", 20.4, "20;20.8")]
+    table = results.ablation_table(rows, ["rgb", "geo", "cam"], "rgb", {}, run_sd=(0.2, 4), runs_factor=1.0)
+    geo, cam = table.splitlines()[2].split(" | ")[2:4]
+    assert geo == "20.00 (identical)"
+    assert cam.startswith("20.40 (+0.40 ± ")
+    assert results.difference_interval(0.0, 0.2, 4, runs_factor=1.0) == pytest.approx(2.776445 * 0.2, rel=1e-5)

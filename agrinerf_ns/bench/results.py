@@ -198,14 +198,49 @@ def run_spread(rows: Sequence[Row], replicates: Sequence[str]) -> Tuple[float, i
     return (math.sqrt(sum_sq / dof), dof) if dof else (math.nan, 0)
 
 
-def difference_interval(view_half: float, run_sd: float, run_dof: int, confidence: float = 0.95) -> float:
+def seed_key(method: str, seed: int) -> str:
+    """Result key of ``method`` trained with random stream ``seed`` (0: the key itself)."""
+    return method if seed == 0 else f"{method}@s{seed}"
+
+
+def difference_spread(
+    rows: Sequence[Row], methods: Sequence[str], baseline: str, seeds: Sequence[int]
+) -> Tuple[float, int]:
+    """Standard deviation between random streams of each method's final ``psnr_clean`` difference to ``baseline``
+    (both trained with the same stream, :func:`seed_key`), pooled over scenes and methods, and its degrees of freedom.
+
+    With common random numbers (the same stream for a method and its baseline) a method that sends the shared model
+    the same gradient trains the very same model: every stream gives a difference of exactly 0, and such methods
+    (identical per-view results in every stream) are left out. NaN with no method seen in two streams.
+    """
+    last = final_rows(rows)
+    sum_sq, dof = 0.0, 0
+    for scene in {scene for scene, _ in last}:
+        for method in methods:
+            pairs = [(last.get((scene, seed_key(method, s))), last.get((scene, seed_key(baseline, s)))) for s in seeds]
+            pairs = [(m, b) for m, b in pairs if m is not None and b is not None]
+            if all(per_view(m) and per_view(m) == per_view(b) for m, b in pairs):
+                continue
+            diffs = [as_float(m, "psnr_clean") - as_float(b, "psnr_clean") for m, b in pairs]
+            diffs = [d for d in diffs if math.isfinite(d)]
+            if len(diffs) >= 2:
+                mean = sum(diffs) / len(diffs)
+                sum_sq += sum((d - mean) ** 2 for d in diffs)
+                dof += len(diffs) - 1
+    return (math.sqrt(sum_sq / dof), dof) if dof else (math.nan, 0)
+
+
+def difference_interval(
+    view_half: float, run_sd: float, run_dof: int, confidence: float = 0.95, runs_factor: float = math.sqrt(2.0)
+) -> float:
     """Half-width of the interval of a difference between two single runs: the paired per-view half-width and the
-    run-to-run part (two runs, each with standard deviation ``run_sd``), independent sources added in quadrature."""
+    run-to-run part, independent sources added in quadrature. ``runs_factor``: sqrt(2) where ``run_sd`` is one run's
+    spread (:func:`run_spread`, two independent runs), 1 where it is the difference's own (:func:`difference_spread`)."""
     from scipy import stats
 
     if not (math.isfinite(run_sd) and run_dof > 0):
         return view_half
-    run_half = float(stats.t.ppf(0.5 + confidence / 2, run_dof)) * math.sqrt(2.0) * run_sd
+    run_half = float(stats.t.ppf(0.5 + confidence / 2, run_dof)) * runs_factor * run_sd
     return math.hypot(view_half, run_half) if math.isfinite(view_half) else run_half
 
 
@@ -215,10 +250,12 @@ def ablation_table(
     baseline: str,
     labels: Dict[str, str],
     run_sd: Tuple[float, int] = (math.nan, 0),
+    runs_factor: float = math.sqrt(2.0),
 ) -> str:
     """Scenes down, methods across: each cell the final ``psnr_clean`` and, for the non-baseline methods, the paired
-    per-view difference to ``baseline`` with its 95% interval (a difference whose interval excludes 0 is marked *).
-    With ``run_sd`` (:func:`run_spread`) the interval also covers the run-to-run spread (:func:`difference_interval`)."""
+    per-view difference to ``baseline`` with its 95% interval (a difference whose interval excludes 0 is marked *;
+    "identical" where every view is the same). With ``run_sd`` the interval also covers the run-to-run spread
+    (:func:`difference_interval`, ``runs_factor``)."""
     last = final_rows(rows)
     scenes = sorted({scene for scene, _ in last})
     header = "| scene | " + " | ".join(labels.get(m, m) for m in methods) + " |"
@@ -232,9 +269,11 @@ def ablation_table(
                 cells.append("-")
                 continue
             cell = f"{as_float(row, 'psnr_clean'):.2f}"
-            if method != baseline and base is not None and per_view(row) and per_view(base):
+            if method != baseline and base is not None and per_view(row) and per_view(row) == per_view(base):
+                cell += " (identical)"
+            elif method != baseline and base is not None and per_view(row) and per_view(base):
                 mean, half = paired_difference(per_view(row), per_view(base))
-                half = difference_interval(half, *run_sd)
+                half = difference_interval(half, *run_sd, runs_factor=runs_factor)
                 mark = "*" if math.isfinite(half) and abs(mean) > half else ""
                 cell += f" ({mean:+.2f} ± {half:.2f}{mark})"
             cells.append(cell)
