@@ -217,8 +217,11 @@ def difference_spread(
     sum_sq, dof = 0.0, 0
     for scene in {scene for scene, _ in last}:
         for method in methods:
-            pairs = [(last.get((scene, seed_key(method, s))), last.get((scene, seed_key(baseline, s)))) for s in seeds]
-            pairs = [(m, b) for m, b in pairs if m is not None and b is not None]
+            pairs = [
+                (last[(scene, seed_key(method, s))], last[(scene, seed_key(baseline, s))])
+                for s in seeds
+                if (scene, seed_key(method, s)) in last and (scene, seed_key(baseline, s)) in last
+            ]
             if all(per_view(m) and per_view(m) == per_view(b) for m, b in pairs):
                 continue
             diffs = [as_float(m, "psnr_clean") - as_float(b, "psnr_clean") for m, b in pairs]
