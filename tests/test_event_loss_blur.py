@@ -265,3 +265,16 @@ def test_the_blur_and_event_renders_follow_their_terms_density_scale(term: str) 
     groups = [term_gradient_norms({term: _losses(m, _batch())[term]}, parameter_groups(m))[term] for m in (full, off)]
     assert groups[0]["density"] > 0 and groups[1]["density"] == 0.0
     assert groups[1]["rgb_volume"] == pytest.approx(groups[0]["rgb_volume"], rel=1e-5)
+
+
+def test_the_blur_and_event_renders_leave_the_global_random_stream_as_it_was() -> None:
+    """Common random numbers: a step with the blur model and the event loss draws the next batch's randomness exactly
+    as a step without them does, so their ablation rows stay paired with the RGB-only row."""
+    draws = []
+    for kw in ({"blur_samples": 1, "event_rays_per_batch": 0}, {"blur_samples": 3, "event_rays_per_batch": 16}):
+        model = _model(_metadata(exposure_s=0.04), **kw)
+        assert model.use_blur == (kw["blur_samples"] > 1) and model.use_event_loss == (kw["event_rays_per_batch"] > 0)
+        outputs = _losses(model, _batch(), seed=5)
+        assert ("event_loss" in outputs) == model.use_event_loss
+        draws.append(torch.rand(4))
+    assert torch.equal(draws[0], draws[1])

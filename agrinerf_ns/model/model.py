@@ -6,9 +6,10 @@ Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Loss
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Literal, Optional, Tuple, Type
+from typing import Any, Dict, Iterator, List, Literal, Optional, Tuple, Type
 
 import numpy as np
 import torch
@@ -48,6 +49,9 @@ TERM_OUTPUTS: Dict[str, str] = {
 
 PAPER_DENSITY_GRADIENT_SCALES: Dict[str, float] = {term: 1.0 for term in TERM_OUTPUTS}
 """Every term moves the shared density at full strength: the paper's loss as written, with one thermal output."""
+
+SIDE_STREAM_SEED = 20_261_202
+"""Seed of the blur and event renders' random stream at step 0 (`AgriNeRFModel._side_stream`)."""
 
 DENSE_HEADS_FRACTION = 0.85
 """When at least this fraction of the fine samples passes the weight threshold (usual: the PDF samples sit where the
@@ -476,13 +480,24 @@ class AgriNeRFModel(Model):
             self.camera_optimizer.apply_to_raybundle(ray_bundle)
         outputs = self._render(ray_bundle)
         if self.training and torch.is_grad_enabled():
-            if self.use_blur and self.step >= self.config.blur_start_step:
-                outputs["rgb_blurred"] = self._blurred_rgb(ray_bundle)
-            if self.use_event_loss and self.event_stream is not None:
-                outputs.update(self._stream_event_logs(ray_bundle))
-            elif self.use_event_loss:
-                outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
+            with self._side_stream():
+                if self.use_blur and self.step >= self.config.blur_start_step:
+                    outputs["rgb_blurred"] = self._blurred_rgb(ray_bundle)
+                if self.use_event_loss and self.event_stream is not None:
+                    outputs.update(self._stream_event_logs(ray_bundle))
+                elif self.use_event_loss:
+                    outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
         return outputs
+
+    @contextlib.contextmanager
+    def _side_stream(self) -> Iterator[None]:
+        """The blur and event renders draw their pixels, windows and sample jitter from a random stream of their own
+        (seeded by the step), so that turning them on leaves the draws of the RGB batches as they were: an ablation
+        row and its baseline stay paired (common random numbers)."""
+        devices = [self.device] if self.device.type == "cuda" else []
+        with torch.random.fork_rng(devices=devices):
+            torch.manual_seed(SIDE_STREAM_SEED + self.step)
+            yield
 
     def _render_at(self, bundle: RayBundle, times: Tensor, term: str, **camera: Any) -> Float[Tensor, "n k 3"]:
         """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k] for the loss `term` (its
