@@ -186,11 +186,19 @@ def run_spread(rows: Sequence[Row], replicates: Sequence[str]) -> Tuple[float, i
     even when nothing else differs. NaN with no group of two.
     """
     last = final_rows(rows)
-    sum_sq, dof = 0.0, 0
+    groups = []
     for scene in {scene for scene, _ in last}:
         runs = {tuple(per_view(last[(scene, m)])) or m: last[(scene, m)] for m in replicates if (scene, m) in last}
-        values = [as_float(row, "psnr_clean") for row in runs.values()]
-        values = [v for v in values if math.isfinite(v)]
+        groups.append([as_float(row, "psnr_clean") for row in runs.values()])
+    return pooled_sd(groups)
+
+
+def pooled_sd(groups: Iterable[Sequence[float]]) -> Tuple[float, int]:
+    """Pooled standard deviation of groups of values about their own means, and its degrees of freedom (non-finite
+    values dropped; a group of one adds nothing). NaN with no group of two."""
+    sum_sq, dof = 0.0, 0
+    for group in groups:
+        values = [v for v in group if math.isfinite(v)]
         if len(values) >= 2:
             mean = sum(values) / len(values)
             sum_sq += sum((v - mean) ** 2 for v in values)
@@ -214,7 +222,7 @@ def difference_spread(
     (identical per-view results in every stream) are left out. NaN with no method seen in two streams.
     """
     last = final_rows(rows)
-    sum_sq, dof = 0.0, 0
+    groups = []
     for scene in {scene for scene, _ in last}:
         for method in methods:
             pairs = [
@@ -224,13 +232,8 @@ def difference_spread(
             ]
             if all(per_view(m) and per_view(m) == per_view(b) for m, b in pairs):
                 continue
-            diffs = [as_float(m, "psnr_clean") - as_float(b, "psnr_clean") for m, b in pairs]
-            diffs = [d for d in diffs if math.isfinite(d)]
-            if len(diffs) >= 2:
-                mean = sum(diffs) / len(diffs)
-                sum_sq += sum((d - mean) ** 2 for d in diffs)
-                dof += len(diffs) - 1
-    return (math.sqrt(sum_sq / dof), dof) if dof else (math.nan, 0)
+            groups.append([as_float(m, "psnr_clean") - as_float(b, "psnr_clean") for m, b in pairs])
+    return pooled_sd(groups)
 
 
 def difference_interval(
