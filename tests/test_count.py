@@ -23,6 +23,7 @@ from agrinerf_ns.count.render import (
     CountInputError,
     RenderedView,
     WorldFrame,
+    dataset_folder,
     load_renders,
     require_depth,
     save_renders,
@@ -235,6 +236,13 @@ def test_a_run_without_depth_and_an_empty_render_folder_are_named(tmp_path: Path
     with pytest.raises(CountInputError, match=r"train_000000.npz: no 'depth' array"):
         load_renders(empty)
     assert not (tmp_path / "out").exists()
+
+
+def test_the_dataset_folder_of_a_run_trained_on_a_folder_or_on_its_transforms_file(tmp_path: Path) -> None:
+    """`ns-train --data` takes either; `agrinerf-bench` passes the transforms file."""
+    assert dataset_folder(tmp_path / "data") == tmp_path / "data"
+    assert dataset_folder(tmp_path / "data" / "transforms.json") == tmp_path / "data"
+    assert dataset_folder(tmp_path / "data" / "transforms_thermal.json") == tmp_path / "data"
 
 
 def test_count_a_trained_run(tiny_run_config: Path, tmp_path: Path) -> None:

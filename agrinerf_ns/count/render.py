@@ -140,7 +140,8 @@ def render_run(
     run = load_run(config_path, eval_num_rays_per_chunk)
     datamanager = run.pipeline.datamanager
     datasets = {"train": datamanager.train_dataset, "eval": datamanager.eval_dataset}
-    dataset_dir = Path(datamanager.config.data) if getattr(datamanager.config, "data", None) else None
+    data = getattr(datamanager.config, "data", None)
+    dataset_dir = dataset_folder(Path(data)) if data else None
     views: List[RenderedView] = []
     total = sum(len(datasets[s]) for s in splits if datasets[s] is not None)
     with Progress(transient=True) as progress:
@@ -161,6 +162,12 @@ def render_run(
     if out_dir is not None:
         save_renders(result, Path(out_dir))
     return result
+
+
+def dataset_folder(data: Path) -> Path:
+    """The dataset folder of a run's ``--data``: the folder itself, or the folder of the transforms JSON it names
+    (``ns-train ... --data DATA/transforms.json``, as ``agrinerf-bench`` trains)."""
+    return data.parent if data.suffix == ".json" else data
 
 
 def _relative(image: Path, dataset_dir: Path) -> str:
