@@ -177,10 +177,11 @@ def report(rows, args: Args, profile, device: str) -> str:
             table_rows, borrowed = default_rows(rows, args.out / "scenes")
             if borrowed:
                 note = f"Scenes {', '.join(borrowed)}: frames above the low-light level. "
-            note += (
-                "Where the frames are above it, and in RGB+Events (no thermal frames) everywhere, the default routes "
-                "as `rgb-geometry` (the same RGB gradient), and the cells are the `rgb-geometry` runs.\n"
-            )
+            if len(table_rows) > len(rows):
+                note += (
+                    "Where the frames are above it, and in RGB+Events (no thermal frames) everywhere, the default routes "
+                    "as `rgb-geometry` (the same RGB gradient), and the cells are the `rgb-geometry` runs.\n"
+                )
         table = results.ablation_table(table_rows, keys, "rgb", labels, (sd, dof), factor)
         text += f"Routing `{routing}`:\n\n" + table + ("\n" + note if note else "") + "\n"
     keys = [method(r, s)[0] for s in args.sets for r in args.routings]
