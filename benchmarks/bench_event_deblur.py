@@ -36,7 +36,11 @@ def _blur(k: int) -> Tuple[str, ...]:
 
 
 def _events(pixels: int, weight: float = 0.1) -> Tuple[str, ...]:
-    return (f"{MODEL}event-rays-per-batch", str(pixels), f"{MODEL}loss-coefficients.event-loss", str(weight))
+    """The event loss on `pixels` event pixels per batch at `weight`, in any light (the rows measure it)."""
+    return (
+        f"{MODEL}event-rays-per-batch", str(pixels), f"{MODEL}loss-coefficients.event-loss", str(weight),
+        f"{MODEL}low-light-event-loss", "True",
+    )  # fmt: skip
 
 
 def _window(fraction: float) -> Tuple[str, ...]:

@@ -113,10 +113,13 @@ PAPER_BLUR: Dict[str, Any] = dict(blur_samples=5, blur_start_step=1200)
 """The paper preset's blur model, EvDeblurNeRF's (which AgriNeRF extends), from step 1200; EvDeblurNeRF itself renders
 10 rays per blurred pixel."""
 
-EVDEBLURNERF: Dict[str, Any] = dict(modalities=("rgb", "events"), cross_spectral_output=False)
-"""The EvDeblurNeRF baseline's scene: RGB and events, no thermal head. Its presets also turn the event loss on at
-EvDeblurNeRF's fixed weight 0.1 (EvDeblurNeRF uses 2048-4096 event pixels per batch); `agrinerf` weights it by the
-events' noise instead, `agrinerf-lite` leaves it off (docs/model.md, Event loss and blur model)."""
+EVDEBLURNERF: Dict[str, Any] = dict(
+    modalities=("rgb", "events"), cross_spectral_output=False, low_light_event_loss=True
+)
+"""The EvDeblurNeRF baseline's scene: RGB and events, no thermal head, the event loss in any light (as published). Its
+presets also turn the event loss on at EvDeblurNeRF's fixed weight 0.1 (EvDeblurNeRF uses 2048-4096 event pixels per
+batch); `agrinerf` weights it by the events' noise instead and leaves it off in low light, `agrinerf-lite` leaves it
+off (docs/model.md, Event loss and blur model)."""
 
 LITE: Dict[str, Any] = dict(
     max_num_iterations=2000,

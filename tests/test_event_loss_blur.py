@@ -278,3 +278,11 @@ def test_the_blur_and_event_renders_leave_the_global_random_stream_as_it_was() -
         assert ("event_loss" in outputs) == model.use_event_loss
         draws.append(torch.rand(4))
     assert torch.equal(draws[0], draws[1])
+
+
+def test_the_event_loss_is_off_in_low_light_unless_kept() -> None:
+    dark = {**_metadata(), "rgb_level": 0.012}
+    assert not _model(dark, event_rays_per_batch=16).use_event_loss
+    assert _model(dark, event_rays_per_batch=16, low_light_event_loss=True).use_event_loss
+    assert _model({**_metadata(), "rgb_level": 0.3}, event_rays_per_batch=16).use_event_loss
+    assert _model(dark, event_rays_per_batch=16, low_light_level=0.0).use_event_loss  # the rule switched off

@@ -125,6 +125,10 @@ class AgriNeRFModelConfig(ModelConfig):
     whatever `density_gradient_scales` says of it: frames of a few DN are mostly noise and give the density little,
     while the thermal frames see the scene at any light (docs/model.md, Loss routing). 0: never (the geometry then
     follows `density_gradient_scales` in any light)."""
+    low_light_event_loss: bool = False
+    """Keep the event loss where the training RGB frames are below `low_light_level`. Off by default: there the event
+    loss lowered the RGB reconstruction, most at short budgets (the render's log luminance of a few DN is dominated
+    by the log offset, and the events by noise; docs/model.md, Low light)."""
     temperature_output: bool = True
     """A `temperature` output in degrees C, where the dataset has temperature images (its thermal camera has a
     radiometric calibration): a small head on the thermal appearance (`temperature_head.*`, none without them), trained
@@ -273,6 +277,13 @@ class AgriNeRFModel(Model):
             and config.event_rays_per_batch > 0
             and config.loss_coefficients.get("event_loss", 0.0) > 0
         )
+        if self.use_event_loss and rgb_level < config.low_light_level and not config.low_light_event_loss:
+            self.use_event_loss = False
+            CONSOLE.print(
+                f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
+                f"{config.low_light_level}), so the event loss is off (--pipeline.model.low-light-event-loss True "
+                "keeps it)."
+            )
         self.event_stream: Optional[EventStream] = None
         if self.use_event_loss and config.event_supervision == "stream" and self.event_camera_native is not None:
             self.event_stream = self.event_camera_native.stream()
