@@ -53,8 +53,9 @@ ROUTINGS: Dict[str, Tuple[str, ...]] = {
 output). detach-reg: L_reg trains the thermal appearance only. rgb-geometry: only L_rgb moves the density, in any
 light. camera: the thermal-camera channel carries the thermal geometry, the cross-spectral terms none. camera-0.3: the
 same at 0.3 strength. camera-only: the thermal-camera channel alone moves the density (L_rgb trains the RGB appearance
-on it). camera-rgb0.25: L_rgb moves it at 0.25. camera-w4: camera with the thermal-camera term weighted 4. camera+reg: the camera channel and L_reg move the density. default: the model's defaults
-(rgb-geometry's routing, and camera's where the RGB frames are dark: ``low_light_level``)."""
+on it). camera-rgb0.25: L_rgb moves it at 0.25. camera-w4: camera with the thermal-camera term weighted 4. camera+reg:
+the camera channel and L_reg move the density. default: the model's defaults (rgb-geometry's routing, and camera's
+where the RGB frames are dark: ``low_light_level``)."""
 
 SETS: Dict[str, str] = {"rgb-events": "RGB+Events", "rgb-thermal": "RGB+Thermal", "all": "All"}
 

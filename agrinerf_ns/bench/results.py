@@ -275,13 +275,15 @@ def ablation_table(
                 cells.append("-")
                 continue
             cell = f"{as_float(row, 'psnr_clean'):.2f}"
-            if method != baseline and base is not None and per_view(row) and per_view(row) == per_view(base):
-                cell += " (identical)"
-            elif method != baseline and base is not None and per_view(row) and per_view(base):
-                mean, half = paired_difference(per_view(row), per_view(base))
-                half = difference_interval(half, *run_sd, runs_factor=runs_factor)
-                mark = "*" if math.isfinite(half) and abs(mean) > half else ""
-                cell += f" ({mean:+.2f} ± {half:.2f}{mark})"
+            mine, theirs = per_view(row), (per_view(base) if base is not None else [])
+            if method != baseline and mine and theirs:
+                if mine == theirs:
+                    cell += " (identical)"
+                else:
+                    mean, half = paired_difference(mine, theirs)
+                    half = difference_interval(half, *run_sd, runs_factor=runs_factor)
+                    mark = "*" if math.isfinite(half) and abs(mean) > half else ""
+                    cell += f" ({mean:+.2f} ± {half:.2f}{mark})"
             cells.append(cell)
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

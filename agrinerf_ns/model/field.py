@@ -187,11 +187,23 @@ class AgriNeRFField(Field):
         # the heads of optional modalities draw their initial values from a forked random stream, so that adding a
         # camera leaves the RGB model's initialisation and its training draws as they were (paired ablations)
         with torch.random.fork_rng(devices=[]):
-            self.thermal_head, self.temperature_head = self._thermal_heads(
-                with_thermal, resolution, num_thermal_components, thermal_appearance_dim, thermal_channels,
-                thermal_view_dependent, mlp_width if thermal_mlp_width is None else thermal_mlp_width, vm_lookup,
-                temperature_stats, temperature_mlp_width,
-            )  # fmt: skip
+            self.thermal_head: Optional[AppearanceHead] = (
+                AppearanceHead(
+                    resolution,
+                    num_thermal_components,
+                    thermal_appearance_dim,
+                    thermal_channels,
+                    thermal_view_dependent,
+                    mlp_width if thermal_mlp_width is None else thermal_mlp_width,
+                    vm_lookup,
+                )
+                if with_thermal
+                else None
+            )
+            self.temperature_head: Optional[TemperatureHead] = None
+            if self.thermal_head is not None and temperature_stats is not None:
+                in_dim = self.thermal_head.mlp.in_dim
+                self.temperature_head = TemperatureHead(in_dim, temperature_mlp_width, *temperature_stats)
         self.density_shift = density_shift
         self.max_density = max_density
         occ_res = max(int(occupancy_resolution), 1)
@@ -199,29 +211,6 @@ class AgriNeRFField(Field):
         self.occupancy_enabled = occupancy_resolution > 0
         self.occupancy_all = True  # cache: the grid keeps every cell (until the first update; refreshed on load)
         self.register_load_state_dict_post_hook(lambda module, _: module._refresh_occupancy_cache())
-
-    @staticmethod
-    def _thermal_heads(
-        with_thermal: bool,
-        resolution: int,
-        num_components: int,
-        appearance_dim: int,
-        channels: int,
-        view_dependent: bool,
-        mlp_width: int,
-        vm_lookup: VMLookup,
-        temperature_stats: Optional[Tuple[float, float]],
-        temperature_mlp_width: int,
-    ) -> Tuple[Optional[AppearanceHead], Optional[TemperatureHead]]:
-        """The thermal head and, on it, the temperature head where the scene has temperatures (None: not built)."""
-        if not with_thermal:
-            return None, None
-        head = AppearanceHead(
-            resolution, num_components, appearance_dim, channels, view_dependent, mlp_width, vm_lookup
-        )
-        if temperature_stats is None:
-            return head, None
-        return head, TemperatureHead(head.mlp.in_dim, temperature_mlp_width, *temperature_stats)
 
     def _refresh_occupancy_cache(self) -> None:
         self.occupancy_all = bool(self.occupancy.all())

@@ -243,8 +243,9 @@ class AgriNeRFModel(Model):
         self.has_thermal_head = self.use_thermal or (self.use_events and config.cross_spectral_output)
         self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
         rgb_level = float(metadata.get("rgb_level", float("nan")))
-        # NaN (no level recorded) compares False: no low-light routing
-        self.low_light = self.has_thermal_camera and rgb_level < config.low_light_level
+        # NaN (no level recorded) compares False: no low-light rule
+        dark = rgb_level < config.low_light_level
+        self.low_light = self.has_thermal_camera and dark
         # the density gradient scales in force: the configured ones, the thermal-camera term at full strength in low light
         self.density_gradient_scales: Dict[str, float] = {
             k: float(v) for k, v in config.density_gradient_scales.items()
@@ -277,7 +278,7 @@ class AgriNeRFModel(Model):
             and config.event_rays_per_batch > 0
             and config.loss_coefficients.get("event_loss", 0.0) > 0
         )
-        if self.use_event_loss and rgb_level < config.low_light_level and not config.low_light_event_loss:
+        if self.use_event_loss and dark and not config.low_light_event_loss:
             self.use_event_loss = False
             CONSOLE.print(
                 f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
