@@ -166,12 +166,3 @@ def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
     total = torch.stack([t.abs().sum() for t in tensors]).sum()
     count = sum(t.numel() for t in tensors)
     return total / max(count, 1)
-
-
-def tv_plane_loss(planes: Float[Tensor, "3 c h w"]) -> Float[Tensor, ""]:
-    """Total variation of stacked VM planes: the mean squared difference of row neighbours plus that of column
-    neighbours, each averaged over all planes and components: half of Nerfstudio's `tv_loss` on the same stack (TensoRF's
-    `TV_loss_density` / `TV_loss_app` sum a TV per plane with its own scale); the loss weights absorb the constant."""
-    dh = (planes[..., 1:, :] - planes[..., :-1, :]).pow(2).mean()
-    dw = (planes[..., :, 1:] - planes[..., :, :-1]).pow(2).mean()
-    return dh + dw

@@ -34,7 +34,8 @@ from agrinerf_ns.model import losses
 from agrinerf_ns.model.event_stream import EventCamera, EventStream
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
-from agrinerf_ns.model.vm_encoding import VMLookup
+from agrinerf_ns.model.grid_mapping import fit_box
+from agrinerf_ns.model.vm_encoding import VMLookup, plane_tv
 
 TERM_OUTPUTS: Dict[str, str] = {
     "rgb_loss": "rgb",
@@ -156,6 +157,20 @@ class AgriNeRFModelConfig(ModelConfig):
     """Colour (and thermal value) behind the last sample; "last_sample" uses the last sample's value."""
     weight_threshold: float = 1.0e-4
     """Fine samples whose rendering weight is below this skip the appearance heads (TensoRF's app mask)."""
+    box_fit_iters: Tuple[int, ...] = (100, 500)
+    """Steps after which the full-resolution box is fitted to the scene (`grid_mapping.fit_box` on the median-depth
+    points of `box_fit_rays` rendered training rays) and every volume resampled into it; () keeps the first box (the
+    SfM points' box where the dataset has them, else the scene box around the cameras). Contraction only."""
+    box_fit_rays: int = 8192
+    """Training rays rendered for each box fit."""
+    box_grid_fraction: float = 0.8
+    """Fraction of each grid axis that the fitted box spans (the rest holds the contracted sky and far background)."""
+    box_fit_growth: float = 8.0
+    """A fit may grow the box to at most this many times its size about its centre (an early, still blurry field
+    cannot throw the box far out; the next fit goes on from there)."""
+    box_depth_cut: float = 2.5
+    """Surface points farther from their camera than this times the median distance are background, outside the box
+    (sky, hedges, far rows)."""
     occupancy_resolution: int = 64
     """Cells per axis of the occupancy grid that prunes empty space (0: no pruning)."""
     occupancy_update_iters: Tuple[int, ...] = (2000, 4000, 6000)
@@ -259,6 +274,8 @@ class AgriNeRFModel(Model):
             )
         # dataset temperatures in degrees C (mean_c, std_c, min_c, max_c): only with a radiometric calibration
         self.temperature_stats: Optional[Dict[str, float]] = metadata.get("temperature_stats")
+        # metres per scene unit, where the dataset's poses are metric (dataparser metadata; None: unknown scale)
+        self.metres_per_unit: Optional[float] = metadata.get("metres_per_unit")
         self.has_temperature = self.use_thermal and config.temperature_output and self.temperature_stats is not None
         # timing of the training frames (dataparser metadata): what the blur model and the event loss need
         self.frame_times: Optional[Tensor] = metadata.get("times")
@@ -347,6 +364,13 @@ class AgriNeRFModel(Model):
             vm_lookup=cfg.vm_lookup,
         )
 
+        # the first full-resolution box: around the dataset's SfM points where it has them (refitted in training)
+        points = (self.kwargs.get("metadata") or {}).get("points3D_xyz")
+        if self.field.mapping is not None and points is not None:
+            box = fit_box(torch.as_tensor(points, dtype=torch.float32))
+            if box is not None:
+                self.field.refit_box(box, cfg.box_grid_fraction, cfg.init_resolution)
+
         # samplers
         if cfg.scene_contraction:
             self.sampler_coarse = UniformLinDispPiecewiseSampler(
@@ -400,19 +424,61 @@ class AgriNeRFModel(Model):
         return self.config.init_resolution if done == 0 else self.upsampling_resolutions[done - 1]
 
     def upsample_volumes(self, resolution: int) -> None:
-        """Resample every volume to `resolution` (Nerfstudio's `upsample_grid`: new Parameters)."""
+        """Resample every volume to the per-axis resolution of a `resolution`^3 budget (new Parameters)."""
+        target = self.field.axis_resolution(resolution)
         for volume in self.field.volumes().values():
-            if volume.resolution != resolution:
-                volume.upsample_grid(resolution)
+            if volume.resolution != target:
+                volume.upsample_grid(target)
 
-    def update_to_step(self, step: int) -> None:
-        """Replays the schedule before a checkpoint of step `step` loads (its volumes have that step's size)."""
-        self.upsample_volumes(self.resolution_at_step(step))
+    @torch.no_grad()
+    def fit_box(self, cameras: Any, step: int) -> Optional[Tensor]:
+        """Fit the full-resolution box to the median-depth points of `box_fit_rays` training rays of `cameras` (drawn
+        with a generator seeded by `step`, so the global random stream is untouched) and resample the volumes into it
+        at the current resolution; returns the new box, or None when too few rays hit anything (box kept)."""
+        if self.field.mapping is None:
+            return None
+        gen = torch.Generator().manual_seed(SIDE_STREAM_SEED + step)
+        n = self.config.box_fit_rays
+        index = torch.randint(0, cameras.shape[0], (n,), generator=gen)
+        heights, widths = cameras.height[index, 0].float(), cameras.width[index, 0].float()
+        rows = (torch.rand(n, generator=gen) * heights).floor() + 0.5
+        cols = (torch.rand(n, generator=gen) * widths).floor() + 0.5
+        bundle = cameras.generate_rays(camera_indices=index[:, None], coords=torch.stack([rows, cols], -1))
+        bundle = bundle.to(self.device)
+        points, weights, origins = [], [], []
+        was_training = self.training
+        self.eval()
+        try:
+            for start in range(0, n, self.config.eval_num_rays_per_chunk):
+                part = self.collider(bundle[start : start + self.config.eval_num_rays_per_chunk])
+                out = self._render(part, routed=False, heads=())
+                points.append(part.origins + part.directions * out["depth"])
+                weights.append(out["accumulation"][:, 0])
+                origins.append(part.origins)
+        finally:
+            self.train(was_training)
+        box = fit_box(torch.cat(points), torch.cat(weights), torch.cat(origins), depth_cut=self.config.box_depth_cut)
+        if box is None:
+            return None
+        old = self.field.full_resolution_box()
+        centre, reach = old.mean(dim=0), (old[1] - old[0]) / 2 * self.config.box_fit_growth
+        box = torch.stack([torch.maximum(box[0], centre - reach), torch.minimum(box[1], centre + reach)])
+        if not bool((box[1] > box[0]).all()):
+            return None
+        self.field.refit_box(box, self.config.box_grid_fraction, self.resolution_at_step(step))
+        if self.occupancy_updated(step):
+            self.field.update_occupancy(self.config.occupancy_density_threshold)
+        return box
 
-    def sync_optimizers(self, optimizers: Optimizers) -> int:
-        """Point every optimizer at this model's current Parameters (upsampling replaces them); returns how many
-        were replaced. Adam moments move with a Parameter when their shape still fits (a checkpoint loaded after
-        `update_to_step`), and are dropped otherwise (right after an upsampling step: Adam re-initialises them).
+    def occupancy_updated(self, step: int) -> bool:
+        """Whether the occupancy grid has been computed after training step `step` (an update step has run)."""
+        return self.config.occupancy_resolution > 0 and any(it <= step for it in self.config.occupancy_update_iters)
+
+    def sync_optimizers(self, optimizers: Optimizers, keep_moments: bool = True) -> int:
+        """Point every optimizer at this model's current Parameters (upsampling and box fits replace them); returns how
+        many were replaced. Adam moments move with a Parameter when their shape still fits (a checkpoint loaded into
+        volumes its pre-hooks resized) and `keep_moments`, and are dropped otherwise (after an upsampling step or a box
+        fit, whose moments belong to other places: Adam re-initialises them).
         """
         current = self.get_param_groups()
         replaced = 0
@@ -427,7 +493,7 @@ class AgriNeRFModel(Model):
                     continue
                 state = optimizer.state.pop(old, None)
                 moments = [v for v in (state or {}).values() if isinstance(v, Tensor) and v.dim() > 0]
-                if state is not None and all(v.shape == new.shape for v in moments):
+                if keep_moments and state is not None and all(v.shape == new.shape for v in moments):
                     optimizer.state[new] = state
                 params[i] = new
                 replaced += 1
@@ -439,8 +505,8 @@ class AgriNeRFModel(Model):
     ) -> List[TrainingCallback]:
         """Upsampling of all volumes (optimizers re-pointed) and occupancy updates.
 
-        Called after a checkpoint has loaded: the optimizers, built before `update_to_step` replaced the volumes'
-        Parameters, are re-pointed here first (their loaded moments already have the new size).
+        Called after a checkpoint has loaded: the optimizers, built before the checkpoint's load hooks resized the
+        volumes' Parameters, are re-pointed here first (their loaded moments already have the new size).
         """
         optimizers = training_callback_attributes.optimizers
         if optimizers is not None:
@@ -455,6 +521,14 @@ class AgriNeRFModel(Model):
             del step
             self.field.update_occupancy(self.config.occupancy_density_threshold)
 
+        def refit_box(step: int) -> None:
+            pipeline = training_callback_attributes.pipeline
+            dataset = getattr(getattr(pipeline, "datamanager", None), "train_dataset", None)
+            if dataset is None or self.fit_box(dataset.cameras, step) is None:
+                return
+            if optimizers is not None:
+                self.sync_optimizers(optimizers, keep_moments=False)
+
         def keep_step(step: int) -> None:
             self.step = step
 
@@ -468,6 +542,14 @@ class AgriNeRFModel(Model):
                 func=upsample,
             ),
         ]
+        if self.field.mapping is not None and self.config.box_fit_iters:
+            callbacks.append(
+                TrainingCallback(
+                    where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
+                    iters=tuple(self.config.box_fit_iters),
+                    func=refit_box,
+                )
+            )
         if self.config.occupancy_resolution > 0 and self.config.occupancy_update_iters:
             callbacks.append(
                 TrainingCallback(
@@ -521,9 +603,8 @@ class AgriNeRFModel(Model):
         frame_times = self.frame_times[camera_rows(bundle)]
         moved = self.collider(reposed_rays(bundle, self.trajectory, frame_times, times, **camera))
         n, k = times.shape
-        return self._render(moved, routed=False, density_scale=self.density_gradient_scale(term))["rgb"].reshape(
-            n, k, 3
-        )
+        rendered = self._render(moved, routed=False, density_scale=self.density_gradient_scale(term), heads=("rgb",))
+        return rendered["rgb"].reshape(n, k, 3)
 
     def _blurred_rgb(self, bundle: RayBundle) -> Float[Tensor, "n 3"]:
         """The blur model: the mean in linear radiance of `blur_samples` renders across each frame's exposure."""
@@ -557,7 +638,9 @@ class AgriNeRFModel(Model):
             camera_indices=frames.repeat_interleave(2)[:, None].to(device),
         )
         scale = self.density_gradient_scale("event_loss")
-        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale)["rgb"].reshape(m, 2, 3)
+        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
+            m, 2, 3
+        )
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
                 "event_off": off.to(device)}  # fmt: skip
@@ -576,10 +659,18 @@ class AgriNeRFModel(Model):
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]
 
-    def _render(self, ray_bundle: RayBundle, routed: bool = True, density_scale: float = 1.0) -> Dict[str, Tensor]:
+    def _render(
+        self,
+        ray_bundle: RayBundle,
+        routed: bool = True,
+        density_scale: float = 1.0,
+        heads: Optional[Tuple[str, ...]] = None,
+    ) -> Dict[str, Tensor]:
         """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold.
         `routed`: add the training-only routed copies of the outputs (`density_gradient_scales`). `density_scale`:
-        scale of the gradient every output sends the density (the renders of one loss term: blur, events)."""
+        scale of the gradient every output sends the density (the renders of one loss term: blur, events). `heads`:
+        the heads to evaluate ("rgb", "thermal"; None: all; a side render whose loss reads only "rgb" skips the
+        others)."""
         with torch.no_grad():
             samples_coarse = self.sampler_coarse(ray_bundle)
             density_coarse, _ = self.field.get_density(samples_coarse)
@@ -598,11 +689,13 @@ class AgriNeRFModel(Model):
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
         every_sample = float(selected.float().mean()) >= DENSE_HEADS_FRACTION
-        if every_sample:  # heads on all samples, masked after: the volumes reuse the density's transposed lookups
-            flat_values = self.field.appearance_at(coords.reshape(-1, 3), directions.reshape(-1, 3), corners)
+        if heads is not None and not heads:
+            flat_values = {}
+        elif every_sample:  # heads on all samples, masked after: the volumes reuse the density's transposed lookups
+            flat_values = self.field.appearance_at(coords.reshape(-1, 3), directions.reshape(-1, 3), corners, heads)
         else:
             flat_values = self.field.appearance_at(
-                coords[selected], directions[selected], corners.select(selected.reshape(-1))
+                coords[selected], directions[selected], corners.select(selected.reshape(-1)), heads
             )
 
         dense: Dict[str, Tensor] = {}  # per output: the head's values at every sample (zero where not selected)
@@ -630,6 +723,12 @@ class AgriNeRFModel(Model):
         }
         outputs["depth"] = self.renderer_depth(weights, samples)
         outputs["accumulation"] = accumulation
+        if not self.training:  # where the weight falls and how fine the grid is there (`grid_diagnostics`)
+            positions = samples.frustums.get_positions()
+            inside = self.field.full_resolution(positions).to(weights.dtype)[..., None]
+            outputs["full_resolution_weight"] = (weights * inside).sum(dim=-2)
+            surface = ray_bundle.origins + ray_bundle.directions * outputs["depth"]
+            outputs["voxel_size"] = self.field.voxel_size(surface).amax(dim=-1, keepdim=True)
         if routed and self.training and torch.is_grad_enabled():
             outputs.update(self._routed_outputs(weights, dense))
         if not self.training:
@@ -740,12 +839,11 @@ class AgriNeRFModel(Model):
         volumes = self.field.volumes()
         if coef.get("l1_reg", 0.0) > 0:
             density = volumes["density"]
-            terms["l1_reg"] = losses.l1_volume_loss(density.plane_coef, density.line_coef)
+            terms["l1_reg"] = losses.l1_volume_loss(density.plane_table, density.line_table)
         if coef.get("tv_reg_density", 0.0) > 0:
-            terms["tv_reg_density"] = losses.tv_plane_loss(volumes["density"].plane_coef)
+            terms["tv_reg_density"] = plane_tv(volumes["density"])
         if coef.get("tv_reg_appearance", 0.0) > 0:
-            appearance = [v.plane_coef for name, v in volumes.items() if name != "density"]
-            terms["tv_reg_appearance"] = sum(losses.tv_plane_loss(p) for p in appearance)
+            terms["tv_reg_appearance"] = sum(plane_tv(v) for name, v in volumes.items() if name != "density")
         return terms
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
@@ -823,6 +921,7 @@ class AgriNeRFModel(Model):
             "accumulation": colormaps.apply_colormap(outputs["accumulation"]),
             "depth": colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"]),
         }
+        metrics.update(self.grid_diagnostics(outputs))
         if self.use_rgb:
             gt = batch["image"][..., :3].to(self.device).float()
             pred = outputs["rgb"]
@@ -853,6 +952,21 @@ class AgriNeRFModel(Model):
             )
         self.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
         return metrics, images
+
+    def grid_diagnostics(self, outputs: Dict[str, Tensor]) -> Dict[str, float]:
+        """How well the grids fit the scene in a rendered image: `fine_region_weight`, the share of its rendering
+        weight inside the full-resolution box, and `voxel_size_m`, the median over the rays that hit something
+        (accumulation > 0.5) of the largest side of the grid cell at the ray's median depth, in metres (NaN where the
+        dataset's scale is unknown; `voxel_size_units` in scene units)."""
+        if "full_resolution_weight" not in outputs:
+            return {}
+        acc = outputs["accumulation"]
+        share = outputs["full_resolution_weight"].sum() / acc.sum().clamp(min=1e-12)
+        hits = acc[..., 0] > 0.5
+        sizes = outputs["voxel_size"][..., 0][hits] if bool(hits.any()) else outputs["voxel_size"].reshape(-1)
+        voxel = float(sizes.median())
+        scale = float("nan") if self.metres_per_unit is None else float(self.metres_per_unit)
+        return {"fine_region_weight": float(share), "voxel_size_units": voxel, "voxel_size_m": voxel * scale}
 
     def _thermal_metrics(
         self,
