@@ -36,13 +36,22 @@ from agrinerf_ns.model.dataset import agrinerf_datamanager_config
 from agrinerf_ns.model.model import AgriNeRFModelConfig
 
 
+@dataclass
+class FusedAdamOptimizerConfig(AdamOptimizerConfig):
+    """Nerfstudio's Adam config with torch's fused implementation (one kernel per step for all Parameters, the same
+    update rule), which torch has for CPU and CUDA tensors."""
+
+    fused: bool = True
+    """torch.optim.Adam(fused=...)."""
+
+
 def _optimizers(lr_fields: float, lr_encodings: float, max_steps: int) -> Dict[str, Dict[str, Any]]:
     """Adam for the MLPs ("fields") and TensoRF volumes ("encodings"), x0.1 at 1/3 and 2/3 of training."""
     milestones = (max_steps // 3, 2 * max_steps // 3)
 
     def group(lr: float) -> Dict[str, Any]:
         return {
-            "optimizer": AdamOptimizerConfig(lr=lr, eps=1e-15),
+            "optimizer": FusedAdamOptimizerConfig(lr=lr, eps=1e-15),
             "scheduler": MultiStepSchedulerConfig(max_steps=max_steps, gamma=0.1, milestones=milestones),
         }
 

@@ -225,9 +225,9 @@ def test_heads_on_every_sample_equal_heads_on_the_selected_ones(monkeypatch: pyt
     for name, fraction in (("gathered", 2.0), ("dense", 0.0)):
         monkeypatch.setattr(model_module, "DENSE_HEADS_FRACTION", fraction)
 
-        def counting(coords, directions, corners=None, name=name):
+        def counting(coords, directions, corners=None, heads=None, name=name):
             seen[name] = coords.shape[0]
-            return appearance_at(coords, directions, corners)
+            return appearance_at(coords, directions, corners, heads)
 
         monkeypatch.setattr(model.field, "appearance_at", counting)
         model.zero_grad()

@@ -31,6 +31,7 @@ from torch.nn import Parameter
 
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
 from agrinerf_ns.model import losses
+from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
 from agrinerf_ns.model.event_stream import EventCamera, EventStream
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
@@ -79,6 +80,10 @@ class AgriNeRFModelConfig(ModelConfig):
     """Steps after which all volumes are upsampled (log-spaced resolutions from init to final, as TensoRF)."""
     num_coarse_samples: int = 64
     """Coarse samples per ray (density only, no gradient)."""
+    coarse_sampler: Literal["box", "lindisp"] = "box"
+    """Spacing of the coarse samples (scene contraction only). box: half uniform up to where the ray leaves the
+    full-resolution box, half linear in disparity beyond (`BoxPiecewiseSampler`). lindisp: Nerfstudio's
+    `UniformLinDispPiecewiseSampler` (half uniform up to distance 1)."""
     num_fine_samples: int = 64
     """Fine samples per ray drawn from the coarse weights (PDF)."""
     fine_include_coarse: bool = False
@@ -372,7 +377,9 @@ class AgriNeRFModel(Model):
                 self.field.refit_box(box, cfg.box_grid_fraction, cfg.init_resolution)
 
         # samplers
-        if cfg.scene_contraction:
+        if cfg.scene_contraction and cfg.coarse_sampler == "box":
+            self.sampler_coarse = BoxPiecewiseSampler(cfg.num_coarse_samples, box=self.field.full_resolution_box)
+        elif cfg.scene_contraction:
             self.sampler_coarse = UniformLinDispPiecewiseSampler(
                 num_samples=cfg.num_coarse_samples, single_jitter=False
             )
