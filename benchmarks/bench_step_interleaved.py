@@ -4,10 +4,11 @@
         --out outputs/step-speed --runs agrinerf@7000 before:agrinerf@7000 agrinerf tensorf \
         --trees before=/tmp/agrinerf-before [--steps 20] [--warmup 3]
 
-A run is ``[TREE:]METHOD[@STEP]``: an ``agrinerf-bench`` method key, timed at the grids and with the terms of
+A run is ``[TREE:]METHOD[@STEP][%FIELD=VALUE...]``: an ``agrinerf-bench`` method key, timed at the grids and with the terms of
 training step STEP (default 0, the grids a preset starts with; e.g. ``agrinerf@7000``: the paper preset at its final
 300^3 grids, blur model and event loss on as from step 1200), from the checkout TREE (a name given in ``--trees``;
-default this one), so that a change can be timed against the code before it in one run. Every run's pipeline
+default this one), so that a change can be timed against the code before it in one run, with model config fields set
+(``%event_rays_per_batch=0``: no event loss; VALUE is JSON). Every run's pipeline
 (Nerfstudio's own, built from its registered method config, the same rays per batch) lives in a worker process
 (``benchmarks/step_worker.py``); the driver asks one worker at a time for one step, rotating the order every round,
 so the runs share the machine's state step by step and the paired ratio of each round is close to what a quiet
@@ -44,7 +45,7 @@ class Args:
     out: Path = Path("outputs/step-speed")
     """Where ``step_speed.csv`` and ``step_speed.md`` go."""
     runs: Tuple[str, ...] = ("agrinerf", "tensorf")
-    """``[TREE:]METHOD[@STEP]`` (see the module docstring); ratios are to the first."""
+    """``[TREE:]METHOD[@STEP][%FIELD=VALUE...]`` (see the module docstring); ratios are to the first."""
     trees: Tuple[str, ...] = ()
     """``NAME=PATH`` checkouts the runs may name (e.g. ``before=/tmp/snapshot``)."""
     steps: int = 20
@@ -61,6 +62,7 @@ class Run(NamedTuple):
     method: str
     at_step: int
     tree: Optional[Path]
+    overrides: Dict[str, object]
 
 
 def parse_runs(runs: Tuple[str, ...], trees: Tuple[str, ...]) -> List[Run]:
@@ -68,13 +70,15 @@ def parse_runs(runs: Tuple[str, ...], trees: Tuple[str, ...]) -> List[Run]:
     named = dict(t.split("=", 1) for t in trees)
     parsed = []
     for text in runs:
-        tree, _, rest = text.rpartition(":")
+        head, *fields = text.split("%")
+        tree, _, rest = head.rpartition(":")
         method, _, step = rest.partition("@")
+        overrides = {name: json.loads(value) for name, _, value in (f.partition("=") for f in fields)}
         if method not in METHODS:
             raise SystemExit(f"run {text!r}: unknown method {method!r}; choose from {sorted(METHODS)}")
         if tree and tree not in named:
             raise SystemExit(f"run {text!r}: tree {tree!r} is not in --trees {list(named)}")
-        parsed.append(Run(text, method, int(step or 0), Path(named[tree]).resolve() if tree else None))
+        parsed.append(Run(text, method, int(step or 0), Path(named[tree]).resolve() if tree else None, overrides))
     return parsed
 
 
@@ -86,7 +90,7 @@ class Worker:
         if run.tree is not None:
             env["PYTHONPATH"] = os.pathsep.join([str(run.tree), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
         command = [sys.executable, str(WORKER), run.method, str(args.data), str(args.rays_per_batch),
-                   str(run.at_step), str(args.seed)]  # fmt: skip
+                   str(run.at_step), str(args.seed), json.dumps(run.overrides)]  # fmt: skip
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.info = json.loads(self._read_line(run, prefix="READY "))
         self.run = run

@@ -1,6 +1,6 @@
 """One method's training steps on request, in a process of its own (`bench_step_interleaved.py` drives several).
 
-    python benchmarks/step_worker.py METHOD DATA RAYS AT_STEP SEED
+    python benchmarks/step_worker.py METHOD DATA RAYS AT_STEP SEED [OVERRIDES_JSON]
 
 Builds the method's Nerfstudio pipeline with `agrinerf_ns.bench.stepper.MethodStepper` from whatever `agrinerf_ns` the
 interpreter imports (PYTHONPATH may point at another checkout: the same benchmark then times that checkout's code). An
@@ -35,11 +35,19 @@ def prepare(stepper, at_step: int) -> dict:
 
 
 def main() -> None:
-    method, data, rays, at_step, seed = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5])
+    method, data, rays, at_step, seed = (
+        sys.argv[1],
+        Path(sys.argv[2]),
+        int(sys.argv[3]),
+        int(sys.argv[4]),
+        int(sys.argv[5]),
+    )
+    overrides = json.loads(sys.argv[6]) if len(sys.argv) > 6 else {}
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
     torch.manual_seed(seed)
     from agrinerf_ns.bench.stepper import MethodStepper
 
-    stepper = MethodStepper(method, data, rays)
+    stepper = MethodStepper(method, data, rays, model_overrides=overrides)
     info = prepare(stepper, at_step)
     print("READY " + json.dumps(info), flush=True)
     for line in sys.stdin:

@@ -244,9 +244,11 @@ class AgriNeRFField(Field):
         box = self.full_resolution_box()
         return ((positions >= box[0]) & (positions <= box[1])).all(dim=-1)
 
-    def voxel_size(self, positions: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
-        """World size of a grid cell along each axis at each position (the volumes' resolution)."""
-        res = self.density_encoding.resolution
+    def voxel_size(
+        self, positions: Float[Tensor, "*bs 3"], resolution: Optional[Resolution] = None
+    ) -> Float[Tensor, "*bs 3"]:
+        """World size of a grid cell along each axis at each position, at `resolution` (default: the volumes')."""
+        res = self.density_encoding.resolution if resolution is None else resolution
         if self.mapping is not None:
             return self.mapping.voxel_size(positions, res)
         extent = self.aabb[1] - self.aabb[0]

@@ -736,6 +736,8 @@ class AgriNeRFModel(Model):
             outputs["full_resolution_weight"] = (weights * inside).sum(dim=-2)
             surface = ray_bundle.origins + ray_bundle.directions * outputs["depth"]
             outputs["voxel_size"] = self.field.voxel_size(surface).amax(dim=-1, keepdim=True)
+            final = self.field.axis_resolution(self.config.final_resolution)
+            outputs["voxel_size_final"] = self.field.voxel_size(surface, final).amax(dim=-1, keepdim=True)
         if routed and self.training and torch.is_grad_enabled():
             outputs.update(self._routed_outputs(weights, dense))
         if not self.training:
@@ -964,16 +966,20 @@ class AgriNeRFModel(Model):
         """How well the grids fit the scene in a rendered image: `fine_region_weight`, the share of its rendering
         weight inside the full-resolution box, and `voxel_size_m`, the median over the rays that hit something
         (accumulation > 0.5) of the largest side of the grid cell at the ray's median depth, in metres (NaN where the
-        dataset's scale is unknown; `voxel_size_units` in scene units)."""
+        dataset's scale is unknown; `voxel_size_units` in scene units); `voxel_size_final_m`: the same at the
+        preset's final resolution in the current box."""
         if "full_resolution_weight" not in outputs:
             return {}
         acc = outputs["accumulation"]
         share = outputs["full_resolution_weight"].sum() / acc.sum().clamp(min=1e-12)
         hits = acc[..., 0] > 0.5
-        sizes = outputs["voxel_size"][..., 0][hits] if bool(hits.any()) else outputs["voxel_size"].reshape(-1)
-        voxel = float(sizes.median())
         scale = float("nan") if self.metres_per_unit is None else float(self.metres_per_unit)
-        return {"fine_region_weight": float(share), "voxel_size_units": voxel, "voxel_size_m": voxel * scale}
+        metrics = {"fine_region_weight": float(share)}
+        for key in ("voxel_size", "voxel_size_final"):
+            sizes = outputs[key][..., 0][hits] if bool(hits.any()) else outputs[key].reshape(-1)
+            metrics[f"{key}_units"] = float(sizes.median())
+            metrics[f"{key}_m"] = metrics[f"{key}_units"] * scale
+        return metrics
 
     def _thermal_metrics(
         self,
