@@ -3,6 +3,9 @@ surfaces, and the coarse sampler that follows the box."""
 
 from __future__ import annotations
 
+import json
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -104,3 +107,85 @@ def test_box_sampler_puts_half_the_samples_before_the_box_exit() -> None:
     assert bool(torch.isfinite(samples.frustums.ends).all())
     spacing = samples.spacing_to_euclidean_fn(torch.tensor([[0.0, 0.5, 1.0]]).expand(3, -1))
     torch.testing.assert_close(spacing[0], torch.tensor([0.05, 6.0, 1000.0]), rtol=1e-4, atol=1e-4)
+
+
+def _ring_cameras(n: int = 8, radius: float = 3.0, size: int = 24):
+    from nerfstudio.cameras.cameras import Cameras
+
+    poses = []
+    for k in range(n):
+        angle = 2 * np.pi * k / n
+        eye = np.array([radius * np.cos(angle), radius * np.sin(angle), 0.8])
+        back = eye / np.linalg.norm(eye)  # OpenGL camera: it looks along -z, z points back at the eye
+        right = np.cross([0.0, 0.0, 1.0], back)
+        right /= np.linalg.norm(right)
+        up = np.cross(back, right)
+        poses.append(np.stack([right, up, back, eye], axis=1))
+    c2w = torch.tensor(np.stack(poses), dtype=torch.float32)
+    return Cameras(camera_to_worlds=c2w, fx=20.0, fy=20.0, cx=size / 2, cy=size / 2, width=size, height=size)
+
+
+def test_the_model_fits_its_box_to_the_dense_region_it_renders() -> None:
+    from helpers.small_model import SMALL_MODEL
+    from nerfstudio.data.scene_box import SceneBox
+
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    torch.manual_seed(0)
+    # empty space truly empty (softplus(-12) per unit: nothing over a 1000-unit ray), grids fine enough for the box
+    small = {**SMALL_MODEL, "box_fit_rays": 4096, "density_shift": -12.0, "init_resolution": 24}
+    cfg = AgriNeRFModelConfig(modalities=("rgb",), **small)
+    model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8, metadata={})
+    dense = torch.tensor([[-0.5, -0.3, -0.2], [0.3, 0.5, 0.4]])  # world box of the only dense matter
+    with torch.no_grad():
+        volume = model.field.density_encoding
+        volume.plane_table.zero_()
+        volume.line_table.zero_()
+        lo, hi = model.field.mapping(dense[0]), model.field.mapping(dense[1])
+        axes = [torch.linspace(-1, 1, r) for r in volume.resolution]
+        inside = [(a >= lo[i]) & (a <= hi[i]) for i, a in enumerate(axes)]
+        volume.planes()[0][:, :, 0] = 30.0 * (inside[1][:, None] & inside[0][None, :]).float()  # plane xy: (y, x)
+        volume.lines()[0][:, 0] = inside[2].float()  # line z
+    box = model.fit_box(_ring_cameras(), step=0)
+    assert box is not None
+    torch.testing.assert_close(model.field.full_resolution_box(), box)
+    margin = 0.1 * float((dense[1] - dense[0]).max())
+    assert bool((box[0] <= dense[0] + 0.05).all() and (box[1] >= dense[1] - 0.05).all())  # holds the dense region
+    assert bool((box[0] >= dense[0] - margin - 0.1).all() and (box[1] <= dense[1] + margin + 0.1).all())  # and no more
+    assert math.prod(model.field.density_encoding.resolution) == pytest.approx(24**3, rel=0.15)
+    # the resampled density is still dense where the matter is and empty around it
+    coords, valid = model.field.to_grid(torch.stack([dense.mean(0), dense[1] + 0.3]))
+    density = model.field.density_at(coords, valid)[:, 0]
+    assert float(density[0]) > 1.0 and float(density[1]) < 0.1
+
+
+def test_a_dataset_with_sfm_points_starts_with_their_box(tmp_path) -> None:
+    from helpers.model_scene import write_model_scene
+
+    from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    data = write_model_scene(tmp_path / "scene", views=4, modalities=("rgb",))
+    gen = np.random.default_rng(0)
+    points = gen.uniform([-0.3, -0.2, -0.1], [0.2, 0.3, 0.25], size=(400, 3))
+    lines = ["ply", "format ascii 1.0", f"element vertex {len(points)}", "property float x", "property float y",
+             "property float z", "property uchar red", "property uchar green", "property uchar blue", "end_header"]  # fmt: skip
+    lines += [f"{x:.6f} {y:.6f} {z:.6f} 128 128 128" for x, y, z in points]
+    (data / "sparse_pc.ply").write_text("\n".join(lines) + "\n")
+    meta = json.loads((data / "transforms.json").read_text())
+    meta["ply_file_path"] = "sparse_pc.ply"
+    (data / "transforms.json").write_text(json.dumps(meta))
+    outputs = AgriNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
+    xyz = outputs.metadata["points3D_xyz"]
+    assert xyz.shape == (400, 3)
+    model = AgriNeRFModelConfig(modalities=("rgb",), init_resolution=16).setup(
+        scene_box=outputs.scene_box, num_train_data=4, metadata=outputs.metadata
+    )
+    box = model.field.full_resolution_box()
+    assert bool((box[0] <= xyz.min(0).values + 0.02).all() and (box[1] >= xyz.max(0).values - 0.02).all())
+    assert float((box[1] - box[0]).prod()) < 0.5 * float((outputs.scene_box.aabb[1] - outputs.scene_box.aabb[0]).prod())
+    missing = json.loads((data / "transforms.json").read_text())
+    missing["ply_file_path"] = "nowhere.ply"
+    (data / "transforms.json").write_text(json.dumps(missing))
+    with pytest.raises(Exception, match="nowhere.ply"):
+        AgriNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
