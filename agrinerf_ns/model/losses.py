@@ -78,6 +78,14 @@ def event_loss(
     return masked_mse(pred, target, mask)
 
 
+def event_pair_loss(
+    log_start: Float[Tensor, "m 1"], log_end: Float[Tensor, "m 1"], target: Float[Tensor, "m 1"]
+) -> Float[Tensor, ""]:
+    """EvDeblurNeRF's event-to-event loss (its ``egm_loss``): mean (log L(t_successor) - log L(t_event) - target)^2
+    over event samples, each target +C_on or -C_off (``event_pairs.pair_targets``). 0 without samples, never NaN."""
+    return masked_mse(log_end.float() - log_start.float(), target)
+
+
 def masked_mse(
     pred: Float[Tensor, "*bs c"], target: Float[Tensor, "*bs c"], mask: Optional[Float[Tensor, "*bs 1"]] = None
 ) -> Float[Tensor, ""]:

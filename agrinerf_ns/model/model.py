@@ -30,12 +30,15 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
-from agrinerf_ns.model import losses
+from agrinerf_ns.model import edi_prior, losses
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
+from agrinerf_ns.model.event_crf import EventCRF
+from agrinerf_ns.model.event_pairs import EventPairs
 from agrinerf_ns.model.event_stream import EventCamera, EventStream
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.grid_mapping import fit_box
+from agrinerf_ns.model.rigid_blur import RigidBlurKernel
 from agrinerf_ns.model.vm_encoding import VMLookup, plane_tv
 
 TERM_OUTPUTS: Dict[str, str] = {
@@ -46,6 +49,7 @@ TERM_OUTPUTS: Dict[str, str] = {
     "thermal_camera_loss": "thermal_camera",
     "event_loss": "rgb",
     "temperature_loss": "temperature",
+    "edi_prior_loss": "rgb",
 }
 """Each data loss term and the output it compares with its target."""
 
@@ -194,6 +198,7 @@ class AgriNeRFModelConfig(ModelConfig):
             "thermal_camera_loss": 1.0,
             "event_loss": 0.1,
             "temperature_loss": 1.0,
+            "edi_prior_loss": 1.0,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
@@ -213,10 +218,14 @@ class AgriNeRFModelConfig(ModelConfig):
     event_threshold: float = 0.2
     """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
     synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
-    event_supervision: Literal["stream", "frames"] = "stream"
-    """What the event loss reads. stream: the events at the event camera's own pixels, each pixel rendered along its
-    own ray from the event camera (the dataset's ``events/stream.h5``; datasets without one fall back to frames).
-    frames: the per-frame counts warped into the RGB pixels, on the batch's RGB pixels."""
+    event_supervision: Literal["pairs", "stream", "frames"] = "stream"
+    """What the event loss reads. pairs: EvDeblurNeRF's event-to-event samples: an event that has a successor at its
+    pixel, drawn uniformly over the stream, rendered along the event pixel's ray at both events' times, target C times
+    the successor's polarity, response log(BT.601 luma of the linear render (after the learnt `event_crf`) + eps)
+    (`model/event_pairs.py`). stream: the events at the event camera's own pixels in random sub-windows of the frames'
+    windows, target C (N_on - N_off), pixels without events included, response log(Rec. 709 luminance + eps). Both
+    read the dataset's ``events/stream.h5`` (datasets without one fall back to frames). frames: the per-frame counts
+    warped into the RGB pixels, on the batch's RGB pixels."""
     event_window_min_fraction: float = 0.25
     """stream: each event pixel's window is a random sub-window of its frame's event window, its length uniform in
     [this, 1] of the window (1: whole frame windows)."""
@@ -239,6 +248,22 @@ class AgriNeRFModelConfig(ModelConfig):
     """Offset of the event response log(Y + eps), in the linear units of the rendered colour."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
     """Camera pose refinement (off by default)."""
+    blur_kernel: Literal["trajectory", "learnt"] = "trajectory"
+    """The blur model's kernel (`blur_samples` rays per blurred pixel, from `blur_start_step`). trajectory: poses from
+    the rig's known trajectory at equal parts of the exposure, equal weights (what a rig with poses can afford).
+    learnt: EvDeblurNeRF's (DP-NeRF's) rigid blur kernel, the frame ray and `blur_samples` - 1 copies moved by learnt
+    SE(3) motions, blended with learnt weights, from a per-image latent code (`model/rigid_blur.py`; EvDeblurNeRF: 10
+    rays from step 1200); needs no trajectory. Its adaptive weight proposal is not reproduced."""
+    event_crf: bool = False
+    """Pairs supervision: learn EvDeblurNeRF's event camera response (`model/event_crf.py`; an MLP on each linear
+    channel and the successor's polarity, fit to the identity first) from `event_crf_start_step`."""
+    event_crf_start_step: int = 1200
+    """Step from which the event response is learnt (the identity before; EvDeblurNeRF: 1200)."""
+    edi_prior: bool = False
+    """EvDeblurNeRF's EDI prior: the frame ray's colour against the event-deblurred frame (`model/edi_prior.py`:
+    events at the event camera's pixel that sees the RGB pixel on the alignment plane, 9 times across the exposure),
+    weight 0.01 decayed on a cosine to 1e-5 over 10k steps (times `loss_coefficients.edi_prior_loss`), from step 0.
+    Needs the event stream, its calibration and the frames' exposures."""
 
 
 class AgriNeRFModel(Model):
@@ -291,7 +316,11 @@ class AgriNeRFModel(Model):
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
         self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
         timed = self.trajectory is not None and self.frame_times is not None
-        self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
+        self.use_blur = (
+            self.use_rgb
+            and config.blur_samples > 1
+            and (config.blur_kernel == "learnt" or (timed and self.exposure is not None))
+        )
         self.use_event_loss = (
             self.use_rgb
             and self.use_events
@@ -310,6 +339,21 @@ class AgriNeRFModel(Model):
         self.event_stream: Optional[EventStream] = None
         if self.use_event_loss and config.event_supervision == "stream" and self.event_camera_native is not None:
             self.event_stream = self.event_camera_native.stream()
+        self.event_pairs: Optional[EventPairs] = None
+        if self.use_event_loss and config.event_supervision == "pairs" and self.event_camera_native is not None:
+            native = self.event_camera_native
+            self.event_pairs = EventPairs.from_h5(native.path, native.width, native.height)
+        # the EDI prior's counts at the event pixels (EventStream), where its inputs are all there
+        self.edi_stream: Optional[EventStream] = None
+        if (
+            config.edi_prior
+            and self.use_rgb
+            and self.use_events
+            and timed
+            and self.exposure is not None
+            and self.event_camera_native is not None
+        ):
+            self.edi_stream = self.event_stream or self.event_camera_native.stream()
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         self._loss_means: Optional[Tuple[float, float]] = None  # running RGB and event losses (`noise` weighting)
         self.event_weight = 0.0  # the `noise` weighting's last factor, logged as a metric
@@ -342,6 +386,14 @@ class AgriNeRFModel(Model):
         self.log_event_threshold: Optional[Parameter] = None  # ON, OFF (config `event_threshold_learnt`)
         if self.use_event_loss and cfg.event_threshold_learnt:
             self.log_event_threshold = Parameter(torch.full((2,), math.log(cfg.event_threshold)))
+        self.blur_kernel: Optional[RigidBlurKernel] = None  # EvDeblurNeRF's learnt kernel (config `blur_kernel`)
+        self.event_crf: Optional[EventCRF] = None  # EvDeblurNeRF's learnt event response (config `event_crf`)
+        with torch.random.fork_rng(devices=[]):  # optional parts leave the field's (and the batches') draws alone
+            torch.manual_seed(SIDE_STREAM_SEED)
+            if self.use_blur and cfg.blur_kernel == "learnt":
+                self.blur_kernel = RigidBlurKernel(self.num_train_data, num_motions=cfg.blur_samples - 1)
+            if self.event_pairs is not None and cfg.event_crf:
+                self.event_crf = EventCRF()
 
         # fields
         self.field = AgriNeRFField(
@@ -421,6 +473,10 @@ class AgriNeRFModel(Model):
         }
         if self.log_event_threshold is not None:
             groups["fields"].append(self.log_event_threshold)
+        if self.blur_kernel is not None:
+            groups["blur_kernel"] = list(self.blur_kernel.parameters())
+        if self.event_crf is not None:
+            groups["event_crf"] = list(self.event_crf.parameters())
         self.camera_optimizer.get_param_groups(param_groups=groups)
         return groups
 
@@ -582,9 +638,15 @@ class AgriNeRFModel(Model):
         outputs = self._render(ray_bundle)
         if self.training and torch.is_grad_enabled():
             with self._side_stream():
-                if self.use_blur and self.step >= self.config.blur_start_step:
+                if self.use_blur and self.step >= self.config.blur_start_step and self.blur_kernel is not None:
+                    outputs["rgb_blurred"] = self._kernel_rgb(ray_bundle, outputs.get("rgb/rgb_loss", outputs["rgb"]))
+                elif self.use_blur and self.step >= self.config.blur_start_step:
                     outputs["rgb_blurred"] = self._blurred_rgb(ray_bundle)
-                if self.use_event_loss and self.event_stream is not None:
+                if self.edi_stream is not None:
+                    outputs.update(self._edi_outputs(ray_bundle))
+                if self.use_event_loss and self.event_pairs is not None:
+                    outputs.update(self._pair_event_logs(ray_bundle))
+                elif self.use_event_loss and self.event_stream is not None:
                     outputs.update(self._stream_event_logs(ray_bundle))
                 elif self.use_event_loss:
                     outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
@@ -621,6 +683,80 @@ class AgriNeRFModel(Model):
         times = exposure_times(self.exposure[camera_rows(bundle)], self.config.blur_samples)
         renders = self._render_at(bundle, times, "rgb_loss")
         return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
+
+    def _kernel_rgb(self, bundle: RayBundle, frame_rgb: Float[Tensor, "n 3"]) -> Float[Tensor, "n 3"]:
+        """The learnt blur kernel: the frame ray's colour and the renders of its learnt rigid motions, blended in linear
+        radiance with the learnt weights (`model/rigid_blur.py`)."""
+        from agrinerf_ns.model.rigid_blur import blend, warp_rays
+        from agrinerf_ns.model.timed_rays import camera_rows
+
+        assert self.blur_kernel is not None
+        rotation, translation, weights = self.blur_kernel(camera_rows(bundle).to(frame_rgb.device))
+        origins, directions = warp_rays(bundle.origins, bundle.directions, rotation, translation)
+        n, m = origins.shape[:2]
+        assert bundle.camera_indices is not None
+        moved = RayBundle(
+            origins=origins.reshape(n * m, 3),
+            directions=directions.reshape(n * m, 3),
+            pixel_area=bundle.pixel_area.repeat_interleave(m, dim=0),
+            camera_indices=bundle.camera_indices.repeat_interleave(m, dim=0),
+        )
+        scale = self.density_gradient_scale("rgb_loss")
+        renders = self._render(self.collider(moved), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
+            n, m, 3
+        )
+        linear = losses.srgb_to_linear(torch.cat([frame_rgb[:, None, :], renders], dim=1))
+        return losses.linear_to_srgb(blend(linear, weights))
+
+    def _edi_outputs(self, bundle: RayBundle) -> Dict[str, Tensor]:
+        """The EDI prior's per-ray factor (the blurred value over it is the sharp mid-exposure value) and where the
+        event camera sees the pixel (`model/edi_prior.py`)."""
+        from agrinerf_ns.model.timed_rays import camera_rows
+
+        assert self.edi_stream is not None and self.event_camera_native is not None
+        assert self.trajectory is not None and self.frame_times is not None and self.exposure is not None
+        rows = camera_rows(bundle)
+        pose = self.trajectory.poses_at_tensor(self.frame_times[rows].double(), dtype=torch.float64)
+        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double().cpu()[..., None])[..., 0]
+        depth = float(self.event_camera.get("plane_depth", math.inf))
+        pixel, inside = edi_prior.event_pixels(self.event_camera_native, local, depth)
+        c_on, c_off = (float(c) for c in self._event_thresholds())
+        factor = edi_prior.edi_factors(self.edi_stream, pixel, self.exposure[rows], c_on, c_off)
+        device = bundle.origins.device
+        return {"edi_factor": factor.to(device), "edi_valid": inside.float()[:, None].to(device)}
+
+    def _pair_event_logs(self, like: RayBundle) -> Dict[str, Tensor]:
+        """`event_rays_per_batch` EvDeblurNeRF event samples (`model/event_pairs.py`) rendered along the event camera's
+        rays at both events' times: their log luma (after the learnt response, from its start step) and targets."""
+        from agrinerf_ns.model.event_crf import event_log_luma
+        from agrinerf_ns.model.event_pairs import pair_targets, polarity_features
+        from agrinerf_ns.model.event_stream import event_rays
+
+        assert self.event_pairs is not None and self.trajectory is not None and self.frame_times is not None
+        assert self.event_camera_native is not None
+        pixel, t0, t1, polarity = self.event_pairs.sample(self.config.event_rays_per_batch)
+        m = int(pixel.shape[0])
+        if m == 0:  # a stream without two events at any pixel: no sample, no loss
+            return {}
+        times = torch.stack([t0, t1], -1).double() * 1e-6
+        origins, directions = event_rays(self.trajectory, self.event_camera_native, pixel, times)
+        frames = (times[:, :1] - self.frame_times.double()[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
+        device, dtype = like.origins.device, like.origins.dtype
+        bundle = RayBundle(
+            origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
+            camera_indices=frames.repeat_interleave(2)[:, None].to(device),
+        )
+        scale = self.density_gradient_scale("event_loss")
+        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
+            m, 2, 3
+        )
+        crf = self.event_crf if self.step >= self.config.event_crf_start_step else None
+        features = polarity_features(polarity).to(device)
+        logs = event_log_luma(losses.srgb_to_linear(rgb), self.config.event_log_eps, crf, features)
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1],
+                "event_target": pair_targets(polarity, *self._event_thresholds()).to(device)}  # fmt: skip
 
     def _stream_event_logs(self, like: RayBundle) -> Dict[str, Tensor]:
         """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
@@ -797,7 +933,14 @@ class AgriNeRFModel(Model):
         image = batch["image"][..., :3].to(self.device) if "image" in batch else None
         if self.use_rgb and image is not None:
             terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", pred("rgb_loss")), image)
-        if "event_on" in outputs:  # the stream's event pixels carry their own counts
+        if "edi_factor" in outputs and image is not None:  # EvDeblurNeRF's EDI prior on the frame ray
+            sharp = losses.linear_to_srgb(losses.srgb_to_linear(image) / outputs["edi_factor"])
+            terms["edi_prior_loss"] = losses.masked_mse(pred("edi_prior_loss"), sharp, outputs["edi_valid"])
+        if "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples
+            terms["event_loss"] = losses.event_pair_loss(
+                outputs["event_log_start"], outputs["event_log_end"], outputs["event_target"]
+            )
+        elif "event_on" in outputs:  # the stream's event pixels carry their own counts
             terms["event_loss"] = losses.event_loss(
                 outputs["event_log_start"],
                 outputs["event_log_end"],
@@ -883,6 +1026,8 @@ class AgriNeRFModel(Model):
         coef = self.config.loss_coefficients
         # out of place (misc.scale_dict multiplies in place, which would also scale the raw terms in the metrics)
         loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
+        if "edi_prior_loss" in loss_dict:  # EvDeblurNeRF's cosine-decayed weight
+            loss_dict["edi_prior_loss"] = loss_dict["edi_prior_loss"] * edi_prior.cosine_weight(self.step)
         if "event_loss" in loss_dict and "rgb_loss" in raw and self.config.event_loss_weighting == "noise":
             loss_dict["event_loss"] = loss_dict["event_loss"] * self._event_noise_weight(raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
