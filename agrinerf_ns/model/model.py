@@ -166,7 +166,7 @@ class AgriNeRFModelConfig(ModelConfig):
     """Colour (and thermal value) behind the last sample; "last_sample" uses the last sample's value."""
     weight_threshold: float = 1.0e-4
     """Fine samples whose rendering weight is below this skip the appearance heads (TensoRF's app mask)."""
-    box_fit_iters: Tuple[int, ...] = (100, 500)
+    box_fit_iters: Tuple[int, ...] = (100, 300, 1000)
     """Steps after which the full-resolution box is fitted to the scene (`grid_mapping.fit_box` on the median-depth
     points of `box_fit_rays` rendered training rays) and every volume resampled into it; () keeps the first box (the
     SfM points' box where the dataset has them, else the scene box around the cameras). Contraction only."""
