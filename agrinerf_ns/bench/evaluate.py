@@ -43,6 +43,19 @@ class TruthImages:
             image = cv2.remap(image, self._maps[0], self._maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return torch.from_numpy(image.astype(np.float32) / 255.0)
 
+    def fruit_mask(self, name: str) -> Optional[torch.Tensor]:
+        """(H, W) bool: the truth's fruit pixels of dataset image ``name`` (``truth/fruit_ids``, undistorted like the
+        frames); None where the capture has no fruit mask for it."""
+        import cv2
+
+        path = self.folder.parent / "fruit_ids" / Path(name).with_suffix(".png").name
+        if not path.is_file():
+            return None
+        ids = np.asarray(Image.open(path)).astype(np.float32)
+        if self._maps is not None:
+            ids = cv2.remap(ids, self._maps[0], self._maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        return torch.from_numpy(ids > 0)
+
 
 def _load_at_step(step: int) -> Callable:
     def update(config):
@@ -75,7 +88,7 @@ def evaluate_checkpoint(
     ``chunk`` rays at a time (None: :func:`agrinerf_ns.views.rays_per_chunk`).
 
     Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
-    LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the
+    LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``psnr_fruit`` (the same PSNR over the truth's fruit pixels), ``thermal_psnr``, ``thermal_ssim`` (vs the
     rescaled thermal frames), ``thermal_camera_psnr`` (the thermal-camera output, where the model has one),
     ``temperature_mae`` (degrees C, where the model has a temperature output), `GRID_METRICS` (AgriNeRF), and
     ``psnr_clean_per_view`` (each rendered view's ``psnr_clean``, by held-out index, for paired comparisons).
@@ -112,6 +125,10 @@ def evaluate_checkpoint(
             aligned = image_metrics.exposure_align(outputs["rgb"].detach().cpu().float(), target)
             row["psnr_clean"] = image_metrics.psnr(aligned, target)
             row["ssim_clean"] = image_metrics.ssim(aligned, target)
+            fruit = truth.fruit_mask(names[int(batch["image_idx"])])
+            if fruit is not None and bool(fruit.any()):  # fine detail: the fruit pixels alone
+                mse = float(((aligned - target) ** 2)[fruit].mean())
+                row["psnr_fruit"] = -10.0 * math.log10(max(mse, 1e-10))
         per_image.append(row)
     keys = sorted({k for row in per_image for k in row})
     means: Dict[str, object] = {k: _nanmean([row.get(k, math.nan) for row in per_image]) for k in keys}
