@@ -147,6 +147,7 @@ class AgriNeRFField(Field):
         vm_lookup: how every volume is sampled (`VMLookup`: row sums on a CPU, `grid_sample` on a GPU by default).
     """
 
+    aabb: Float[Tensor, "2 3"]
     occupancy: Bool[Tensor, "r r r"]
 
     def __init__(
