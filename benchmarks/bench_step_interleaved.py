@@ -7,7 +7,7 @@
 A run is ``[TREE:]METHOD[@STEP][%FIELD=VALUE...]``: an ``agrinerf-bench`` method key, timed at the grids and with the terms of
 training step STEP (default 0, the grids a preset starts with; e.g. ``agrinerf@7000``: the paper preset at its final
 300^3 grids, blur model and event loss on as from step 1200), from the checkout TREE (a name given in ``--trees``;
-default this one), so that a change can be timed against the code before it in one run, with model config fields set
+default this one, as installed; a TREE is imported through a layout of links under OUT/trees), so that a change can be timed against the code before it in one run, with model config fields set
 (``%event_rays_per_batch=0``: no event loss; VALUE is JSON). Every run's pipeline
 (Nerfstudio's own, built from its registered method config, the same rays per batch) lives in a worker process
 (``benchmarks/step_worker.py``); the driver asks one worker at a time for one step, rotating the order every round,
@@ -20,6 +20,7 @@ and ``OUT/step_speed.md`` (medians, quartiles, median paired ratio to the first 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import os
 import statistics
@@ -34,6 +35,7 @@ import tyro
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.run_order import rotated
+from agrinerf_ns.source_tree import link_installed_layout
 
 WORKER = Path(__file__).with_name("step_worker.py")
 
@@ -87,8 +89,10 @@ class Worker:
 
     def __init__(self, run: Run, args: Args) -> None:
         env = dict(os.environ)
-        if run.tree is not None:
-            env["PYTHONPATH"] = os.pathsep.join([str(run.tree), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        if run.tree is not None:  # import that checkout's package, laid out as installed (dataparsers/ inside it)
+            name = hashlib.sha1(str(run.tree).encode()).hexdigest()[:12]
+            layout = link_installed_layout(run.tree, args.out / "trees" / name)
+            env["PYTHONPATH"] = os.pathsep.join([str(layout), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
         command = [sys.executable, str(WORKER), run.method, str(args.data), str(args.rays_per_batch),
                    str(run.at_step), str(args.seed), json.dumps(run.overrides)]  # fmt: skip
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
