@@ -36,8 +36,6 @@ def ray_init(
         return False
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # nothing leaves the machine
     if address == LOCAL:
-        # the raylet also kills what a crashed worker started (grandchildren included)
-        os.environ.setdefault("RAY_kill_child_processes_on_worker_exit_with_raylet_subreaper", "true")
         ray.init(
             num_cpus=num_cpus,
             num_gpus=num_gpus,
