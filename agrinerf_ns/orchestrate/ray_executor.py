@@ -18,6 +18,9 @@ from agrinerf_ns.orchestrate.jobs import Job, error_text, execute
 
 LOCAL = "local"
 """``--ray local``: start a Ray instance on this machine (stopped at the end)."""
+START_ATTEMPTS = 3
+"""Starts of a local Ray tried: its processes must register within fixed times (about 15 s for its agents), which a
+machine busy with other work can miss."""
 
 
 def ray_init(
@@ -36,15 +39,17 @@ def ray_init(
         return False
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # nothing leaves the machine
     if address == LOCAL:
-        ray.init(
-            num_cpus=num_cpus,
-            num_gpus=num_gpus,
-            include_dashboard=False,
-            object_store_memory=None if object_store_mb is None else object_store_mb * 2**20,
-            _temp_dir=str(temp_dir) if temp_dir is not None else tempfile.mkdtemp(prefix="ray-"),
-            log_to_driver=False,
-            configure_logging=False,
-        )
+        options = dict(num_cpus=num_cpus, num_gpus=num_gpus, include_dashboard=False, log_to_driver=False,
+                       configure_logging=False,
+                       object_store_memory=None if object_store_mb is None else object_store_mb * 2**20)  # fmt: skip
+        for attempt in range(1, START_ATTEMPTS + 1):
+            try:
+                ray.init(**options, _temp_dir=str(temp_dir) if temp_dir else tempfile.mkdtemp(prefix="ray-"))
+                break
+            except Exception as err:  # Ray's start-up has fixed time limits, which a busy machine can miss
+                ray.shutdown()
+                if attempt == START_ATTEMPTS or "timed out during startup" not in str(err):
+                    raise
     else:
         ray.init(address=address, log_to_driver=False, configure_logging=False)
     return True
