@@ -27,7 +27,7 @@ from agrinerf_ns.orchestrate.jobs import Job, LocalExecutor, Resources, attempts
 SCENE = "orchard-dark"
 PROFILE = BenchProfile(views=8, width=64, height=48, steps={"agrinerf-lite": 24}, evaluations=2, rays_per_batch=128,
                        scenes=(SCENE,))  # fmt: skip
-"""The tiny scene and a short agrinerf-lite run: two checkpoints (steps 12 and 24)."""
+"""The tiny scene and a short agrinerf-lite run: two checkpoints (saved at steps 12 and 23, reported as 13 and 24)."""
 
 
 def test_plugin_method_configs_and_commands_import_no_ray() -> None:
@@ -86,6 +86,56 @@ def test_grid_plan_keys_streams_and_skips_finished_runs() -> None:
     assert (
         bench_grid.run_resources("full", None, None).gpus == 1 and bench_grid.run_resources("quick", 2, None).gpus == 0
     )
+
+
+def test_survey_and_bench_command_lines_and_bad_survey_folders(tmp_path: Path) -> None:
+    import tyro
+
+    from agrinerf_ns.bench.cli import BenchConfig
+    from agrinerf_ns.survey.cli import SurveyArgs, SurveyInputError, list_captures
+
+    args = tyro.cli(SurveyArgs, args=["--captures", "c", "--out", "o", "--ray", "auto", "--process.poses", "given",
+                                      "--gpus-per-train", "1", "--train-args=--pipeline.model.final-resolution 64"])  # fmt: skip
+    assert args.ray == "auto" and args.process.poses == "given" and args.gpus_per_train == 1.0
+    assert args.train_args == "--pipeline.model.final-resolution 64"
+    bench = tyro.cli(BenchConfig, args=["--ray", "local", "--run-seeds", "0", "1", "--cpus-per-run", "2"])
+    assert bench.ray == "local" and bench.run_seeds == (0, 1) and bench.cpus_per_run == 2
+    with pytest.raises(SurveyInputError, match="does not exist"):
+        list_captures(tmp_path / "missing", tmp_path / "out")
+    (tmp_path / "captures").mkdir()
+    with pytest.raises(SurveyInputError, match="no capture folders"):
+        list_captures(tmp_path / "captures", tmp_path / "out")
+    (tmp_path / "captures" / "row-1").mkdir()
+    with pytest.raises(SurveyInputError, match="inside the captures folder"):
+        list_captures(tmp_path / "captures", tmp_path / "captures" / "survey")
+    assert list_captures(tmp_path / "captures", tmp_path / "out") == ["row-1"]
+
+
+def test_count_interval_is_the_view_jackknife_by_hand() -> None:
+    """Two fruit, one seen in every view and one in the even views only: leaving out an interleaved group of views
+    keeps both unless it holds all of the second's views."""
+    import numpy as np
+
+    from agrinerf_ns.count.cluster import ClusterConfig, Fruit
+    from agrinerf_ns.count.lift import LiftedDetection
+    from agrinerf_ns.count.render import RenderedView, RenderSet, WorldFrame
+    from agrinerf_ns.survey.intervals import count_interval, jackknife_counts, mean_temperature
+
+    views = 4
+    detections = [LiftedDetection(v, np.array([0.0, 0.0, 1.0]), 0.08, 1.0, 20.0) for v in range(views)]
+    detections += [LiftedDetection(v, np.array([1.0, 0.0, 1.0]), 0.08, 1.0, 24.0) for v in (0, 2)]
+    blank = np.zeros((2, 2)), np.zeros((2, 2, 3))
+    view = RenderedView("0", "train", "images/0.png", blank[1], blank[0], blank[0], blank[1], blank[1], 1.0)
+    renders = RenderSet([view] * views, WorldFrame(np.eye(4)[:3], 1.0), None, None, None)
+    cluster = ClusterConfig(min_views=2, min_view_fraction=0.0, merge_distance=0.2)
+    # groups of 2: leaving out the even views (group 0) drops the second fruit
+    assert jackknife_counts(detections, renders, cluster, 2) == [1, 2]
+    low, high = count_interval(2, detections, renders, cluster, groups=2)
+    half = 12.706205 * np.sqrt(0.5 * 0.5)  # t(0.975, 1 dof) * sqrt((g - 1) / g * sum of squares)
+    assert (low, high) == pytest.approx((2 - half, 2 + half), rel=1e-5)
+    fruit = [Fruit(np.zeros(3), 0.08, 2, 2, t, 1.0) for t in (20.0, 22.0, None)]
+    mean, half_t = mean_temperature(fruit)
+    assert mean == 21.0 and half_t == pytest.approx(12.706205 * np.sqrt(2.0) / np.sqrt(2.0), rel=1e-5)
 
 
 # --- on a local Ray ---------------------------------------------------------------------------------------------
@@ -184,7 +234,7 @@ def test_a_killed_worker_is_retried_and_each_run_is_kept_once(local_ray: str, tm
     assert not report.failed and not report.skipped
     assert len(attempts(victim)) == 2, "the killed run ran again"
     assert not _alive(killed["trainer"]), "the killed worker's ns-train is still running"
-    assert _rows_per_run(layout.results_csv) == {"agrinerf-lite": ["12", "24"], "agrinerf-lite@s1": ["12", "24"]}
+    assert _rows_per_run(layout.results_csv) == {"agrinerf-lite": ["13", "24"], "agrinerf-lite@s1": ["13", "24"]}
     assert not (layout.out / bench_grid.FAILURES_MD).exists()
 
 
@@ -240,7 +290,7 @@ def test_an_interrupted_driver_resumes_without_redoing_finished_runs(local_ray: 
     finally:
         executor.close()
     assert not report.failed
-    assert _rows_per_run(layout.results_csv) == {k: ["12", "24"] for k in ("agrinerf-lite", "agrinerf-lite@s1",
+    assert _rows_per_run(layout.results_csv) == {k: ["13", "24"] for k in ("agrinerf-lite", "agrinerf-lite@s1",
                                                                             "agrinerf-lite@s2")}  # fmt: skip
     for key, mtime in records.items():
         assert len(attempts(experiment_folder(layout.runs, SCENE, key))) == 1, f"{key} ran again"

@@ -11,10 +11,11 @@ status and wall time), ``OUT/failures.md`` and every capture's own outputs under
 
 from __future__ import annotations
 
+import shlex
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import tyro
 from rich.console import Console
@@ -42,8 +43,8 @@ class SurveyArgs:
     """Training steps per capture."""
     rays_per_batch: int = 4096
     """Training rays per batch."""
-    train_args: Tuple[str, ...] = ()
-    """Further ``ns-train`` method options, e.g. ``--train-args --pipeline.model.final-resolution 128``."""
+    train_args: str = ""
+    """Further ``ns-train`` method options in one string, e.g. ``--train-args="--pipeline.model.final-resolution 128"``."""
     ray: Optional[str] = None
     """Run the jobs as Ray tasks (the ``[ray]`` extra): ``local`` starts Ray on this machine, ``auto`` joins the
     cluster this machine belongs to, or a cluster address. OUT and --captures must be on a filesystem every node
@@ -92,7 +93,7 @@ def survey_jobs(args: SurveyArgs, names: List[str], settings: stages.SurveySetti
     jobs: List[Job] = []
     for name in names:
         raw, folders = args.captures / name, stages.capture_folders(args.out, name)
-        steps = {
+        steps: Dict[str, Tuple[Callable[..., Any], Tuple[Any, ...], Resources, Optional[Path]]] = {
             "process": (stages.process_step, (raw, folders, settings), Resources(cpus=cpus), None),
             "train": (stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
             "count": (stages.count_step, (raw, folders, settings), heavy, None),
@@ -110,7 +111,7 @@ def survey_jobs(args: SurveyArgs, names: List[str], settings: stages.SurveySetti
 
 def main(args: SurveyArgs) -> List[Dict[str, Any]]:
     names = list_captures(args.captures, args.out)
-    settings = stages.SurveySettings(args.method, args.steps, args.rays_per_batch, tuple(args.train_args),
+    settings = stages.SurveySettings(args.method, args.steps, args.rays_per_batch, tuple(shlex.split(args.train_args)),
                                      args.process, args.count, args.jackknife_groups)  # fmt: skip
     jobs = survey_jobs(args, names, settings)
     errors: Dict[str, str] = {}
