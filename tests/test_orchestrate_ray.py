@@ -132,7 +132,8 @@ def test_count_interval_is_the_view_jackknife_by_hand() -> None:
     assert jackknife_counts(detections, renders, cluster, 2) == [1, 2]
     low, high = count_interval(2, detections, renders, cluster, groups=2)
     half = 12.706205 * np.sqrt(0.5 * 0.5)  # t(0.975, 1 dof) * sqrt((g - 1) / g * sum of squares)
-    assert (low, high) == pytest.approx((2 - half, 2 + half), rel=1e-5)
+    assert (low, high) == pytest.approx((0.0, 2 + half), rel=1e-5), "the lower end is clipped at 0"
+    assert all(np.isnan(count_interval(2, detections, renders, cluster, groups=1))), "one group: no interval"
     fruit = [Fruit(np.zeros(3), 0.08, 2, 2, t, 1.0) for t in (20.0, 22.0, None)]
     mean, half_t = mean_temperature(fruit)
     assert mean == 21.0 and half_t == pytest.approx(12.706205 * np.sqrt(2.0) / np.sqrt(2.0), rel=1e-5)

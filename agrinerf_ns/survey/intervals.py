@@ -4,7 +4,7 @@ The count: a delete-a-group jackknife over the views. The views are dealt into `
 into group i mod G); each group in turn is left out and the fruit fused again from the other views' detections (the
 count's own :func:`~agrinerf_ns.count.pipeline.fuse`: clustering and the view-support rule), and the spread of those
 G counts, scaled by the jackknife's (G - 1) / G, is the variance of the count. The interval is the count plus or minus
-Student's t (G - 1 degrees of freedom) times its square root: how much the count rests on which views happened to
+Student's t (G - 1 degrees of freedom) times its square root (not below 0): how much the count rests on which views happened to
 detect each fruit. It says nothing of fruit no view shows, nor of a detector's systematic misses.
 
 The temperature: the mean of the counted fruit's rendered temperatures with Student's t interval over the fruit.
@@ -50,15 +50,15 @@ def count_interval(
     groups: int = JACKKNIFE_GROUPS,
     confidence: float = 0.95,
 ) -> Tuple[float, float]:
-    """``confidence`` interval of ``count`` (the fruit fused from all views) by the view jackknife; (nan, nan) with
-    fewer than two views."""
+    """``confidence`` interval of ``count`` (the fruit fused from all views) by the view jackknife, its lower end at
+    least 0; (nan, nan) with fewer than two views."""
     g = min(groups, len(renders.views))
     if g < 2:
         return math.nan, math.nan
     counts = jackknife_counts(detections, renders, cluster, g)
     mean = sum(counts) / g
     half = _t(confidence, g - 1) * math.sqrt((g - 1) / g * sum((c - mean) ** 2 for c in counts))
-    return count - half, count + half
+    return max(0.0, count - half), count + half
 
 
 def mean_temperature(fruit: Sequence[Fruit], confidence: float = 0.95) -> Tuple[float, float]:

@@ -145,6 +145,10 @@ def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_:
         "views": len(renders.views),
         "temperature_c": finite_or_none(temperature),
         "temperature_half_c": finite_or_none(temperature_half),
-        "score": result.score.as_dict() if result.score is not None else None,
+        "score": None
+        if result.score is None
+        else {
+            k: finite_or_none(v) if isinstance(v, float) else v for k, v in result.score.as_dict().items()
+        },  # fmt: skip
     }
     return _write_record(folders, "count", record)
