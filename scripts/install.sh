@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install agrinerf-ns and everything it needs into ./.venv (created if absent), from nothing but Python 3.11 and pip.
 #   bash scripts/install.sh            the plugin, as a user gets it (non-editable)
-#   bash scripts/install.sh --dev      plus pytest, ruff, mypy, beartype, and the [detect] extra (what the tests need)
+#   bash scripts/install.sh --dev      plus pytest, ruff, mypy, beartype, the [detect] and [ray] extras (what the tests need)
 #   bash scripts/install.sh --editable install the plugin editable (for development); combine with --dev
 # Environment: TORCH_SPEC overrides the torch/torchvision pair (default: the pair tested here, see README).
 set -euo pipefail
@@ -23,7 +23,7 @@ python -m pip install --quiet ${TORCH_SPEC:-torch==2.14.1 torchvision==0.29.1}
 # 2. the plugin with Nerfstudio and the rest of its dependencies (imageio-ffmpeg among them: the ffmpeg of ns-render
 #    videos, which agrinerf_ns.compat puts on PATH for ns-* commands when PATH has none).
 TARGET="."
-[ "$DEV" = 1 ] && TARGET=".[dev]"
+[ "$DEV" = 1 ] && TARGET=".[dev,ray]"  # [ray]: the tests of agrinerf-bench --ray and agrinerf-survey --ray
 if [ "$EDITABLE" = 1 ]; then python -m pip install --quiet -e "$TARGET"; else python -m pip install --quiet "$TARGET"; fi
 # 3. Nerfstudio pins opencv-python-headless; opencv-contrib-python-headless ships the same cv2 module plus the contrib
 #    modules. Whichever is written last owns cv2, so write the contrib wheel last, explicitly.

@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING, Dict, List, Optional, Sequence, Tuple
 
 import tyro
 from rich.console import Console
-from rich.progress import Progress
 
 from agrinerf_ns.bench import results
 from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, machine_note, scene_folders, train_record
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
-from agrinerf_ns.machine import device_name
+from agrinerf_ns.orchestrate import bench_grid
+from agrinerf_ns.orchestrate.jobs import executor_for
 
 if TYPE_CHECKING:
     from agrinerf_ns.synth import SynthConfig
@@ -53,6 +53,20 @@ class BenchConfig:
     """Where results are appended; None: OUT/results.csv."""
     report_only: bool = False
     """Train nothing: rewrite results.md and tradeoff.png from the rows already in the CSV."""
+    run_seeds: Tuple[int, ...] = (0,)
+    """Random streams each method is trained with (``ns-train --machine.seed``; 0: Nerfstudio's default). A run of
+    stream s > 0 is keyed ``<method>@s<s>`` in results.csv."""
+    ray: Optional[str] = None
+    """Run the grid as Ray tasks (the ``[ray]`` extra): ``local`` starts Ray on this machine, ``auto`` joins the
+    cluster this machine belongs to, or a cluster address. OUT must be on a filesystem every node sees."""
+    cpus_per_run: Optional[int] = None
+    """CPU cores (and threads) each run holds; None: one per run with --ray, threads unchanged without."""
+    gpus_per_run: Optional[float] = None
+    """GPUs each run holds with --ray; None: one for the GPU profile (full), none otherwise."""
+    retries: int = 1
+    """Further attempts of a run that fails or whose worker dies, before it is reported in OUT/failures.md."""
+    ray_cpus: Optional[int] = None
+    """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
 
 
 def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tuple[Path, Path]:
@@ -154,7 +168,9 @@ def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
     ]
     for scene in sorted({r["scene"] for r in rows}):
         scene_rows = [r for r in rows if r["scene"] == scene]
-        methods = sorted({r["method"] for r in scene_rows if METHODS[r["method"]].supervision == "rgb"})
+        methods = sorted(
+            {r["method"] for r in scene_rows if METHODS[results.seed_base(r["method"])].supervision == "rgb"}
+        )
         if not methods:
             continue
         finals = {m: max(results.as_float(r, "wall_s") for r in scene_rows if r["method"] == m) for m in methods}
@@ -208,26 +224,31 @@ def main(config: BenchConfig) -> List[results.Row]:
     scenes = config.scenes or profile.scenes
     layout = BenchLayout(config.out)
     csv_path = config.results_csv or layout.results_csv
-    device = device_name()
     done = results.done_runs(results.read_rows(csv_path))
-    todo = [] if config.report_only else [(s, m) for s in scenes for m in config.methods if (s, m) not in done]
-    with Progress(console=CONSOLE) as progress:
-        task = progress.add_task("benchmark runs", total=len(todo))
-        for scene, method_key in todo:
-            progress.update(task, description=f"{scene}: {method_key}")
-            raw, data = prepare_scene(scene, profile, config.seed, layout.scenes)
-            rows = run_method(scene, method_key, METHODS[method_key], raw, data, profile, layout.runs, device)
-            results.append_rows(csv_path, rows)
-            progress.advance(task)
-    rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in config.methods]
+    todo = [] if config.report_only else bench_grid.plan(scenes, config.methods, config.run_seeds, done)
+    report = None
+    if todo:
+        cpus = config.cpus_per_run if config.cpus_per_run is not None or config.ray is None else 1
+        resources = bench_grid.run_resources(config.profile, cpus, config.gpus_per_run)
+        with executor_for(config.ray, **({"num_cpus": config.ray_cpus} if config.ray else {})) as executor:
+            report = bench_grid.run_grid(todo, profile, layout, csv_path, config.seed, executor, resources,
+                                         config.retries, CONSOLE)  # fmt: skip
+    keys = {results.seed_key(m, s) for m in config.methods for s in config.run_seeds}
+    rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in keys]
     write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
     CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
+    if report is not None and (report.failed or report.skipped):
+        raise bench_grid.RunsFailed(report, config.out / bench_grid.FAILURES_MD)
     return rows
 
 
 def entrypoint() -> None:
     """Console script ``agrinerf-bench``."""
-    main(tyro.cli(BenchConfig))
+    try:
+        main(tyro.cli(BenchConfig))
+    except bench_grid.RunsFailed as err:
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
+        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -62,7 +62,8 @@ def run_ns(
         with open(log, "w") as handle:
             handle.write(" ".join(command) + "\n")
             handle.flush()
-            proc = subprocess.Popen(command, stdout=handle, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            proc = subprocess.Popen([*_launcher(), *command], stdout=handle, stderr=subprocess.STDOUT,
+                                    stdin=subprocess.DEVNULL)  # fmt: skip
             memory = TreeMemory(proc.pid)
             status = _wait(proc, timeout, memory)
         wall = time.perf_counter() - start
@@ -71,6 +72,22 @@ def run_ns(
     if code != 0:
         raise NerfstudioCommandError(f"{' '.join(command)} exited {code}:\n{output[-4000:]}")
     return CommandResult(output=output, wall_s=wall, peak_rss_mb=memory.peak_kib / 1024.0)
+
+
+_DIE_WITH_PARENT = (
+    "import ctypes, os, signal, sys\n"
+    "ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))\n"  # 1: PR_SET_PDEATHSIG
+    "os.getppid() == int(sys.argv[1]) or sys.exit(137)\n"  # the parent died before the prctl
+    "os.execv(sys.argv[2], sys.argv[2:])"
+)
+"""Run as ``python -c _DIE_WITH_PARENT PARENT_PID COMMAND...``: exec COMMAND so that it receives SIGKILL when the
+launching process dies (Linux ``PR_SET_PDEATHSIG``, kept across ``exec``). A killed benchmark or Ray worker then leaves
+no ``ns-train`` writing into a run folder that a retry reuses. (Not a ``preexec_fn``: unsafe in a threaded process.)"""
+
+
+def _launcher() -> List[str]:
+    """The :data:`_DIE_WITH_PARENT` prefix of a command on Linux; none elsewhere."""
+    return [sys.executable, "-c", _DIE_WITH_PARENT, str(os.getpid())] if sys.platform.startswith("linux") else []
 
 
 def _proc_status_kib(pid: int, key: str) -> int:

@@ -223,6 +223,11 @@ def seed_key(method: str, seed: int) -> str:
     return method if seed == 0 else f"{method}@s{seed}"
 
 
+def seed_base(key: str) -> str:
+    """The method of a :func:`seed_key` result key."""
+    return key.split("@s", 1)[0]
+
+
 def difference_spread(
     rows: Sequence[Row], methods: Sequence[str], baseline: str, seeds: Sequence[int]
 ) -> Tuple[float, int]:

@@ -1,0 +1,155 @@
+"""``agrinerf-survey --captures FOLDER --out OUT [--ray local|auto|ADDRESS]``: every raw capture of a farm processed,
+trained and counted; one table.
+
+Each sub-folder of FOLDER is a raw capture (docs/formats.md). For each, three jobs in order (process, train with the
+chosen preset, count), run in this process one after another or as Ray tasks that hold the CPUs and GPUs they ask
+for; captures run side by side. A capture that fails is reported with its error and the others finish. Running the
+same command again resumes: finished steps are skipped (:mod:`agrinerf_ns.survey.stages`). Out: ``OUT/survey.md`` and
+``OUT/survey.csv`` (fruit per capture with intervals, mean fruit temperature, against the truth of a synthetic capture,
+status and wall time), ``OUT/failures.md`` and every capture's own outputs under ``OUT/captures/``.
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+import tyro
+from rich.console import Console
+
+from agrinerf_ns.count.pipeline import CountConfig
+from agrinerf_ns.orchestrate.bench_grid import write_failures
+from agrinerf_ns.orchestrate.jobs import Job, Resources, executor_for, failures_markdown, run_jobs
+from agrinerf_ns.process.pipeline import ProcessConfig
+from agrinerf_ns.survey import stages, table
+
+CONSOLE = Console()
+
+
+@dataclass
+class SurveyArgs:
+    """Process, train and count every raw capture of a folder; writes OUT/survey.md and OUT/survey.csv."""
+
+    captures: Path
+    """Folder of raw captures, one sub-folder each (read only)."""
+    out: Path
+    """Survey folder (outside --captures)."""
+    method: str = "agrinerf-lite"
+    """``ns-train`` method (preset) each capture is trained with."""
+    steps: int = 30000
+    """Training steps per capture."""
+    rays_per_batch: int = 4096
+    """Training rays per batch."""
+    train_args: str = ""
+    """Further ``ns-train`` method options in one string, e.g. ``--train-args="--pipeline.model.final-resolution 128"``."""
+    ray: Optional[str] = None
+    """Run the jobs as Ray tasks (the ``[ray]`` extra): ``local`` starts Ray on this machine, ``auto`` joins the
+    cluster this machine belongs to, or a cluster address. OUT and --captures must be on a filesystem every node
+    sees. None: one job after another in this process."""
+    cpus_per_task: Optional[int] = None
+    """CPU cores (and threads) each job holds; None: one per job with --ray, threads unchanged without."""
+    gpus_per_train: float = 0.0
+    """GPUs the training and the counting of a capture hold with --ray (1 on a GPU cluster)."""
+    memory_gb_per_train: Optional[float] = None
+    """Memory Ray reserves for a capture's training and counting (GiB; None: none reserved)."""
+    retries: int = 1
+    """Further attempts of a step that fails or whose worker dies, before its capture is reported failed."""
+    ray_cpus: Optional[int] = None
+    """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
+    jackknife_groups: int = 10
+    """Interleaved groups of views of the count's interval (a delete-a-group jackknife)."""
+    process: ProcessConfig = field(default_factory=lambda: ProcessConfig(show_progress=False))
+    """Processing options (as ``agrinerf-process``)."""
+    count: CountConfig = field(default_factory=CountConfig)
+    """Detection, clustering and scoring options (as ``agrinerf-count``)."""
+
+
+class SurveyInputError(ValueError):
+    """The captures folder or the output folder cannot be used (said before any work starts)."""
+
+
+def list_captures(captures: Path, out: Path) -> List[str]:
+    """The capture folders' names, sorted; raises :class:`SurveyInputError` naming the folder when there are none or
+    when OUT lies inside the captures folder (it is never written to)."""
+    captures = Path(captures)
+    if not captures.is_dir():
+        raise SurveyInputError(f"{captures}: captures folder does not exist")
+    if Path(out).resolve().is_relative_to(captures.resolve()):
+        raise SurveyInputError(f"{out}: the survey folder lies inside the captures folder {captures} (read only)")
+    names = sorted(p.name for p in captures.iterdir() if p.is_dir() and not p.name.startswith("."))
+    if not names:
+        raise SurveyInputError(f"{captures}: no capture folders in it (one sub-folder per raw capture)")
+    return names
+
+
+def survey_jobs(args: SurveyArgs, names: List[str], settings: stages.SurveySettings) -> List[Job]:
+    """Per capture, the steps without a record, each after the one before it."""
+    cpus = args.cpus_per_task if args.cpus_per_task is not None or args.ray is None else 1
+    memory = None if args.memory_gb_per_train is None else int(args.memory_gb_per_train * 1024)
+    heavy = Resources(cpus=cpus, gpus=args.gpus_per_train, memory_mb=memory)
+    jobs: List[Job] = []
+    for name in names:
+        raw, folders = args.captures / name, stages.capture_folders(args.out, name)
+        steps: Dict[str, Tuple[Callable[..., Any], Tuple[Any, ...], Resources, Optional[Path]]] = {
+            "process": (stages.process_step, (raw, folders, settings), Resources(cpus=cpus), None),
+            "train": (stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
+            "count": (stages.count_step, (raw, folders, settings), heavy, None),
+        }
+        previous: Tuple[str, ...] = ()
+        for stage in stages.STAGES:
+            if stages.read_record(folders, stage) is not None:
+                continue
+            fn, fn_args, resources, log = steps[stage]
+            key = f"{name}:{stage}"
+            jobs.append(Job(key, fn, fn_args, folders.root, resources, previous, log, args.retries))
+            previous = (key,)
+    return jobs
+
+
+def main(args: SurveyArgs) -> List[Dict[str, Any]]:
+    names = list_captures(args.captures, args.out)
+    settings = stages.SurveySettings(args.method, args.steps, args.rays_per_batch, tuple(shlex.split(args.train_args)),
+                                     args.process, args.count, args.jackknife_groups)  # fmt: skip
+    jobs = survey_jobs(args, names, settings)
+    errors: Dict[str, str] = {}
+    if jobs:
+        with executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as executor:
+            report = run_jobs(jobs, executor, lambda job, result: None, "survey steps", CONSOLE)
+        errors = {key.rsplit(":", 1)[0]: failure.error for key, failure in report.failed.items()}
+        write_failures(args.out / "failures.md", failures_markdown(report, "Survey steps that failed"))
+    rows = table.survey_rows(names, {n: stages.capture_folders(args.out, n) for n in names}, errors)
+    from agrinerf_ns.bench.layout import machine_note
+
+    header = (
+        f"# Survey of {args.captures}\n\nCommand: `agrinerf-survey {' '.join(sys.argv[1:])}`\n\n{machine_note()}\n\n"
+        f"Each capture: `{args.method}`, {args.steps} steps; fruit counted by `agrinerf-count` "
+        f"({args.count.detect.detector} on {args.count.detect.source}); the interval is a delete-a-group jackknife over "
+        f"{args.jackknife_groups} interleaved groups of views, the temperature's Student's t over the counted fruit; "
+        "against the truth where the capture has one (synthetic captures). Wall time: each step's own.\n"
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    table.write_csv(args.out / "survey.csv", rows)
+    tmp = args.out / "survey.md.tmp"
+    tmp.write_text(table.markdown(rows, header))
+    tmp.replace(args.out / "survey.md")
+    CONSOLE.print(f"survey: {args.out / 'survey.md'}, {args.out / 'survey.csv'}")
+    return rows
+
+
+def entrypoint() -> None:
+    """Console script ``agrinerf-survey``."""
+    tyro.extras.set_accent_color("bright_yellow")
+    try:
+        rows = main(tyro.cli(SurveyArgs))
+    except SurveyInputError as err:
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
+        sys.exit(2)
+    if any(r["status"] != "done" for r in rows):
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,154 @@
+"""The three steps of one capture of a survey, each a job, and where each writes.
+
+::
+
+    OUT/captures/<capture>/data/                      the processed dataset (agrinerf-process)
+    OUT/captures/<capture>/train/<method>/run/        the ns-train run (config.yml, checkpoints); train_run.json
+    OUT/captures/<capture>/train/<method>.train.log   its log
+    OUT/captures/<capture>/count/                     agrinerf-count's outputs (with score.md against a truth)
+    OUT/captures/<capture>/<stage>.json               a finished step's record (wall time, and the count's figures)
+
+Each step writes only its own capture's folder, its outputs atomically and its record last: a survey that is run
+again skips the steps that have a record and redoes the others.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Optional, Tuple
+
+from agrinerf_ns.count.pipeline import CountConfig
+from agrinerf_ns.process.pipeline import ProcessConfig
+
+STAGES = ("process", "train", "count")
+CAPTURES_DIR = "captures"
+TRAIN_EXPERIMENT = "train"
+
+
+@dataclass(frozen=True)
+class SurveySettings:
+    """How every capture of a survey is processed, trained and counted."""
+
+    method: str = "agrinerf-lite"
+    """The ``ns-train`` method (preset) each capture is trained with."""
+    steps: int = 30000
+    """Training steps per capture."""
+    rays_per_batch: int = 4096
+    """Training rays per batch."""
+    train_args: Tuple[str, ...] = ()
+    """Further ``ns-train`` options of the method (before the dataparser)."""
+    process: ProcessConfig = field(default_factory=ProcessConfig)
+    count: CountConfig = field(default_factory=CountConfig)
+    jackknife_groups: int = 10
+    """Interleaved groups of views of the count's jackknife interval (:mod:`agrinerf_ns.survey.intervals`)."""
+
+
+@dataclass(frozen=True)
+class CaptureFolders:
+    """Where one capture's steps write."""
+
+    root: Path
+
+    @property
+    def data(self) -> Path:
+        return self.root / "data"
+
+    @property
+    def train_root(self) -> Path:
+        return self.root / TRAIN_EXPERIMENT
+
+    def run_config(self, method: str) -> Path:
+        return self.train_root / method / "run" / "config.yml"
+
+    def train_log(self, method: str) -> Path:
+        return self.train_root / f"{method}.train.log"
+
+    @property
+    def train_record(self) -> Path:
+        return self.train_root / "train_run.json"
+
+    @property
+    def count(self) -> Path:
+        return self.root / "count"
+
+    def record(self, stage: str) -> Path:
+        return self.root / f"{stage}.json"
+
+
+def capture_folders(out: Path, capture: str) -> CaptureFolders:
+    """``OUT/captures/<capture>``."""
+    return CaptureFolders(Path(out) / CAPTURES_DIR / capture)
+
+
+def read_record(folders: CaptureFolders, stage: str) -> Optional[Dict[str, Any]]:
+    """A finished step's record, None when the step has not finished."""
+    path = folders.record(stage)
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _write_record(folders: CaptureFolders, stage: str, record: Dict[str, Any]) -> Dict[str, Any]:
+    path = folders.record(stage)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(record, indent=1) + "\n")
+    tmp.replace(path)
+    return record
+
+
+def process_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Dict[str, Any]:
+    """Job: the raw capture to its dataset (replacing one left by an attempt that wrote no record)."""
+    from agrinerf_ns.process import process_capture
+
+    start = time.perf_counter()
+    config = dataclasses.replace(settings.process, overwrite=True, show_progress=False)
+    process_capture(raw, folders.data, config)
+    return _write_record(folders, "process", {"wall_s": time.perf_counter() - start})
+
+
+def train_step(folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Dict[str, Any]:
+    """Job: train the survey's method on the capture's dataset (a run folder left without a record is removed)."""
+    from agrinerf_ns.bench.ns_commands import ns_train
+
+    shutil.rmtree(folders.train_root / settings.method, ignore_errors=True)
+    run = ns_train(settings.method, folders.data / "transforms.json", folders.root, TRAIN_EXPERIMENT,
+                   max_steps=settings.steps, rays_per_batch=settings.rays_per_batch,
+                   extra_args=settings.train_args)  # fmt: skip
+    run.save(folders.train_record)
+    return _write_record(folders, "train", {"wall_s": run.wall_s, "config": str(run.config), "steps": settings.steps,
+                                            "peak_rss_mb": run.peak_rss_mb})  # fmt: skip
+
+
+def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Dict[str, Any]:
+    """Job: count the trained run's fruit (scored against ``raw``'s truth where it has one), with intervals."""
+    from agrinerf_ns.count.pipeline import run_count
+    from agrinerf_ns.count.render import load_renders
+    from agrinerf_ns.count.score import FRUITS_JSON
+    from agrinerf_ns.survey.intervals import count_interval, finite_or_none, mean_temperature
+
+    start = time.perf_counter()
+    truth = raw if (raw / FRUITS_JSON).is_file() else None
+    result = run_count(folders.count, settings.count, folders.run_config(settings.method), truth=truth,
+                       overwrite=True, save_renders=True)  # fmt: skip
+    renders = load_renders(folders.count / "renders")
+    low, high = count_interval(len(result.fruit), result.detections, renders, settings.count.cluster,
+                               settings.jackknife_groups)  # fmt: skip
+    temperature, temperature_half = mean_temperature(result.fruit)
+    record: Dict[str, Any] = {
+        "wall_s": time.perf_counter() - start,
+        "fruit": len(result.fruit),
+        "fruit_interval": [finite_or_none(low), finite_or_none(high)],
+        "jackknife_groups": min(settings.jackknife_groups, len(renders.views)),
+        "views": len(renders.views),
+        "temperature_c": finite_or_none(temperature),
+        "temperature_half_c": finite_or_none(temperature_half),
+        "score": None
+        if result.score is None
+        else {
+            k: finite_or_none(v) if isinstance(v, float) else v for k, v in result.score.as_dict().items()
+        },  # fmt: skip
+    }
+    return _write_record(folders, "count", record)
