@@ -72,7 +72,7 @@ def standing_out(sampled: SampledField, config: ComponentConfig) -> Float[np.nda
 
 def _feature(sampled: SampledField) -> Float[np.ndarray, " n"]:
     """One value per voxel: the source output, or the fruit-colour score of the RGB output."""
-    if sampled.source != "rgb":
+    if sampled.source != "rgb" or len(sampled.feature) == 0:
         return sampled.feature[:, 0].astype(np.float32)
     from agrinerf_ns.count.blobs import fruit_colour
 

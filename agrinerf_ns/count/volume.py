@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple
 
 import numpy as np
-from jaxtyping import Bool, Float
+from jaxtyping import Bool, Float, Int
 
 from agrinerf_ns.count.render import CountInputError, WorldFrame
 
@@ -186,7 +186,7 @@ def dense_voxels(field: Any, grid: VoxelGrid, threshold: float, device: Any = "c
 
 def views_seeing(
     points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float
-) -> Float[np.ndarray, " n"]:
+) -> Int[np.ndarray, " n"]:
     """How many ``views`` see each point: it projects into the image, in front of the camera, and no farther than
     ``margin`` (Nerfstudio units) behind the largest rendered depth of the 3x3 pixels around it."""
     from scipy.ndimage import maximum_filter
