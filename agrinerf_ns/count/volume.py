@@ -184,9 +184,7 @@ def dense_voxels(field: Any, grid: VoxelGrid, threshold: float, device: Any = "c
     return np.concatenate(keep) if keep else np.zeros(0, np.int64)
 
 
-def views_seeing(
-    points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float
-) -> Int[np.ndarray, " n"]:
+def views_seeing(points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float) -> Int[np.ndarray, " n"]:
     """How many ``views`` see each point: it projects into the image, in front of the camera, and no farther than
     ``margin`` (Nerfstudio units) behind the largest rendered depth of the 3x3 pixels around it."""
     from scipy.ndimage import maximum_filter
