@@ -222,6 +222,11 @@ def main(config: BenchConfig) -> List[results.Row]:
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in config.methods]
     write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
     CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
+    if profile.count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
+        from agrinerf_ns.count.bench import count_bench, run_note
+
+        methods = {m: METHODS[m].ns_method for m in config.methods}
+        count_bench(layout, scenes, methods, config.seed, run_note("agrinerf-bench " + " ".join(sys.argv[1:])))
     return rows
 
 

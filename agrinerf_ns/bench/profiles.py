@@ -34,6 +34,8 @@ class BenchProfile:
     baseline."""
     synth: Dict[str, Any] = field(default_factory=dict)
     """Further ``SynthConfig`` fields of the scenes (e.g. ``speed``)."""
+    count: bool = False
+    """Also count the fruit of every finished run (``OUT/count.csv``, ``OUT/count.md``: ``agrinerf_ns.count.bench``)."""
 
 
 PROFILES: Dict[str, BenchProfile] = {
@@ -97,7 +99,7 @@ PROFILES: Dict[str, BenchProfile] = {
     "count": BenchProfile(
         views=48, width=200, height=150,
         steps={"agrinerf-lite": 3000, "evdeblurnerf-lite": 3000, "agrinerf": 900, "nerfacto": 250, "nerfacto-thermal": 250, "tensorf": 1000},
-        evaluations=1, eval_views=3,
+        evaluations=1, eval_views=3, count=True,
         scenes=tuple(f"{s}-{light}" for s in ("orchard", "garden") for light in ("bright", "shadowed", "dusk", "dark")),
     ),
     # The machinery end to end in a test: minutes on a CPU.

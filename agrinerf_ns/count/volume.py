@@ -11,6 +11,7 @@ the rows) are not read.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple
 
@@ -293,8 +294,16 @@ class SampledField:
     source_note: str
     frame: WorldFrame
 
+    eye: Float[np.ndarray, "3"] = dataclasses.field(default_factory=lambda: np.zeros(3))
+    """Where RGB is viewed from (the training cameras' mean centre)."""
+
     def points(self) -> Float[np.ndarray, "n 3"]:
         return self.grid.centres(self.flat)
+
+    def with_source(self, model: Any, source: str, note: str = "") -> "SampledField":
+        """The same voxels with the ``source`` feature of ``model`` instead."""
+        feature, _ = field_features(model, self.points(), source, self.eye, getattr(model, "device", "cpu"))
+        return dataclasses.replace(self, feature=feature, source=source, source_note=note)
 
 
 def sample_field(
@@ -323,7 +332,7 @@ def sample_field(
     flat, points, seen_by = flat[keep], points[keep], seen_by[keep]
     eye = np.mean([v.centre for v in views], axis=0) if views else points.mean(0) - np.array([0.0, 0.0, 1.0])
     feature, temperature = field_features(model, points, source, eye, device)
-    return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame)
+    return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame, eye)
 
 
 def mask_of(grid: VoxelGrid, flat: np.ndarray) -> Bool[np.ndarray, "i j k"]:
