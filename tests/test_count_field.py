@@ -113,3 +113,25 @@ def test_a_folder_that_is_not_a_trained_run_is_named(tmp_path: Path, rgb_run: Pa
     with pytest.raises(CountInputError, match="no such run folder"):
         trained_run_config(tmp_path / "missing")
     assert not (tmp_path / "out").exists()
+
+
+def test_the_count_tables_pool_runs_with_bootstrap_intervals(tmp_path: Path) -> None:
+    from agrinerf_ns.count.tables import TablesArgs, append_rows, bootstrap_mean
+    from agrinerf_ns.count.tables import main as tables_main
+
+    interval = bootstrap_mean([0.5, 0.7, 0.9, float("nan")])
+    assert interval.value == pytest.approx(0.7) and 0.5 <= interval.low < 0.7 < interval.high <= 0.9
+    assert bootstrap_mean([0.4]).low == bootstrap_mean([0.4]).high == 0.4
+    for seed, f1 in ((0, 0.5), (1, 0.9)):
+        row = {"scene": "garden-dark", "lighting": "dark", "seed": seed, "method": "agrinerf-lite", "step": 10,
+               "path": "field", "source": "temperature", "counted": 10, "visible": 10, "count_error": 0.0,
+               "precision": f1, "recall": f1, "f1": f1, "mean_match_error": 0.01, "mean_temperature_error": 0.5,
+               "seconds": 3.0}  # fmt: skip
+        (tmp_path / f"seed{seed}").mkdir()
+        append_rows(tmp_path / f"seed{seed}" / "count.csv", [row])
+    rows = tables_main(TablesArgs(csvs=(tmp_path / "seed0", tmp_path / "seed1" / "count.csv"), out=tmp_path / "all"))
+    assert len(rows) == 2
+    text = (tmp_path / "all" / "count.md").read_text()
+    assert "| dark | agrinerf-lite | field | temperature | 2 | 0.70 [0.50, 0.90] |" in text
+    with pytest.raises(FileNotFoundError, match="no count.csv"):
+        tables_main(TablesArgs(csvs=(tmp_path / "nothing",), out=tmp_path / "x"))
