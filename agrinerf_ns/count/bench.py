@@ -22,6 +22,7 @@ from agrinerf_ns.count.pipeline import (
     surface_points,
 )
 from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
+from agrinerf_ns.count.score import read_frames
 from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
 VIEW_SOURCES = ("thermal", "rgb")
@@ -66,7 +67,25 @@ def _oracle_rows(scene: str, seed: int, raw: Path, data: Path, layout: BenchLayo
     config = CountConfig(detect=DetectorConfig(source="thermal"))
     result = count_fruit(renders, config)
     score_against_truth(renders, result, raw, config)
-    return [_row(scene, ORACLE_METHOD, seed, 0, "oracle", "true_temperature", result, time.perf_counter() - start)]
+    rows = [_row(scene, ORACLE_METHOD, seed, 0, "oracle", "true_temperature", result, time.perf_counter() - start)]
+    start = time.perf_counter()
+    rows.append(_row(scene, ORACLE_METHOD, seed, 0, "oracle", "field_true_temperature",
+                     oracle_field_count(raw, data, config), time.perf_counter() - start))  # fmt: skip
+    return rows
+
+
+def oracle_field_count(raw: Path, data: Path, config: CountConfig) -> CountResult:
+    """The field path on the capture's true field (:mod:`agrinerf_ns.count.oracle_field`) at the default settings."""
+    from agrinerf_ns.count.components import find_fruit
+    from agrinerf_ns.count.field_count import FieldCountConfig
+    from agrinerf_ns.count.oracle_field import oracle_field
+
+    settings = FieldCountConfig()
+    sampled = oracle_field(raw, data, settings.volume, settings.seen_margin, settings.components.max_diameter)
+    result = CountResult(find_fruit(sampled, settings.components)[0], [], [], 0.0)
+    frames = [f["file_path"] for f in read_frames(data)]
+    score_result(result, data, raw_training_frames(data, frames), raw, config)
+    return result
 
 
 def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, out: Path) -> List[Dict[str, Any]]:

@@ -11,7 +11,8 @@ scaling the voxels' 99th brightness percentile to 1), warm polarity only.
 *Fruit-sized*: a 26-connected component of fruit voxels is a fruit when its diameter (``2 sqrt(5 l1)``, with l1 the
 largest variance of its voxel centres: a solid ball's diameter from its variance) lies in ``min_diameter`` ..
 ``max_diameter``, its two largest spreads differ by at most ``max_elongation`` (a leaf rim against warm ground is a
-strip) and at least ``min_views`` training views see it.
+strip) and at least ``min_views`` training views show it with ``min_pixels`` pixels of their images (the truth's
+rule for a fruit visible from the capture).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.count.cluster import Fruit
-from agrinerf_ns.count.volume import SampledField, mask_of
+from agrinerf_ns.count.volume import SampledField, mask_of, views_showing_pixels
 
 Polarity = Literal["both", "warm", "cool"]
 DIAMETER_PER_SD = 2.0 * np.sqrt(5.0)
@@ -49,7 +50,11 @@ class ComponentConfig:
     min_voxels: int = 3
     """Smallest component kept (voxels)."""
     min_views: int = 2
-    """Training views that must see a fruit (the most of any of its voxels)."""
+    """Training views that must show a fruit with at least ``min_pixels`` of their pixels (without views: the most
+    views that see any of its voxels)."""
+    min_pixels: float = 3.0
+    """Pixels of a training image (at the dataset's resolution) a fruit must cover to count as shown in it (as a true
+    fruit is visible with 3 pixels of a training view's truth mask)."""
 
 
 def standing_out(sampled: SampledField, config: ComponentConfig) -> Float[np.ndarray, " n"]:
@@ -131,7 +136,11 @@ def _components(
         if spreads[0] > config.max_elongation * spreads[1]:
             dropped["elongated"] += 1
             continue
-        views = int(sampled.seen_by[members].max())
+        if sampled.views:
+            views = views_showing_pixels(sampled.points()[members], sampled.views, sampled.seen_margin,
+                                         config.min_pixels)  # fmt: skip
+        else:
+            views = int(sampled.seen_by[members].max())
         if views < config.min_views:
             dropped["unseen"] += 1
             continue

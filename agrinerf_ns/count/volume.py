@@ -68,6 +68,8 @@ class DepthView:
     """Depth along each pixel's unit ray; +inf where nothing was rendered (accumulation below 0.5)."""
     surface: Float[np.ndarray, "n 3"]
     """The rendered surface points (accumulation >= 0.5)."""
+    pixel_area: float = 1.0
+    """Pixels of the dataset's images per pixel of this view (1 / view_scale^2)."""
 
     @property
     def centre(self) -> Float[np.ndarray, "3"]:
@@ -107,6 +109,7 @@ def render_depth_views(model: Any, cameras: Any, config: VolumeConfig) -> List[D
                 cy=float(camera.cy[0, 0]),
                 depth=np.where(solid, depth, np.inf),
                 surface=surface,
+                pixel_area=1.0 / config.view_scale**2,
             )
         )
     return views
@@ -185,27 +188,49 @@ def dense_voxels(field: Any, grid: VoxelGrid, threshold: float, device: Any = "c
     return np.concatenate(keep) if keep else np.zeros(0, np.int64)
 
 
-def views_seeing(points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float) -> Int[np.ndarray, " n"]:
-    """How many ``views`` see each point: it projects into the image, in front of the camera, and no farther than
-    ``margin`` (Nerfstudio units) behind the largest rendered depth of the 3x3 pixels around it."""
+def seen_pixels(
+    points: Float[np.ndarray, "n 3"], view: DepthView, margin: float
+) -> Tuple[Bool[np.ndarray, " n"], Int[np.ndarray, " n"]]:
+    """Whether ``view`` sees each point (it projects into the image, in front of the camera, and no farther than
+    ``margin``, Nerfstudio units, behind the largest rendered depth of the 3x3 pixels around it), and its pixel's flat
+    index."""
     from scipy.ndimage import maximum_filter
 
+    rot, centre = view.c2w[:, :3], view.centre
+    local = (points - centre) @ rot  # camera axes: x right, y up, -z forward
+    forward = -local[:, 2]
+    ahead = forward > 1e-6
+    u = view.cx + view.fx * local[:, 0] / np.where(ahead, forward, 1.0)
+    v = view.cy - view.fy * local[:, 1] / np.where(ahead, forward, 1.0)
+    h, w = view.depth.shape
+    inside = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    depth = maximum_filter(np.where(np.isfinite(view.depth), view.depth, 1e9), size=3, mode="nearest")
+    iu = np.clip(u.astype(np.int64), 0, w - 1)
+    iv = np.clip(v.astype(np.int64), 0, h - 1)
+    distance = np.linalg.norm(points - centre, axis=1)
+    return inside & (distance <= depth[iv, iu] + margin), iv * w + iu
+
+
+def views_seeing(points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float) -> Int[np.ndarray, " n"]:
+    """How many ``views`` see each point (:func:`seen_pixels`)."""
     counts = np.zeros(len(points), np.int32)
     for view in views:
-        rot, centre = view.c2w[:, :3], view.centre
-        local = (points - centre) @ rot  # camera axes: x right, y up, -z forward
-        forward = -local[:, 2]
-        ahead = forward > 1e-6
-        u = view.cx + view.fx * local[:, 0] / np.where(ahead, forward, 1.0)
-        v = view.cy - view.fy * local[:, 1] / np.where(ahead, forward, 1.0)
-        h, w = view.depth.shape
-        inside = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        depth = maximum_filter(np.where(np.isfinite(view.depth), view.depth, 1e9), size=3, mode="nearest")
-        iu = np.clip(u.astype(np.int64), 0, w - 1)
-        iv = np.clip(v.astype(np.int64), 0, h - 1)
-        distance = np.linalg.norm(points - centre, axis=1)
-        counts += inside & (distance <= depth[iv, iu] + margin)
+        counts += seen_pixels(points, view, margin)[0]
     return counts
+
+
+def views_showing_pixels(
+    points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float, min_pixels: float
+) -> int:
+    """In how many ``views`` the seen ``points`` (one object's voxels) cover at least ``min_pixels`` pixels of the
+    dataset's images (distinct pixels of the view times its ``pixel_area``; one pixel of a coarser view counts
+    its area at most once)."""
+    shown = 0
+    for view in views:
+        seen, pixel = seen_pixels(points, view, margin)
+        if seen.any() and len(np.unique(pixel[seen])) * view.pixel_area >= min_pixels:
+            shown += 1
+    return shown
 
 
 def field_sources(model: Any) -> Dict[str, bool]:
@@ -296,6 +321,10 @@ class SampledField:
 
     eye: Float[np.ndarray, "3"] = dataclasses.field(default_factory=lambda: np.zeros(3))
     """Where RGB is viewed from (the training cameras' mean centre)."""
+    views: Sequence[DepthView] = ()
+    """The depth views that decided what is seen."""
+    seen_margin: float = 0.0
+    """Their margin (Nerfstudio units)."""
 
     def points(self) -> Float[np.ndarray, "n 3"]:
         return self.grid.centres(self.flat)
@@ -332,7 +361,8 @@ def sample_field(
     flat, points, seen_by = flat[keep], points[keep], seen_by[keep]
     eye = np.mean([v.centre for v in views], axis=0) if views else points.mean(0) - np.array([0.0, 0.0, 1.0])
     feature, temperature = field_features(model, points, source, eye, device)
-    return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame, eye)
+    return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame, eye, views,
+                        seen_margin)  # fmt: skip
 
 
 def mask_of(grid: VoxelGrid, flat: np.ndarray) -> Bool[np.ndarray, "i j k"]:
