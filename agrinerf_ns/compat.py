@@ -12,16 +12,23 @@ Shims:
   nothing changes.
 - :func:`allow_checkpoint_globals`: since torch 2.6 ``torch.load`` defaults to ``weights_only=True``; Nerfstudio's
   checkpoints hold numpy scalars. Exactly those numpy globals are allow-listed (no blanket ``weights_only=False``).
-- :func:`expose_venv_ffmpeg`: Nerfstudio (``check_ffmpeg_installed``) and mediapy look ``ffmpeg`` up on PATH, so a
-  venv run without activation (``.venv/bin/ns-render``) does not see the ``ffmpeg`` that ``scripts/install.sh``
-  links into its bin folder. When PATH has no ``ffmpeg`` and that folder has one, the folder is appended to PATH.
+- :func:`expose_ffmpeg`: Nerfstudio (``check_ffmpeg_installed``, its ffmpeg command lines) and mediapy look
+  ``ffmpeg`` up on PATH. When PATH has none, the folder of the running interpreter is appended if it holds one (a
+  conda env, a venv run without activation), else a folder whose ``ffmpeg`` links to the binary of imageio-ffmpeg
+  (a dependency of the plugin), kept in the user's cache (:func:`imageio_ffmpeg_folder`).
+- :func:`patch_single_camera_interpolation`: ``ns-render interpolate`` interpolates between the cameras of a split;
+  with one camera (a dataset with one held-out frame) Nerfstudio's path has no poses and numpy fails to stack them.
+  There the path holds still at that camera for ``--interpolation-steps`` frames, and one line names
+  ``--pose-source train``. Applied where ``ns-render`` has imported Nerfstudio's camera paths.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import sys
+import tempfile
 import urllib.error
 import warnings
 from dataclasses import dataclass
@@ -176,7 +183,7 @@ def activate() -> None:
     """Apply every shim that this environment needs. Safe to call more than once; never raises."""
     if os.environ.get("AGRINERF_NO_COMPAT") == "1":
         return
-    for shim in (_activate_lpips, allow_checkpoint_globals, expose_venv_ffmpeg):
+    for shim in (_activate_lpips, allow_checkpoint_globals, expose_ffmpeg, _activate_single_camera_interpolation):
         try:
             shim()
         except Exception as err:  # a plugin must never break `ns-*` commands
@@ -185,18 +192,100 @@ def activate() -> None:
             )
 
 
-def expose_venv_ffmpeg() -> bool:
-    """Append the running interpreter's bin folder to PATH when it holds an ``ffmpeg`` and PATH has none.
+def expose_ffmpeg() -> bool:
+    """Append a folder holding an ``ffmpeg`` to PATH when PATH has none: the running interpreter's bin folder if it
+    has one, else :func:`imageio_ffmpeg_folder`. Returns True if PATH was changed.
 
-    Returns True if PATH was changed. Appended, not prepended: nothing else on PATH changes meaning.
+    Appended, not prepended: nothing else on PATH changes meaning.
     """
     if shutil.which("ffmpeg") is not None:
         return False
     bin_dir = Path(sys.executable).parent
-    if shutil.which("ffmpeg", path=str(bin_dir)) is None:
+    folder = bin_dir if shutil.which("ffmpeg", path=str(bin_dir)) is not None else imageio_ffmpeg_folder()
+    if folder is None:
         return False
-    os.environ["PATH"] = os.pathsep.join(p for p in (os.environ.get("PATH", ""), str(bin_dir)) if p)
+    os.environ["PATH"] = os.pathsep.join(p for p in (os.environ.get("PATH", ""), str(folder)) if p)
     return True
+
+
+def imageio_ffmpeg_folder() -> Optional[Path]:
+    """A folder whose ``ffmpeg`` is the binary imageio-ffmpeg provides, or None where it provides none.
+
+    imageio-ffmpeg names its binary by platform and version (``ffmpeg-linux-x86_64-v7.0.2``), which a lookup of
+    ``ffmpeg`` on PATH does not find; so a link named ``ffmpeg`` to it is kept in the user's cache
+    (``$XDG_CACHE_HOME/agrinerf-ns/ffmpeg/<digest of the binary's path>``; the temporary folder where the cache is not
+    writable), made once, atomically.
+    """
+    try:
+        import imageio_ffmpeg
+
+        exe = Path(imageio_ffmpeg.get_ffmpeg_exe())
+    except (ImportError, RuntimeError):
+        return None
+    if exe.name == "ffmpeg":  # IMAGEIO_FFMPEG_EXE or a conda ffmpeg: already the name PATH lookups want
+        return exe.parent
+    digest = hashlib.sha256(str(exe).encode()).hexdigest()[:16]
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "agrinerf-ns"
+    for root in (cache, Path(tempfile.gettempdir()) / f"agrinerf-ns-{os.getuid()}"):
+        folder = root / "ffmpeg" / digest
+        try:
+            _link(folder / "ffmpeg", exe)
+        except OSError:
+            continue
+        return folder
+    return None
+
+
+def _link(link: Path, target: Path) -> None:
+    """Make ``link`` a symbolic link to ``target`` unless it is one already (atomically: a rename into place)."""
+    if link.is_symlink() and Path(os.readlink(link)) == target:
+        return
+    link.parent.mkdir(parents=True, exist_ok=True)
+    tmp = link.with_name(f".{link.name}.{os.getpid()}")
+    tmp.unlink(missing_ok=True)
+    tmp.symlink_to(target)
+    os.replace(tmp, link)
+
+
+SINGLE_CAMERA_MESSAGE = (
+    "ns-render interpolate: the chosen split has one camera, so the video holds still at it; "
+    "--pose-source train interpolates between the training cameras."
+)
+
+
+def patch_single_camera_interpolation() -> bool:
+    """Let Nerfstudio's interpolated camera path take a single camera: the path then stays at it for ``steps``
+    frames (the path from the camera to itself) and :data:`SINGLE_CAMERA_MESSAGE` is printed. Returns True if the
+    patch is installed (also in ``nerfstudio.scripts.render``, which imports the function by name)."""
+    from nerfstudio.cameras import camera_paths
+
+    original = camera_paths.get_interpolated_camera_path
+    if getattr(original, "_agrinerf_single_camera", False):
+        return True
+
+    def get_interpolated_camera_path(cameras: Any, steps: int, order_poses: bool) -> Any:
+        if len(cameras) != 1:
+            return original(cameras=cameras, steps=steps, order_poses=order_poses)
+        from nerfstudio.utils.rich_utils import CONSOLE
+
+        CONSOLE.print(f"[yellow]{SINGLE_CAMERA_MESSAGE}")
+        return original(cameras=cameras[torch.zeros(2, dtype=torch.long)], steps=steps, order_poses=False)
+
+    get_interpolated_camera_path._agrinerf_single_camera = True  # type: ignore[attr-defined]
+    get_interpolated_camera_path.__doc__ = original.__doc__
+    camera_paths.get_interpolated_camera_path = get_interpolated_camera_path
+    render = sys.modules.get("nerfstudio.scripts.render")
+    if render is not None and getattr(render, "get_interpolated_camera_path", None) is original:
+        render.get_interpolated_camera_path = get_interpolated_camera_path  # type: ignore[attr-defined]
+    return True
+
+
+def _activate_single_camera_interpolation() -> bool:
+    # only where Nerfstudio's camera paths are loaded already (ns-render imports them before the plugins): other
+    # commands do not pay for the import
+    if "nerfstudio.cameras.camera_paths" not in sys.modules:
+        return False
+    return patch_single_camera_interpolation()
 
 
 def _activate_lpips() -> bool:

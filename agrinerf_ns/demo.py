@@ -281,7 +281,7 @@ def main(config: DemoConfig) -> DemoResult:
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
-    compat.activate()  # LPIPS offline, checkpoint loading, the venv's ffmpeg (as every ns-* command has them)
+    compat.activate()  # LPIPS offline, checkpoint loading, an ffmpeg on PATH (as every ns-* command has them)
     raw, data = config.out / "raw", config.out / "orchard"
     stages: Dict[str, Optional[float]] = {"agrinerf-synth": None, "agrinerf-process": None}
     started = time.perf_counter()

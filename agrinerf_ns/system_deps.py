@@ -16,8 +16,8 @@ OPEN3D_LIBUSB_HINT = (
     "on Debian/Ubuntu run 'sudo apt-get install libusb-1.0-0' (Fedora: 'sudo dnf install libusb1')."
 )
 FFMPEG_HINT = (
-    "No 'ffmpeg' on PATH, which ns-render needs for videos. scripts/install.sh links the binary of the [video] extra "
-    "(imageio-ffmpeg) as .venv/bin/ffmpeg; or install one: 'sudo apt-get install ffmpeg'."
+    "No 'ffmpeg' on PATH, which ns-render needs for videos, and imageio-ffmpeg (a dependency) provides none for this "
+    "platform: install one, e.g. 'sudo apt-get install ffmpeg'."
 )
 
 

@@ -37,8 +37,21 @@ PARTS: Dict[str, Dict[str, Any]] = {
     "events 256": dict(EVENTS, event_rays_per_batch=256),
     "events 1024": dict(EVENTS, event_rays_per_batch=1024),
     "blur K=3 + events 256": dict(EVENTS, blur_samples=3, event_rays_per_batch=256),
+    "EvDeblurNeRF as published": dict(
+        EVENTS,
+        event_loss_weighting="fixed",
+        event_supervision="pairs",
+        event_rays_per_batch=4096,
+        event_crf=True,
+        event_crf_start_step=0,
+        blur_kernel="learnt",
+        blur_samples=10,
+        blur_start_step=0,
+        edi_prior=True,
+    ),  # fmt: skip
 }
-"""Part -> AgriNeRF-lite model options (the event loss from the stream, noise-balanced)."""
+"""Part -> AgriNeRF-lite model options (the event loss from the stream, noise-balanced; EvDeblurNeRF's recipe with its
+kernel and event response on from step 0, as after its step 1200)."""
 
 
 @dataclass

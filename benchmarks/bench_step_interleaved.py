@@ -1,32 +1,41 @@
-"""Seconds per training step of several methods in one process, one step of each in turn.
+"""Seconds per training step of several runs, one step of each in turn, each run in a process of its own.
 
-    python benchmarks/bench_step_interleaved.py --data outputs/bench/scenes/orchard-dark/data \
-        --out outputs/step-speed [--methods agrinerf tensorf] [--steps 40] [--warmup 3]
+    python benchmarks/bench_step_interleaved.py --data outputs/bench/scenes/garden-bright/data \
+        --out outputs/step-speed --runs agrinerf@7000 before:agrinerf@7000 agrinerf tensorf \
+        --trees before=/tmp/agrinerf-before [--steps 20] [--warmup 3]
 
-`bench_train_speed.py` times whole ``ns-train`` runs, minutes apart, so a noisy machine moves one method's figure and
-not the other's. Here every method's pipeline (Nerfstudio's own, built from its registered method config, with the
-same rays per batch) lives in one process and the methods take training steps in turn (the order rotates every
-round), so they share the machine's state step by step; the paired ratio of each round is then close to what a quiet
+A run is ``[TREE:]METHOD[@STEP][%FIELD=VALUE...]``: an ``agrinerf-bench`` method key, timed at the grids and with the terms of
+training step STEP (default 0, the grids a preset starts with; e.g. ``agrinerf@7000``: the paper preset at its final
+300^3 grids, blur model and event loss on as from step 1200), from the checkout TREE (a name given in ``--trees``;
+default this one), so that a change can be timed against the code before it in one run, with model config fields set
+(``%event_rays_per_batch=0``: no event loss; VALUE is JSON). Every run's pipeline
+(Nerfstudio's own, built from its registered method config, the same rays per batch) lives in a worker process
+(``benchmarks/step_worker.py``); the driver asks one worker at a time for one step, rotating the order every round,
+so the runs share the machine's state step by step and the paired ratio of each round is close to what a quiet
 machine would give. A step is what Nerfstudio's trainer runs per iteration: next batch, forward, loss, backward,
-optimizer step (no callbacks: no upsampling within the run). Writes ``OUT/step_speed.csv`` (every step) and
-``OUT/step_speed.md`` (medians, quartiles, median paired ratio to the first method).
+optimizer step (no callbacks). The fields are as initialised, not trained. Writes ``OUT/step_speed.csv`` (every step)
+and ``OUT/step_speed.md`` (medians, quartiles, median paired ratio to the first run).
 """
 
 from __future__ import annotations
 
 import csv
+import json
+import os
 import statistics
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Tuple
+from typing import Dict, List, NamedTuple, Optional, Tuple
 
-import torch
 import tyro
 
 from agrinerf_ns.bench.methods import METHODS
-from agrinerf_ns.bench.stepper import MethodStepper
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.run_order import rotated
+
+WORKER = Path(__file__).with_name("step_worker.py")
 
 
 @dataclass
@@ -35,60 +44,136 @@ class Args:
     """A processed dataset (``transforms.json``), e.g. an ``agrinerf-bench`` scene's ``data`` folder."""
     out: Path = Path("outputs/step-speed")
     """Where ``step_speed.csv`` and ``step_speed.md`` go."""
-    methods: Tuple[str, ...] = ("agrinerf", "tensorf")
-    """``agrinerf-bench`` method keys; ratios are to the first."""
-    steps: int = 40
-    """Timed rounds (one step of every method per round)."""
+    runs: Tuple[str, ...] = ("agrinerf", "tensorf")
+    """``[TREE:]METHOD[@STEP][%FIELD=VALUE...]`` (see the module docstring); ratios are to the first."""
+    trees: Tuple[str, ...] = ()
+    """``NAME=PATH`` checkouts the runs may name (e.g. ``before=/tmp/snapshot``)."""
+    steps: int = 20
+    """Timed rounds (one step of every run per round)."""
     warmup: int = 3
     """Untimed rounds first (TensoRF's first steps are much slower)."""
     rays_per_batch: int = 1024
-    """Rays per batch, the same for every method."""
+    """Rays per batch, the same for every run."""
     seed: int = 0
 
 
+class Run(NamedTuple):
+    label: str
+    method: str
+    at_step: int
+    tree: Optional[Path]
+    overrides: Dict[str, object]
+
+
+def parse_runs(runs: Tuple[str, ...], trees: Tuple[str, ...]) -> List[Run]:
+    """The runs of ``--runs``; raises SystemExit naming an unknown method or tree."""
+    named = dict(t.split("=", 1) for t in trees)
+    parsed = []
+    for text in runs:
+        head, *fields = text.split("%")
+        tree, _, rest = head.rpartition(":")
+        method, _, step = rest.partition("@")
+        overrides = {name: json.loads(value) for name, _, value in (f.partition("=") for f in fields)}
+        if method not in METHODS:
+            raise SystemExit(f"run {text!r}: unknown method {method!r}; choose from {sorted(METHODS)}")
+        if tree and tree not in named:
+            raise SystemExit(f"run {text!r}: tree {tree!r} is not in --trees {list(named)}")
+        parsed.append(Run(text, method, int(step or 0), Path(named[tree]).resolve() if tree else None, overrides))
+    return parsed
+
+
+class Worker:
+    """A `step_worker.py` process holding one run's pipeline."""
+
+    def __init__(self, run: Run, args: Args) -> None:
+        env = dict(os.environ)
+        if run.tree is not None:
+            env["PYTHONPATH"] = os.pathsep.join([str(run.tree), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        command = [sys.executable, str(WORKER), run.method, str(args.data), str(args.rays_per_batch),
+                   str(run.at_step), str(args.seed), json.dumps(run.overrides)]  # fmt: skip
+        self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+        self.info = json.loads(self._read_line(run, prefix="READY "))
+        self.run = run
+
+    def _read_line(self, run: Run, prefix: str = "") -> str:
+        assert self.process.stdout is not None
+        while True:
+            line = self.process.stdout.readline()
+            if not line:
+                raise RuntimeError(f"step worker of {run.label!r} exited (code {self.process.wait()})")
+            if line.startswith(prefix):
+                return line[len(prefix) :].strip()
+
+    def step(self, step: int) -> float:
+        assert self.process.stdin is not None
+        self.process.stdin.write(f"STEP {step}\n")
+        self.process.stdin.flush()
+        return float(self._read_line(self.run, prefix="SECONDS "))
+
+    def close(self) -> None:
+        if self.process.stdin is not None:
+            self.process.stdin.close()
+        self.process.wait(timeout=60)
+
+
 def main(args: Args) -> None:
-    unknown = [m for m in args.methods if m not in METHODS]
-    if unknown:
-        raise SystemExit(f"unknown methods {unknown}; choose from {sorted(METHODS)}")
-    torch.manual_seed(args.seed)
+    runs = parse_runs(args.runs, args.trees)
     args.out.mkdir(parents=True, exist_ok=True)
-    steppers = {key: MethodStepper(key, args.data, args.rays_per_batch) for key in args.methods}
-    rows: List[Dict[str, object]] = []
-    for round_ in range(args.warmup + args.steps):
-        for key in rotated(args.methods, round_):
-            seconds = steppers[key].step(round_)
-            if round_ >= args.warmup:
-                rows.append({"round": round_ - args.warmup, "method": key, "seconds": seconds})
+    workers: Dict[str, Worker] = {}
+    try:
+        for run in runs:  # one at a time: each builds its pipeline alone
+            workers[run.label] = Worker(run, args)
+        rows: List[Dict[str, object]] = []
+        labels = tuple(r.label for r in runs)
+        for round_ in range(args.warmup + args.steps):
+            for label in rotated(labels, round_):
+                seconds = workers[label].step(round_)
+                if round_ >= args.warmup:
+                    rows.append({"round": round_ - args.warmup, "run": label, "seconds": seconds})
+    finally:
+        for worker in workers.values():
+            worker.close()
     with open(args.out / "step_speed.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=["round", "method", "seconds"])
+        writer = csv.DictWriter(handle, fieldnames=["round", "run", "seconds"])
         writer.writeheader()
         writer.writerows(rows)
-    (args.out / "step_speed.md").write_text(report(rows, args, device_name()))
+    info = {label: w.info for label, w in workers.items()}
+    (args.out / "step_speed.md").write_text(report(rows, args, runs, info, device_name()))
     print((args.out / "step_speed.md").read_text())
 
 
-def report(rows: List[Dict[str, object]], args: Args, device: str) -> str:
-    """Median and quartiles of s/step per method, and the median of the per-round ratios to the first method."""
-    times: Dict[str, List[float]] = {k: [] for k in args.methods}
-    for r in rows:
-        times[str(r["method"])].append(float(r["seconds"]))  # type: ignore[arg-type]
-    base = times[args.methods[0]]
+def report(rows: List[Dict[str, object]], args: Args, runs: List[Run], info: Dict[str, dict], device: str) -> str:
+    """Median and quartiles of s/step per run, and the median of the per-round ratios to the first run."""
+    times: Dict[str, List[float]] = {r.label: [] for r in runs}
+    for row in rows:
+        times[str(row["run"])].append(float(row["seconds"]))  # type: ignore[arg-type]
+    base = times[runs[0].label]
+    threads = os.environ.get("OMP_NUM_THREADS", "all")
     lines = [
-        "# Training step time, methods interleaved in one process",
+        "# Training step time, runs interleaved step by step",
         "",
-        f"Command: `python benchmarks/bench_step_interleaved.py --data {args.data} --out {args.out} --methods "
-        f"{' '.join(args.methods)} --steps {args.steps} --warmup {args.warmup}`",
-        f"Machine: {device}. {args.rays_per_batch} rays per batch; {args.steps} timed rounds after {args.warmup} "
-        "untimed; in each round every method takes one step (rotating order).",
+        f"Command: `OMP_NUM_THREADS={threads} python benchmarks/bench_step_interleaved.py --data {args.data} --out "
+        f"{args.out} --runs {' '.join(args.runs)}"
+        + (f" --trees {' '.join(args.trees)}" if args.trees else "")
+        + f" --steps {args.steps} --warmup {args.warmup}`",
+        f"Machine: {device}; OMP_NUM_THREADS={threads}. {args.rays_per_batch} rays per batch; {args.steps} timed rounds "
+        f"after {args.warmup} untimed; in each round every run takes one step (rotating order), each run in its own "
+        "process. Fields as initialised (not trained).",
         "",
-        f"| method | median s/step | quartiles | median per-round ratio to {METHODS[args.methods[0]].label} |",
-        "|---|---|---|---|",
+        f"| run | method | grids of step | resolution | parameters | median s/step | quartiles | "
+        f"median per-round ratio to {runs[0].label} |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    for key in args.methods:
-        mine = times[key]
+    for run in runs:
+        mine = times[run.label]
         q1, _, q3 = statistics.quantiles(mine, n=4) if len(mine) > 1 else (mine[0], mine[0], mine[0])
         ratio = statistics.median(m / b for m, b in zip(mine, base, strict=True))
-        lines.append(f"| {METHODS[key].label} | {statistics.median(mine):.3f} | {q1:.3f} - {q3:.3f} | {ratio:.3f} |")
+        meta = info.get(run.label, {})
+        lines.append(
+            f"| {run.label} | {METHODS[run.method].label} | {run.at_step} | {meta.get('resolution', '-')} | "
+            f"{meta.get('parameters', 0) / 1e6:.2f}M | {statistics.median(mine):.3f} | {q1:.3f} - {q3:.3f} | "
+            f"{ratio:.3f} |"
+        )
     return "\n".join(lines) + "\n"
 
 

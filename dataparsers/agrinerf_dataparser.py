@@ -131,9 +131,25 @@ class AgriNeRFDataParser(Nerfstudio):
         metadata["modalities"] = modalities
         metadata["agrinerf"] = dict(block)
         metadata["rgb_level"] = rgb_level(outputs.image_filenames)
+        metadata["metres_per_unit"] = metres_per_unit(block, meta, outputs)
+        if "ply_file_path" in meta and "points3D_xyz" not in outputs.metadata:
+            # SfM points (ns-process-data's sparse_pc.ply): where the model's first full-resolution box goes
+            ply = data_dir / meta["ply_file_path"]
+            if not ply.exists():
+                raise AgriNeRFDataError(f"{transforms_path}: ply_file_path {meta['ply_file_path']} does not exist")
+            points = self._load_3D_points(ply, outputs.dataparser_transform, float(outputs.dataparser_scale))
+            metadata["points3D_xyz"] = points["points3D_xyz"]
         metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs
+
+
+def metres_per_unit(block: Dict[str, Any], meta: Dict[str, Any], outputs: DataparserOutputs) -> Optional[float]:
+    """Metres per unit of this parser's world frame, where the saved poses are metric (the capture's odometry:
+    ``agrinerf.poses.source`` "given"); None where the scale is unknown (SfM without a metric reference)."""
+    if (block.get("poses") or {}).get("source") != "given":
+        return None
+    return float(meta.get("applied_scale", 1.0)) / float(outputs.dataparser_scale)
 
 
 RGB_LEVEL_FRAMES = 8

@@ -6,8 +6,11 @@ raises; it must not import `nerfstudio.configs.method_configs` (that module load
 Presets:
 - `agrinerf`: the paper (1024 rays, 64 coarse + 64 fine samples, 30k steps, lr decayed x0.1 every 10k steps).
 - `agrinerf-lite`: fast on a CPU (smaller grids and MLPs, 32 + 32 samples, 2k steps).
-- `evdeblurnerf`, `evdeblurnerf-lite`: the paper's EvDeblurNeRF baseline, the same presets' RGB module (event loss and
-  blur model) without the thermal head.
+- `evdeblurnerf`, `evdeblurnerf-lite`: the paper's EvDeblurNeRF baseline as published (event-to-event samples, its
+  learnt event response, its learnt rigid blur kernel and EDI prior, its learning-rate schedule) on this project's
+  TensoRF field (not its PDRF field), without the thermal head; the lite one on `agrinerf-lite`'s field.
+- `evdeblurnerf-windowed`, `evdeblurnerf-windowed-lite`: the earlier port: the RGB module's windowed event loss at
+  weight 0.1 and the known-trajectory blur kernel.
 
 Device: a preset trains on the GPU when PyTorch sees a CUDA device and on the CPU otherwise (the default of
 `--machine.device-type` is chosen when this module is imported, so `--help` shows it and an explicit value wins);
@@ -21,12 +24,12 @@ Thermal `thermal`; Thermal+Events `thermal events`; All `rgb thermal events` (th
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, Literal
+from typing import Any, Dict, Literal, Optional
 
 import torch
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
-from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
+from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig, MultiStepSchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
@@ -36,24 +39,53 @@ from agrinerf_ns.model.dataset import agrinerf_datamanager_config
 from agrinerf_ns.model.model import AgriNeRFModelConfig
 
 
+@dataclass
+class FusedAdamOptimizerConfig(AdamOptimizerConfig):
+    """Nerfstudio's Adam config with torch's fused implementation (one kernel per step for all Parameters, the same
+    update rule), which torch has for CPU and CUDA tensors."""
+
+    fused: bool = True
+    """torch.optim.Adam(fused=...)."""
+
+
 def _optimizers(lr_fields: float, lr_encodings: float, max_steps: int) -> Dict[str, Dict[str, Any]]:
     """Adam for the MLPs ("fields") and TensoRF volumes ("encodings"), x0.1 at 1/3 and 2/3 of training."""
     milestones = (max_steps // 3, 2 * max_steps // 3)
 
     def group(lr: float) -> Dict[str, Any]:
         return {
-            "optimizer": AdamOptimizerConfig(lr=lr, eps=1e-15),
+            "optimizer": FusedAdamOptimizerConfig(lr=lr, eps=1e-15),
             "scheduler": MultiStepSchedulerConfig(max_steps=max_steps, gamma=0.1, milestones=milestones),
         }
 
     return {
         "fields": group(lr_fields),
         "encodings": group(lr_encodings),
+        "blur_kernel": group(lr_fields),  # the learnt blur kernel and event response (`--pipeline.model.blur-kernel
+        "event_crf": group(lr_fields),  # learnt`, `...event-crf True`): learnt like the MLPs
         "camera_opt": {
             "optimizer": AdamOptimizerConfig(lr=1e-4, eps=1e-15),
             "scheduler": MultiStepSchedulerConfig(max_steps=max_steps, gamma=0.1, milestones=milestones),
         },
     }
+
+
+EVDEBLURNERF_LR = 5e-3
+"""EvDeblurNeRF's learning rate for every parameter (``lrate``), decayed x0.1 every 10k steps (``lrate_decay 10``)."""
+
+
+def _evdeblurnerf_optimizers(max_steps: int) -> Dict[str, Dict[str, Any]]:
+    """EvDeblurNeRF's schedule for every parameter group: Adam at 5e-3, times 0.1^(step / 10k)."""
+
+    def group() -> Dict[str, Any]:
+        return {
+            "optimizer": AdamOptimizerConfig(lr=EVDEBLURNERF_LR, eps=1e-15),
+            "scheduler": ExponentialDecaySchedulerConfig(
+                lr_final=EVDEBLURNERF_LR * 0.1 ** (max_steps / 10_000), max_steps=max_steps
+            ),
+        }
+
+    return {name: group() for name in ("fields", "encodings", "blur_kernel", "event_crf", "camera_opt")}
 
 
 def default_device_type() -> Literal["cuda", "cpu"]:
@@ -87,6 +119,7 @@ def agrinerf_trainer_config(
     lr_encodings: float = 2e-2,
     steps_per_eval_batch: int = 500,
     steps_per_save: int = 2000,
+    optimizers: Optional[Dict[str, Dict[str, Any]]] = None,
     **model_overrides: Any,
 ) -> AgriNeRFTrainerConfig:
     """The one base of every preset: a `TrainerConfig` whose presets differ only in the arguments given here."""
@@ -103,7 +136,7 @@ def agrinerf_trainer_config(
             ),
             model=AgriNeRFModelConfig(eval_num_rays_per_chunk=1 << 13, **model_overrides),
         ),
-        optimizers=_optimizers(lr_fields, lr_encodings, max_num_iterations),
+        optimizers=optimizers or _optimizers(lr_fields, lr_encodings, max_num_iterations),
         viewer=ViewerConfig(num_rays_per_chunk=1 << 13, quit_on_train_completion=True),
         vis="viewer",
     )
@@ -117,9 +150,26 @@ EVDEBLURNERF: Dict[str, Any] = dict(
     modalities=("rgb", "events"), cross_spectral_output=False, low_light_event_loss=True
 )
 """The EvDeblurNeRF baseline's scene: RGB and events, no thermal head, the event loss in any light (as published). Its
-presets also turn the event loss on at EvDeblurNeRF's fixed weight 0.1 (EvDeblurNeRF uses 2048-4096 event pixels per
-batch); `agrinerf` weights it by the events' noise instead and leaves it off in low light, `agrinerf-lite` leaves it
-off (docs/model.md, Event loss and blur model)."""
+presets also turn the event loss on at EvDeblurNeRF's fixed weight 0.1; `agrinerf` weights it by the events' noise
+instead and leaves it off in low light, `agrinerf-lite` leaves it off (docs/model.md, Event loss and blur model)."""
+
+EVDEBLURNERF_PUBLISHED: Dict[str, Any] = dict(
+    event_supervision="pairs",
+    event_rays_per_batch=4096,
+    event_log_eps=1e-5,
+    event_crf=True,
+    event_crf_start_step=1200,
+    blur_kernel="learnt",
+    blur_samples=10,
+    blur_start_step=1200,
+    edi_prior=True,
+)
+"""EvDeblurNeRF's recipe (its configs ``tx_blur*_evdeblurnerf_ediprior_evcrf``): 4096 event-to-event samples per 1024
+RGB rays at weight 0.1, log(luma + 1e-5) after its event response learnt from step 1200, DP-NeRF's rigid blur kernel
+of 10 rays from step 1200, the EDI prior from step 0, 30k steps at lr 5e-3 x 0.1^(step / 10k). Not reproduced: its
+PDRF field (voxel grids and small MLPs; the presets keep the TensoRF field AgriNeRF shares), the event loss on its
+coarse pass (this model's coarse pass renders density only), DP-NeRF's adaptive weight proposal and the RGB gamma
+curve of its simulated scenes (the frames here are sRGB and so is the render)."""
 
 LITE: Dict[str, Any] = dict(
     max_num_iterations=2000,
@@ -162,15 +212,39 @@ agrinerf_lite = MethodSpecification(
 
 evdeblurnerf = MethodSpecification(
     config=agrinerf_trainer_config(
-        "evdeblurnerf", max_num_iterations=30000, event_rays_per_batch=1024, **PAPER_BLUR, **EVDEBLURNERF
+        "evdeblurnerf",
+        max_num_iterations=30000,
+        optimizers=_evdeblurnerf_optimizers(30000),
+        **EVDEBLURNERF_PUBLISHED,
+        **EVDEBLURNERF,
     ),
-    description="EvDeblurNeRF-style baseline: the RGB TensoRF with the event loss and blur model, no thermal head.",
+    description="EvDeblurNeRF as published (event-to-event loss, learnt event response, learnt rigid blur kernel, EDI "
+    "prior, its schedule) on the TensoRF field, not its PDRF field; no thermal head.",
 )
 
 evdeblurnerf_lite = MethodSpecification(
     config=agrinerf_trainer_config(
-        "evdeblurnerf-lite", blur_samples=3, event_rays_per_batch=256, **LITE, **EVDEBLURNERF
+        "evdeblurnerf-lite",
+        optimizers=_evdeblurnerf_optimizers(LITE["max_num_iterations"]),
+        **{**LITE, **EVDEBLURNERF_PUBLISHED},
+        **EVDEBLURNERF,
     ),
-    description="EvDeblurNeRF-style baseline, CPU preset: AgriNeRF-lite's RGB module with the event loss and a 3-ray "
-    "blur model, no thermal head.",
+    description="EvDeblurNeRF as published on AgriNeRF-lite's field (CPU preset, 2k steps): event-to-event loss, "
+    "learnt event response and rigid blur kernel from step 1200, EDI prior; not its PDRF field; no thermal head.",
+)
+
+evdeblurnerf_windowed = MethodSpecification(
+    config=agrinerf_trainer_config(
+        "evdeblurnerf-windowed", max_num_iterations=30000, event_rays_per_batch=1024, **PAPER_BLUR, **EVDEBLURNERF
+    ),
+    description="The earlier EvDeblurNeRF port: the RGB TensoRF with the windowed event loss at weight 0.1 and the "
+    "known-trajectory blur model, no thermal head.",
+)
+
+evdeblurnerf_windowed_lite = MethodSpecification(
+    config=agrinerf_trainer_config(
+        "evdeblurnerf-windowed-lite", blur_samples=3, event_rays_per_batch=256, **LITE, **EVDEBLURNERF
+    ),
+    description="The earlier EvDeblurNeRF port, CPU preset: AgriNeRF-lite's RGB module with the windowed event loss "
+    "and a 3-ray known-trajectory blur model, no thermal head.",
 )

@@ -20,10 +20,10 @@ PY=${PYTHON:-python3}
 python -m pip install --quiet --upgrade pip
 # 1. torch first, on its own: the pair tested here (on x86_64 pip takes it from the local wheel cache when present).
 python -m pip install --quiet ${TORCH_SPEC:-torch==2.14.1 torchvision==0.29.1}
-# 2. the plugin with Nerfstudio and the rest of its dependencies.
-#    The [video] extra brings an ffmpeg for ns-render (see step 5).
-TARGET=".[video]"
-[ "$DEV" = 1 ] && TARGET=".[dev,video]"
+# 2. the plugin with Nerfstudio and the rest of its dependencies (imageio-ffmpeg among them: the ffmpeg of ns-render
+#    videos, which agrinerf_ns.compat puts on PATH for ns-* commands when PATH has none).
+TARGET="."
+[ "$DEV" = 1 ] && TARGET=".[dev]"
 if [ "$EDITABLE" = 1 ]; then python -m pip install --quiet -e "$TARGET"; else python -m pip install --quiet "$TARGET"; fi
 # 3. Nerfstudio pins opencv-python-headless; opencv-contrib-python-headless ships the same cv2 module plus the contrib
 #    modules. Whichever is written last owns cv2, so write the contrib wheel last, explicitly.
@@ -32,10 +32,6 @@ python -m pip install --quiet --force-reinstall --no-deps "opencv-contrib-python
 if [ "$DEV" = 1 ]; then bash scripts/install_detect.sh; fi
 # optional FLIR radiometric JPEG reader (flyr, EUPL-1.2, pure Python) for the tests of agrinerf_ns/process/flir.py
 if [ "$DEV" = 1 ]; then python -m pip install --quiet "flyr>=5.1"; fi
-# 5. ns-render finds ffmpeg on PATH: link the one imageio-ffmpeg ships as .venv/bin/ffmpeg (agrinerf_ns.compat makes
-#    it visible to ns-* commands run without activating the venv).
-FFMPEG=$(python -c 'import imageio_ffmpeg; print(imageio_ffmpeg.get_ffmpeg_exe())') && ln -sf "$FFMPEG" .venv/bin/ffmpeg \
-  || echo "install.sh: imageio-ffmpeg has no ffmpeg for this platform; install one for ns-render videos" >&2
-# 6. system libraries pip cannot install (open3d's libusb for ns-export): say how to install what is missing.
+# 5. system libraries pip cannot install (open3d's libusb for ns-export): say how to install what is missing.
 python -m agrinerf_ns.system_deps || echo "install.sh: installed; the commands named above need what is missing" >&2
 python -c "import cv2; cv2.ximgproc; import agrinerf_ns, nerfstudio; print('agrinerf-ns', agrinerf_ns.__version__, 'installed; cv2', cv2.__version__)"

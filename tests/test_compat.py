@@ -128,3 +128,58 @@ def test_activate_never_raises(monkeypatch) -> None:
     monkeypatch.setattr(compat, "allow_checkpoint_globals", boom)
     with pytest.warns(RuntimeWarning, match="broken shim"):
         compat.activate()
+
+
+def test_imageio_ffmpeg_is_found_when_path_has_no_ffmpeg(tmp_path: Path, monkeypatch) -> None:
+    """A plain `pip install agrinerf-ns`: no ffmpeg on PATH nor beside the interpreter, only imageio-ffmpeg's binary
+    (named by platform and version). The shim makes `ffmpeg` on PATH that binary, and runs it."""
+    import shutil
+    import subprocess
+    import sys
+
+    import imageio_ffmpeg
+
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(sys, "executable", str(tmp_path / "venv" / "bin" / "python"))  # a bin folder without ffmpeg
+    assert shutil.which("ffmpeg") is None
+    assert compat.expose_ffmpeg()
+    found = shutil.which("ffmpeg")
+    assert found is not None and Path(found).parent.is_relative_to(tmp_path / "cache" / "agrinerf-ns")
+    assert Path(found).resolve() == Path(imageio_ffmpeg.get_ffmpeg_exe()).resolve()
+    assert subprocess.run([found, "-version"], capture_output=True, text=True, check=True).stdout.startswith("ffmpeg")
+    assert not compat.expose_ffmpeg()  # found now: PATH is left alone
+    assert compat.imageio_ffmpeg_folder() == Path(found).parent  # the link is reused
+
+
+def test_imageio_ffmpeg_link_falls_back_to_the_temporary_folder(tmp_path: Path, monkeypatch) -> None:
+    import tempfile
+
+    (tmp_path / "cache").write_text("a file, so no cache folder can be made under it")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    folder = compat.imageio_ffmpeg_folder()
+    assert folder is not None and folder.is_relative_to(tmp_path / "tmp") and (folder / "ffmpeg").is_file()
+
+
+def test_interpolation_between_one_camera_holds_still_and_names_the_train_cameras(capsys) -> None:
+    """`ns-render interpolate` on a split of one camera: Nerfstudio's path fails to stack no poses; with the shim it
+    stays at the camera for `steps` frames, and says how to interpolate between the training cameras instead."""
+    from nerfstudio.cameras import camera_paths
+    from nerfstudio.cameras.camera_utils import get_interpolated_poses_many
+    from nerfstudio.cameras.cameras import Cameras
+
+    c2w = torch.tensor([[[1.0, 0.0, 0.0, 0.1], [0.0, 0.0, -1.0, 0.2], [0.0, 1.0, 0.0, 0.3]]])
+    one = Cameras(fx=50.0, fy=50.0, cx=32.0, cy=24.0, camera_to_worlds=c2w)
+    with pytest.raises(ValueError, match="need at least one array to stack"):  # what the shim is for
+        get_interpolated_poses_many(one.camera_to_worlds, one.get_intrinsics_matrices(), steps_per_transition=4)
+    compat.patch_single_camera_interpolation()
+    path = camera_paths.get_interpolated_camera_path(cameras=one, steps=4, order_poses=False)
+    assert path.shape == (4,)
+    torch.testing.assert_close(path.camera_to_worlds, c2w.expand(4, 3, 4))
+    torch.testing.assert_close(path.fx, one.fx.expand(4, 1))
+    assert "--pose-source train" in capsys.readouterr().out
+    two = Cameras(fx=50.0, fy=50.0, cx=32.0, cy=24.0, camera_to_worlds=torch.cat([c2w, torch.eye(4)[None, :3]]))
+    path = camera_paths.get_interpolated_camera_path(cameras=two, steps=3, order_poses=False)
+    assert path.shape == (3,)  # two cameras: Nerfstudio's own path, unchanged
+    assert "--pose-source" not in capsys.readouterr().out

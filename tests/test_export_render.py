@@ -1,6 +1,7 @@
 """What a user takes away from a trained AgriNeRF run, through the real commands on a tiny run: `ns-export pointcloud`
 (rgb and thermal), `agrinerf-export pointcloud` (the thermal value as a PLY property), `ns-export tsdf` (thermal) and
-`ns-render interpolate --output-format video` with the ffmpeg that scripts/install.sh provides.
+`ns-render interpolate --output-format video` with the ffmpeg of imageio-ffmpeg (a dependency), between the training
+cameras and on the split of one held-out camera.
 
 The exporters run in this process through their console scripts' entry points with a command line in `sys.argv`
 (the same parsing and code as the installed `ns-export`, without a new interpreter's 20 s of imports each);
@@ -104,8 +105,8 @@ def test_ns_export_tsdf_thermal(tiny_run_config: Path, tmp_path: Path, monkeypat
 
 
 def test_ns_render_interpolate_video(tiny_run_config: Path, tmp_path: Path) -> None:
-    """`.venv/bin/ns-render` as a user runs it without activating the venv: PATH lacks the venv's bin folder (and
-    its ffmpeg link), which the plugin's compat shim adds back. The video holds rgb | thermal side by side."""
+    """`.venv/bin/ns-render` as a user runs it without activating the venv: PATH lacks the venv's bin folder, and the
+    plugin's compat shim finds an ffmpeg (imageio-ffmpeg's). The video holds rgb | thermal side by side."""
     import mediapy
 
     venv_bin = str(Path(sys.executable).parent)
@@ -119,6 +120,26 @@ def test_ns_render_interpolate_video(tiny_run_config: Path, tmp_path: Path) -> N
     frames = mediapy.read_video(str(video))
     assert frames.shape == (8, 48, 128, 3)  # 9 training views, one step per transition; 64x48 rgb + thermal
     assert frames.std() > 5  # an image, not a blank frame
+
+
+def test_ns_render_interpolate_on_one_held_out_camera_writes_a_video(tiny_run_config: Path, tmp_path: Path) -> None:
+    """The tiny scene holds out one of its 10 views: `ns-render interpolate` (default `--pose-source eval`) renders
+    that view for `--interpolation-steps` frames and names `--pose-source train`, instead of failing in numpy."""
+    import mediapy
+
+    venv_bin = str(Path(sys.executable).parent)
+    path = os.pathsep.join(p for p in ENV["PATH"].split(os.pathsep) if p != venv_bin)
+    video = tmp_path / "held_out.mp4"
+    cmd = [str(Path(venv_bin) / "ns-render"), "interpolate", "--load-config", str(tiny_run_config)]
+    cmd += ["--output-path", str(video), "--interpolation-steps", "3", "--frame-rate", "4"]
+    done = subprocess.run(cmd, env={**ENV, "PATH": path, "COLUMNS": "200"}, capture_output=True, text=True,
+                          timeout=600, check=False)  # fmt: skip
+    assert done.returncode == 0, (done.stdout + done.stderr)[-3000:]
+    assert "--pose-source train" in done.stdout + done.stderr
+    frames = mediapy.read_video(str(video))
+    assert frames.shape == (3, 48, 64, 3)  # the one held-out camera, 3 frames of its rgb render
+    assert frames.std() > 5
+    np.testing.assert_allclose(frames[0], frames[-1], atol=2)  # the path holds still
 
 
 def test_system_deps_report_nothing_missing_after_install(capsys) -> None:

@@ -115,11 +115,11 @@ def test_occupancy_prunes_empty_space_and_keeps_dense_cells() -> None:
     field = _field()
     with torch.no_grad():
         enc = field.density_encoding
-        enc.plane_coef.fill_(0.0)
-        enc.line_coef.fill_(0.0)
+        enc.plane_table.fill_(0.0)
+        enc.line_table.fill_(0.0)
         # a dense slab near x = +1: plane (x, y) and line (z) active only at large x
-        enc.plane_coef[0, 0, :, -2:] = 3.0  # plane 0 is indexed (y, x); last columns = x near +1
-        enc.line_coef[0, 0] = 3.0
+        enc.planes()[0][:, -2:, 0] = 3.0  # plane 0 is indexed (y, x); last columns = x near +1
+        enc.lines()[0][:, 0] = 3.0
     field.density_shift = -10.0
     kept = field.update_occupancy(density_threshold=0.01)
     assert 0.0 < kept < 1.0

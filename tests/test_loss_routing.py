@@ -1,8 +1,10 @@
-"""Loss routing: which parameter groups each loss term moves, on a tiny AgriNeRF model (issue 20).
+"""Loss routing: which parameter groups each loss term moves, on a tiny AgriNeRF model.
 
-The default: L_rgb and the thermal-camera term shape the shared density; the cross-spectral terms (L_th and L_reg on
-the `thermal` output) train the thermal head's appearance only. The paper's routing (every term into the density)
-stays a configuration.
+By default only L_rgb shapes the shared density: the thermal-camera term and the cross-spectral terms (L_th and L_reg
+on the `thermal` output) train the thermal volume and head alone. Where the training RGB frames are darker than
+``low_light_level`` (and the dataset has thermal frames) the thermal-camera term moves the density too. The paper's
+routing (every term into the density) and other per-term scales stay configurations; routing changes gradients, never
+the rendered values or the loss values.
 """
 
 from __future__ import annotations

@@ -82,7 +82,7 @@ def test_adding_thermal_adds_exactly_the_thermal_volume_and_mlp() -> None:
     mlp = 6 * 3 + (in_dim * 8 + 8) + (8 * 2 + 2)
     assert sum(added.values()) == volume + mlp
     thermal_volume = {n for n in added if ".encoding." in n}
-    assert thermal_volume == {"field.thermal_head.encoding.plane_coef", "field.thermal_head.encoding.line_coef"}
+    assert thermal_volume == {"field.thermal_head.encoding.plane_table", "field.thermal_head.encoding.line_table"}
 
 
 def test_config_modalities_are_intersected_with_the_dataset() -> None:
@@ -203,7 +203,7 @@ def test_upsampling_callback_resizes_every_volume_and_repoints_the_optimizers() 
         for cb in callbacks:
             cb.run_callback_at_location(step, cb.where_to_run[0])
     resolutions = {name: vol.resolution for name, vol in model.field.volumes().items()}
-    assert resolutions == {"density": 12, "rgb": 12, "thermal": 12}
+    assert resolutions == {"density": (12, 12, 12), "rgb": (12, 12, 12), "thermal": (12, 12, 12)}
     now = model.get_param_groups()
     for name, optimizer in optimizers.optimizers.items():
         assert [id(p) for p in optimizer.param_groups[0]["params"]] == [id(p) for p in now[name]]
@@ -225,9 +225,9 @@ def test_heads_on_every_sample_equal_heads_on_the_selected_ones(monkeypatch: pyt
     for name, fraction in (("gathered", 2.0), ("dense", 0.0)):
         monkeypatch.setattr(model_module, "DENSE_HEADS_FRACTION", fraction)
 
-        def counting(coords, directions, corners=None, name=name):
+        def counting(coords, directions, corners=None, heads=None, name=name):
             seen[name] = coords.shape[0]
-            return appearance_at(coords, directions, corners)
+            return appearance_at(coords, directions, corners, heads)
 
         monkeypatch.setattr(model.field, "appearance_at", counting)
         model.zero_grad()

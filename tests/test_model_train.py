@@ -81,26 +81,26 @@ def test_resume_after_upsampling_continues_at_the_upsampled_size(tmp_path: Path)
     trainer = first.setup(local_rank=0, world_size=1)
     trainer.setup()
     trainer.train()
-    assert trainer.pipeline.model.field.density_encoding.resolution == 24
+    assert trainer.pipeline.model.field.density_encoding.resolution == (24, 24, 24)
 
     second = tiny_trainer_config(data, tmp_path / "outputs", max_num_iterations=9, rays=64, upsampling_iters=(3,))
     second.timestamp = first.timestamp + "-resumed"
     second.load_dir = trainer.checkpoint_dir
     resumed = second.setup(local_rank=0, world_size=1)
-    resumed.setup()  # loads step 5: update_to_step replays the upsampling, then the optimizers are re-pointed
+    resumed.setup()  # loads step 5: the volumes take the checkpoint's sizes, then the optimizers are re-pointed
     model = resumed.pipeline.model
-    assert {v.resolution for v in model.field.volumes().values()} == {24}
+    assert {v.resolution for v in model.field.volumes().values()} == {(24, 24, 24)}
     groups = model.get_param_groups()
     for name, optimizer in resumed.optimizers.optimizers.items():
         params = optimizer.param_groups[0]["params"]
         assert [id(p) for p in params] == [id(p) for p in groups[name]]
         for p in params:  # the checkpoint's Adam moments are attached to the live, upsampled Parameters
             assert optimizer.state[p]["exp_avg"].shape == p.shape
-    plane = model.field.density_encoding.plane_coef
+    plane = model.field.density_encoding.plane_table
     saved = plane.detach().clone()
     resumed.train()  # steps 6-8
-    assert model.field.density_encoding.plane_coef.shape == (3, 4, 24, 24)
-    assert not torch.equal(model.field.density_encoding.plane_coef.detach(), saved)  # the grid keeps learning
+    assert model.field.density_encoding.plane_table.shape == (3 * 24 * 24, 4)
+    assert not torch.equal(model.field.density_encoding.plane_table.detach(), saved)  # the grid keeps learning
 
 
 def test_ns_eval_and_ns_render_load_the_checkpoint(trained: Dict, tmp_path: Path) -> None:

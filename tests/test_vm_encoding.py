@@ -1,4 +1,5 @@
-"""The row-gather VM lookup is Nerfstudio's `TensorVMEncoding`, only computed differently."""
+"""The VM volume: Nerfstudio's `TensorVMEncoding` for a cube (only computed differently), one resolution per axis,
+exact resampling, checkpoints that restore their shapes, and the hand-written TV gradient."""
 
 from __future__ import annotations
 
@@ -6,14 +7,14 @@ import pytest
 import torch
 from nerfstudio.field_components.encodings import TensorVMEncoding
 
-from agrinerf_ns.model.vm_encoding import BilinearVMEncoding, scatter_matrix, vm_corners, vm_product
+from agrinerf_ns.model.vm_encoding import VMVolume, _PlaneTV, plane_tv, scatter_matrix, vm_corners, vm_product
 
 
 def _pair(resolution: int, components: int, lookup: str = "rows"):
     torch.manual_seed(0)
     reference = TensorVMEncoding(resolution=resolution, num_components=components)
-    mine = BilinearVMEncoding(resolution=resolution, num_components=components, lookup=lookup)
-    mine.load_state_dict(reference.state_dict())  # the same parameter names and shapes: old checkpoints load
+    torch.manual_seed(0)
+    mine = VMVolume(resolution=resolution, num_components=components, lookup=lookup)
     return reference, mine
 
 
@@ -24,10 +25,24 @@ def _points(n: int = 500) -> torch.Tensor:
     return torch.cat([corners, pts])
 
 
+def _as_tables(reference: TensorVMEncoding) -> tuple:
+    comps = reference.num_components
+    return (
+        reference.plane_coef.permute(0, 2, 3, 1).reshape(-1, comps),
+        reference.line_coef.permute(0, 2, 3, 1).reshape(-1, comps),
+    )
+
+
 @pytest.mark.parametrize("lookup", ["rows", "grid_sample"])
 @pytest.mark.parametrize("resolution,components", [(2, 1), (7, 3), (16, 5)])
-def test_features_and_gradients_equal_nerfstudios(lookup: str, resolution: int, components: int) -> None:
+def test_cube_features_initial_values_and_gradients_equal_nerfstudios(
+    lookup: str, resolution: int, components: int
+) -> None:
     reference, mine = _pair(resolution, components, lookup)
+    plane, line = _as_tables(reference)
+    assert torch.equal(mine.plane_table.detach(), plane.detach()) and torch.equal(
+        mine.line_table.detach(), line.detach()
+    )
     pts = _points()
     expected, got = reference(pts), mine(pts)
     assert got.shape == expected.shape == (pts.shape[0], 3 * components)
@@ -35,8 +50,34 @@ def test_features_and_gradients_equal_nerfstudios(lookup: str, resolution: int, 
     weights = torch.randn_like(expected)
     (expected * weights).sum().backward()
     (got * weights).sum().backward()
-    torch.testing.assert_close(mine.plane_coef.grad, reference.plane_coef.grad, rtol=1e-4, atol=1e-5)
-    torch.testing.assert_close(mine.line_coef.grad, reference.line_coef.grad, rtol=1e-4, atol=1e-5)
+    ref_plane, ref_line = _as_tables(
+        type(
+            "G",
+            (),
+            {
+                "plane_coef": reference.plane_coef.grad,
+                "line_coef": reference.line_coef.grad,
+                "num_components": components,
+            },
+        )()
+    )
+    torch.testing.assert_close(mine.plane_table.grad, ref_plane, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(mine.line_table.grad, ref_line, rtol=1e-4, atol=1e-5)
+
+
+def test_axis_resolutions_agree_between_lookups_in_values_and_gradients() -> None:
+    torch.manual_seed(2)
+    rows = VMVolume((5, 11, 3), 4, lookup="rows")
+    grid = VMVolume((5, 11, 3), 4, lookup="grid_sample")
+    grid.load_state_dict(rows.state_dict())
+    assert rows.resolution == (5, 11, 3) and rows.plane_table.shape == (5 * 11 + 5 * 3 + 11 * 3, 4)
+    pts = _points(300)
+    torch.testing.assert_close(rows(pts), grid(pts), rtol=1e-5, atol=1e-6)
+    weights = torch.randn(pts.shape[0], 12)
+    (rows(pts) * weights).sum().backward()
+    (grid(pts) * weights).sum().backward()
+    torch.testing.assert_close(rows.plane_table.grad, grid.plane_table.grad, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(rows.line_table.grad, grid.line_table.grad, rtol=1e-4, atol=1e-5)
 
 
 def test_batched_input_keeps_its_shape() -> None:
@@ -60,41 +101,98 @@ def test_out_of_range_and_nan_coordinates_are_clamped_to_the_border() -> None:
     torch.testing.assert_close(mine(far), mine(clamped))
 
 
-def test_upsampling_matches_nerfstudio_and_stays_channels_last() -> None:
+def test_upsampling_matches_nerfstudio() -> None:
     reference, mine = _pair(8, 3)
     reference.upsample_grid(13)
     mine.upsample_grid(13)
-    assert mine.resolution == 13 and mine.plane_coef.shape == (3, 3, 13, 13)
-    assert mine.plane_coef.is_contiguous(memory_format=torch.channels_last)
-    assert mine.line_coef.is_contiguous(memory_format=torch.channels_last)
+    assert mine.resolution == (13, 13, 13)
     pts = _points(100)
     torch.testing.assert_close(mine(pts), reference(pts), rtol=1e-5, atol=1e-6)
-    with pytest.raises(ValueError, match="resolution 8"):
+    with pytest.raises(ValueError, match="resolution"):
         mine.features(vm_corners(pts, 8))
 
 
-def test_scatter_matrix_adds_every_weighted_corner() -> None:
+def test_resampling_along_axes_is_exact_at_the_new_grid_points() -> None:
+    torch.manual_seed(3)
+    volume = VMVolume((6, 7, 5), 2)
+    before = VMVolume((6, 7, 5), 2)
+    before.load_state_dict(volume.state_dict())
+    # the new grid covers [-0.5, 0.25] of the old x axis, all of y and z: its grid points are old coordinates
+    res = (9, 7, 5)
+    sources = [torch.linspace(-0.5, 0.25, 9), torch.linspace(-1, 1, 7), torch.linspace(-1, 1, 5)]
+    volume.resample(res, sources)
+    assert volume.resolution == res
+    grid = torch.stack(torch.meshgrid(*[torch.linspace(-1, 1, r) for r in res], indexing="ij"), -1).reshape(-1, 3)
+    old = torch.stack(torch.meshgrid(*sources, indexing="ij"), -1).reshape(-1, 3)
+    torch.testing.assert_close(volume(grid), before(old), rtol=1e-5, atol=1e-6)
+
+
+def test_a_checkpoint_restores_its_shapes_and_the_legacy_cube_layout_loads() -> None:
+    torch.manual_seed(4)
+    trained = VMVolume((4, 9, 6), 3)
+    fresh = VMVolume(5, 3)
+    fresh.load_state_dict(trained.state_dict())
+    pts = _points(50)
+    assert fresh.resolution == (4, 9, 6)
+    torch.testing.assert_close(fresh(pts), trained(pts))
+    reference, _ = _pair(6, 3)
+    legacy = VMVolume(8, 3)
+    legacy.load_state_dict(reference.state_dict())  # Nerfstudio's plane_coef / line_coef names and shapes
+    torch.testing.assert_close(legacy(pts), reference(pts), rtol=1e-5, atol=1e-6)
+
+
+def test_tv_value_and_hand_written_gradient_equal_autograds() -> None:
+    torch.manual_seed(5)
+    volume = VMVolume((4, 7, 5), 3)
+    table = volume.plane_table.detach().double()
+    volume.plane_table = torch.nn.Parameter(table.clone())
+    got = plane_tv(volume)
+    got.backward()
+    auto = table.clone().requires_grad_(True)
+    planes = volume.planes(auto)
+    n_h = sum((p.shape[0] - 1) * p.shape[1] * p.shape[2] for p in planes)
+    n_w = sum(p.shape[0] * (p.shape[1] - 1) * p.shape[2] for p in planes)
+    expected = (
+        sum((p[1:] - p[:-1]).pow(2).sum() for p in planes) / n_h
+        + sum((p[:, 1:] - p[:, :-1]).pow(2).sum() for p in planes) / n_w
+    )
+    expected.backward()
+    torch.testing.assert_close(got.double(), expected)
+    torch.testing.assert_close(volume.plane_table.grad, auto.grad, rtol=1e-9, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda t: _PlaneTV.apply(t, volume.layout), (auto.detach().requires_grad_(True),))
+
+
+def test_tv_of_a_cube_by_hand() -> None:
+    volume = VMVolume(3, 1)
+    with torch.no_grad():
+        volume.plane_table.zero_()
+        volume.planes()[0][:, :, 0] = torch.tensor([[0.0, 1.0, 3.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    # height diffs (3 planes * 2 * 3 = 18): 0, 1, 9 -> 10/18; width diffs (18): 1, 4 -> 5/18
+    assert plane_tv(volume).item() == pytest.approx(10 / 18 + 5 / 18, abs=1e-6)
+
+
+def test_scatter_matrix_adds_every_weighted_corner_in_its_segment() -> None:
     gen = torch.Generator().manual_seed(2)
-    rows, offsets = 30, (0, 1, 5, 6)
-    base = torch.randint(0, rows - 6, (40,), generator=gen)  # repeated bases: their entries must all be there
+    segments, offsets = (0, 30, 50), [(0, 1, 5, 6), (0, 1, 4, 5)]
+    base = torch.cat([torch.randint(0, 24, (30,), generator=gen), torch.randint(30, 45, (10,), generator=gen)])
     weight = torch.rand(40, 4, generator=gen)
-    expected = torch.zeros(rows, 40)
+    expected = torch.zeros(50, 40)
     for i in range(40):
-        for k, off in enumerate(offsets):
+        for k, off in enumerate(offsets[0 if base[i] < 30 else 1]):
             expected[base[i] + off, i] += weight[i, k]
-    matrix = scatter_matrix(base, offsets, weight, rows)
+    matrix = scatter_matrix(base, offsets, weight, segments)
     torch.testing.assert_close(matrix.to_dense(), expected)
     assert bool((matrix.crow_indices().diff() >= 0).all()) and int(matrix.crow_indices()[-1]) == 160
 
 
 def test_vm_product_gradient_is_exact() -> None:
     gen = torch.Generator().manual_seed(3)
-    res, comps = 5, 3
+    res, comps = (5, 4, 3), 3
     coords = torch.rand(30, 3, dtype=torch.float64, generator=gen) * 2 - 1
     coords[:4] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1.0, -1.0, 0.3]])
     corners = vm_corners(coords, res)
-    plane = torch.randn(3 * res * res, comps, dtype=torch.float64, generator=gen, requires_grad=True)
-    line = torch.randn(3 * res, comps, dtype=torch.float64, generator=gen, requires_grad=True)
+    plane = torch.randn(5 * 4 + 5 * 3 + 4 * 3, comps, dtype=torch.float64, generator=gen, requires_grad=True)
+    line = torch.randn(3 + 4 + 5, comps, dtype=torch.float64, generator=gen, requires_grad=True)
     assert torch.autograd.gradcheck(lambda p, q: vm_product(p, q, corners), (plane, line))
 
 
@@ -103,12 +201,14 @@ def test_no_points_give_zero_gradients() -> None:
     out = mine(torch.zeros(0, 3))
     assert out.shape == (0, 6)
     out.sum().backward()
-    assert bool((mine.plane_coef.grad == 0).all()) and bool((mine.line_coef.grad == 0).all())
+    assert bool((mine.plane_table.grad == 0).all()) and bool((mine.line_table.grad == 0).all())
 
 
 def test_unknown_lookup_and_tiny_resolution_are_refused() -> None:
     # the runtime type checker of the test suite refuses it first; without it, the constructor's own check does
     with pytest.raises((ValueError, TypeError), match="lookup"):
-        BilinearVMEncoding(8, 2, lookup="bicubic")  # type: ignore[arg-type]
+        VMVolume(8, 2, lookup="bicubic")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="at least 2"):
         vm_corners(torch.zeros(1, 3), 1)
+    with pytest.raises(ValueError, match="at least 2"):
+        VMVolume((4, 1, 4), 2)

@@ -58,6 +58,11 @@ def _load_at_step(step: int) -> Callable:
     return update
 
 
+GRID_METRICS = ("fine_region_weight", "voxel_size_m", "voxel_size_final_m")
+"""How the grids fit the scene (`AgriNeRFModel.grid_diagnostics`): the share of the held-out rendering weight at full
+resolution, the voxel size at the median rendered depth now and at the preset's final grids (metres)."""
+
+
 def evaluate_checkpoint(
     config_path: Path,
     step: int,
@@ -72,7 +77,7 @@ def evaluate_checkpoint(
     Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
     LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``thermal_psnr``, ``thermal_ssim`` (vs the
     rescaled thermal frames), ``thermal_camera_psnr`` (the thermal-camera output, where the model has one),
-    ``temperature_mae`` (degrees C, where the model has a temperature output), and
+    ``temperature_mae`` (degrees C, where the model has a temperature output), `GRID_METRICS` (AgriNeRF), and
     ``psnr_clean_per_view`` (each rendered view's ``psnr_clean``, by held-out index, for paired comparisons).
     """
     from nerfstudio.utils.eval_utils import eval_setup
@@ -96,7 +101,9 @@ def evaluate_checkpoint(
         row = {
             k: float(v)
             for k, v in metrics.items()
-            if k in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim", "thermal_camera_psnr", "temperature_mae")
+            if k
+            in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim", "thermal_camera_psnr", "temperature_mae")
+            + GRID_METRICS
         }
         if method.supervision == "thermal" and "psnr" in row:  # Nerfacto on thermal frames: its psnr is thermal
             row = {"thermal_psnr": row["psnr"], "thermal_ssim": row["ssim"]}

@@ -11,7 +11,8 @@ from typing import Dict, Iterable, List, Sequence, Set, Tuple
 COLUMNS = (
     "scene", "method", "label", "step", "wall_s", "s_per_step", "peak_rss_mb", "device",
     "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim", "eval_views",
-    "thermal_camera_psnr", "psnr_clean_per_view", "temperature_mae",
+    "thermal_camera_psnr", "psnr_clean_per_view", "temperature_mae", "fine_region_weight", "voxel_size_m",
+    "voxel_size_final_m",
 )  # fmt: skip
 """One row per evaluated checkpoint."""
 
@@ -22,6 +23,17 @@ def append_rows(csv_path: Path, rows: Iterable[Dict[str, object]]) -> None:
     """Append rows (and the header if the file is new), flushed to disk before returning."""
     csv_path.parent.mkdir(parents=True, exist_ok=True)
     new = not csv_path.exists() or csv_path.stat().st_size == 0
+    if not new:
+        with open(csv_path, newline="") as handle:
+            header = next(csv.reader(handle), [])
+        if tuple(header) != COLUMNS:  # written before a column was added: rewrite it with today's columns
+            old_rows = read_rows(csv_path)
+            tmp = csv_path.with_suffix(".csv.tmp")
+            with open(tmp, "w", newline="") as handle:
+                writer = csv.DictWriter(handle, fieldnames=COLUMNS, extrasaction="ignore")
+                writer.writeheader()
+                writer.writerows({k: row.get(k, "") for k in COLUMNS} for row in old_rows)
+            os.replace(tmp, csv_path)
     with open(csv_path, "a", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=COLUMNS, extrasaction="ignore")
         if new:

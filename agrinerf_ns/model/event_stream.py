@@ -68,19 +68,8 @@ class EventStream:
 
     @classmethod
     def from_h5(cls, path: Path, width: int, height: int) -> "EventStream":
-        """The stream of a dataset's ``events/stream.h5`` (events/x, y, t [us, frame clock], p), checked against the
-        camera's resolution."""
-        import h5py
-
-        try:
-            with h5py.File(path, "r") as f:
-                group = f["events"]
-                x, y, t, p = (np.asarray(group[k]) for k in "xytp")
-        except (OSError, KeyError) as error:
-            raise EventStreamError(f"{path}: not an event stream with events/x, y, t, p ({error})") from error
-        if x.size and (int(x.max()) >= width or int(y.max()) >= height):
-            raise EventStreamError(f"{path}: event coordinates outside the {width}x{height} event camera")
-        return cls(x, y, t, p, width, height)
+        """The stream of a dataset's ``events/stream.h5`` (:func:`read_stream_h5`)."""
+        return cls(*read_stream_h5(path, width, height), width, height)
 
     def counts(
         self, pixel: Int[Tensor, " n"], t0_us: Int[Tensor, " n"], t1_us: Int[Tensor, " n"]
@@ -98,6 +87,22 @@ class EventStream:
 
     def _clamped(self, t_us: Tensor) -> Tensor:
         return (t_us.long() - self.t_min).clamp(0, self.span - 1)
+
+
+def read_stream_h5(path: Path, width: int, height: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """x, y, t (integer microseconds, frame clock), p of a dataset's ``events/stream.h5`` (events/x, y, t, p), checked
+    against the event camera's resolution."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            group = f["events"]
+            x, y, t, p = (np.asarray(group[k]) for k in "xytp")
+    except (OSError, KeyError) as error:
+        raise EventStreamError(f"{path}: not an event stream with events/x, y, t, p ({error})") from error
+    if x.size and (int(x.max()) >= width or int(y.max()) >= height):
+        raise EventStreamError(f"{path}: event coordinates outside the {width}x{height} event camera")
+    return x, y, t, p
 
 
 def sample_windows(

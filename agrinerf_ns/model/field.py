@@ -8,7 +8,7 @@ A head that the scene does not need is not built at all (no volume, no MLP, no p
 
 from __future__ import annotations
 
-from typing import Dict, Optional, Tuple
+from typing import Dict, Optional, Tuple, Union
 
 import torch
 import torch.nn.functional as F
@@ -21,9 +21,9 @@ from nerfstudio.field_components.mlp import MLP
 from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
 
-from agrinerf_ns.model.contraction import LinfContraction
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
-from agrinerf_ns.model.vm_encoding import BilinearVMEncoding, VMCorners, VMLookup, vm_corners
+from agrinerf_ns.model.grid_mapping import START_INNER, BoxContraction, axis_resolution
+from agrinerf_ns.model.vm_encoding import Resolution, VMCorners, VMLookup, VMVolume, vm_corners
 
 
 class AppearanceHead(nn.Module):
@@ -41,7 +41,7 @@ class AppearanceHead(nn.Module):
 
     def __init__(
         self,
-        resolution: int,
+        resolution: Union[int, Resolution],
         num_components: int,
         appearance_dim: int,
         out_dim: int,
@@ -50,7 +50,7 @@ class AppearanceHead(nn.Module):
         lookup: VMLookup = "auto",
     ) -> None:
         super().__init__()
-        self.encoding = BilinearVMEncoding(resolution=resolution, num_components=num_components, lookup=lookup)
+        self.encoding = VMVolume(resolution=resolution, num_components=num_components, lookup=lookup)
         self.basis = nn.Linear(self.encoding.get_out_dim(), appearance_dim, bias=False)
         self.feature_encoding = NeRFEncoding(in_dim=appearance_dim, num_frequencies=2, min_freq_exp=0, max_freq_exp=2)
         self.direction_encoding: Optional[NeRFEncoding] = (
@@ -125,9 +125,10 @@ class AgriNeRFField(Field):
     """Shared density TensoRF with optional RGB and thermal appearance heads.
 
     Args:
-        aabb: scene box (2, 3); used when `contraction` is False (bounded scene).
-        contraction: contract the unbounded scene into the grid (`SceneContraction`, L-inf: a cube) so that
-            sky and far trees of an orchard row land in the outer shell of the volumes.
+        aabb: scene box (2, 3): the grids' box when `contraction` is False (bounded scene), else the first
+            full-resolution box (until `refit_box` fits one to the scene).
+        contraction: contract the unbounded scene into the grid outside the full-resolution box (`BoxContraction`,
+            per axis) so that sky and far trees of an orchard row land in the outer shell of the volumes.
         resolution: initial resolution of all volumes.
         num_density_components: VM components of the density volume.
         with_rgb / with_thermal: build the RGB / thermal head.
@@ -175,10 +176,8 @@ class AgriNeRFField(Field):
         if not (with_rgb or with_thermal):
             raise ValueError("AgriNeRFField needs at least one of the RGB and thermal heads")
         self.register_buffer("aabb", aabb.detach().clone().float())
-        self.spatial_distortion: Optional[LinfContraction] = LinfContraction() if contraction else None
-        self.density_encoding = BilinearVMEncoding(
-            resolution=resolution, num_components=num_density_components, lookup=vm_lookup
-        )
+        self.mapping: Optional[BoxContraction] = BoxContraction(self.aabb, START_INNER) if contraction else None
+        self.density_encoding = VMVolume(resolution=resolution, num_components=num_density_components, lookup=vm_lookup)
         self.rgb_head: Optional[AppearanceHead] = (
             AppearanceHead(resolution, num_rgb_components, rgb_appearance_dim, 3, True, mlp_width, vm_lookup)
             if with_rgb
@@ -216,7 +215,7 @@ class AgriNeRFField(Field):
         self.occupancy_all = bool(self.occupancy.all())
 
     # ---------------------------------------------------------------- geometry
-    def volumes(self) -> Dict[str, BilinearVMEncoding]:
+    def volumes(self) -> Dict[str, VMVolume]:
         """Every TensoRF volume of the field, by name (the ones the resolution schedule upsamples)."""
         vols = {"density": self.density_encoding}
         if self.rgb_head is not None:
@@ -228,12 +227,61 @@ class AgriNeRFField(Field):
     def to_grid(self, positions: Float[Tensor, "*bs 3"]) -> Tuple[Float[Tensor, "*bs 3"], Bool[Tensor, "*bs"]]:
         """World positions -> grid coordinates in [-1, 1] and a mask of positions inside the volume."""
         positions = torch.nan_to_num(positions.float(), nan=0.0, posinf=1e6, neginf=-1e6)
-        if self.spatial_distortion is not None:
-            coords = self.spatial_distortion(positions) / 2.0
+        if self.mapping is not None:
+            coords = self.mapping(positions)
         else:
             coords = SceneBox.get_normalized_positions(positions, self.aabb) * 2.0 - 1.0
         inside = ((coords > -1.0) & (coords < 1.0)).all(dim=-1)
         return coords.clamp(-1.0, 1.0), inside
+
+    def full_resolution_box(self) -> Float[Tensor, "2 3"]:
+        """World lo / hi corners of the region where the grids have their full resolution (the fitted box; the scene
+        box of a bounded field)."""
+        return self.mapping.box() if self.mapping is not None else self.aabb.clone()
+
+    def full_resolution(self, positions: Float[Tensor, "*bs 3"]) -> Bool[Tensor, "*bs"]:
+        """Whether each world position lies where the grids have their full resolution."""
+        box = self.full_resolution_box()
+        return ((positions >= box[0]) & (positions <= box[1])).all(dim=-1)
+
+    def voxel_size(
+        self, positions: Float[Tensor, "*bs 3"], resolution: Optional[Resolution] = None
+    ) -> Float[Tensor, "*bs 3"]:
+        """World size of a grid cell along each axis at each position, at `resolution` (default: the volumes')."""
+        res = self.density_encoding.resolution if resolution is None else resolution
+        if self.mapping is not None:
+            return self.mapping.voxel_size(positions, res)
+        extent = self.aabb[1] - self.aabb[0]
+        cell = extent / (torch.tensor(res, dtype=extent.dtype, device=extent.device) - 1.0)
+        return cell.expand(*positions.shape[:-1], 3)
+
+    def axis_resolution(self, cube: int) -> Resolution:
+        """Grid points per axis for the voxel budget of a `cube`^3 grid, with cells of one size in the box."""
+        if self.mapping is None:
+            return axis_resolution(self.aabb, 1.0, cube)
+        return axis_resolution(self.mapping.box(), float(self.mapping.inner), cube)
+
+    @torch.no_grad()
+    def refit_box(self, box: Float[Tensor, "2 3"], inner: float, cube: int) -> None:
+        """Fit the full-resolution box to `box` (grid fraction `inner`) and resample every volume into it, at the
+        resolution per axis of a `cube`^3 budget. Exact at the new grid points: each plane and line is resampled
+        along its own axes (`VMVolume.resample`). The occupancy grid (in grid coordinates) keeps every cell again."""
+        if self.mapping is None:
+            raise ValueError("A bounded field (no contraction) keeps its scene box")
+        old = BoxContraction(self.mapping.box(), float(self.mapping.inner)).to(self.aabb.device)
+        self.mapping.set_box(box, inner)
+        res = self.axis_resolution(cube)
+        # per axis: the new grid points, in world coordinates, in the old grid's coordinates
+        grid = [torch.linspace(-1.0, 1.0, r, device=self.aabb.device) for r in res]
+        sources = []
+        for axis, g in enumerate(grid):
+            coords = torch.zeros(g.shape[0], 3, device=g.device)
+            coords[:, axis] = g
+            sources.append(old(self.mapping.inverse(coords))[:, axis])
+        for volume in self.volumes().values():
+            volume.resample(res, sources)
+        self.occupancy.fill_(True)
+        self._refresh_occupancy_cache()
 
     def occupied(self, coords: Float[Tensor, "n 3"]) -> Bool[Tensor, " n"]:
         """Whether each grid coordinate falls in a cell that the occupancy grid keeps."""
@@ -276,17 +324,22 @@ class AgriNeRFField(Field):
 
     # -------------------------------------------------------------- appearance
     def appearance_at(
-        self, coords: Float[Tensor, "n 3"], directions: Float[Tensor, "n 3"], corners: Optional[VMCorners] = None
+        self,
+        coords: Float[Tensor, "n 3"],
+        directions: Float[Tensor, "n 3"],
+        corners: Optional[VMCorners] = None,
+        heads: Optional[Tuple[str, ...]] = None,
     ) -> Dict[object, Float[Tensor, "n c"]]:
         """Head outputs at flat grid coordinates (used by the model on the samples that matter only); both heads
-        share one set of lookup corners (`corners`, when given, must be those of `coords`)."""
+        share one set of lookup corners (`corners`, when given, must be those of `coords`). `heads`: "rgb" and/or
+        "thermal" (with its temperature head) to evaluate; None: every head built."""
         directions = torch.nan_to_num(directions.float())  # unit vectors (Nerfstudio's rays are normalised)
         if corners is None:
             corners = self.corners(coords)
         out: Dict[object, Tensor] = {}
-        if self.rgb_head is not None:
+        if self.rgb_head is not None and (heads is None or "rgb" in heads):
             out[FieldHeadNames.RGB] = self.rgb_head(coords, directions, corners)
-        if self.thermal_head is not None:
+        if self.thermal_head is not None and (heads is None or "thermal" in heads):
             thermal_input = self.thermal_head.mlp_input(coords, directions, corners)
             out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head.mlp(thermal_input)
             if self.temperature_head is not None:

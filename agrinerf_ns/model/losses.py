@@ -78,6 +78,14 @@ def event_loss(
     return masked_mse(pred, target, mask)
 
 
+def event_pair_loss(
+    log_start: Float[Tensor, "m 1"], log_end: Float[Tensor, "m 1"], target: Float[Tensor, "m 1"]
+) -> Float[Tensor, ""]:
+    """EvDeblurNeRF's event-to-event loss (its ``egm_loss``): mean (log L(t_successor) - log L(t_event) - target)^2
+    over event samples, each target +C_on or -C_off (``event_pairs.pair_targets``). 0 without samples, never NaN."""
+    return masked_mse(log_end.float() - log_start.float(), target)
+
+
 def masked_mse(
     pred: Float[Tensor, "*bs c"], target: Float[Tensor, "*bs c"], mask: Optional[Float[Tensor, "*bs 1"]] = None
 ) -> Float[Tensor, ""]:
@@ -166,12 +174,3 @@ def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
     total = torch.stack([t.abs().sum() for t in tensors]).sum()
     count = sum(t.numel() for t in tensors)
     return total / max(count, 1)
-
-
-def tv_plane_loss(planes: Float[Tensor, "3 c h w"]) -> Float[Tensor, ""]:
-    """Total variation of stacked VM planes: the mean squared difference of row neighbours plus that of column
-    neighbours, each averaged over all planes and components: half of Nerfstudio's `tv_loss` on the same stack (TensoRF's
-    `TV_loss_density` / `TV_loss_app` sum a TV per plane with its own scale); the loss weights absorb the constant."""
-    dh = (planes[..., 1:, :] - planes[..., :-1, :]).pow(2).mean()
-    dw = (planes[..., :, 1:] - planes[..., :, :-1]).pow(2).mean()
-    return dh + dw

@@ -30,11 +30,16 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality, normalise_modalities
-from agrinerf_ns.model import losses
+from agrinerf_ns.model import edi_prior, losses
+from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
+from agrinerf_ns.model.event_crf import EventCRF
+from agrinerf_ns.model.event_pairs import EventPairs
 from agrinerf_ns.model.event_stream import EventCamera, EventStream
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
-from agrinerf_ns.model.vm_encoding import VMLookup
+from agrinerf_ns.model.grid_mapping import fit_box
+from agrinerf_ns.model.rigid_blur import RigidBlurKernel
+from agrinerf_ns.model.vm_encoding import VMLookup, plane_tv
 
 TERM_OUTPUTS: Dict[str, str] = {
     "rgb_loss": "rgb",
@@ -44,6 +49,7 @@ TERM_OUTPUTS: Dict[str, str] = {
     "thermal_camera_loss": "thermal_camera",
     "event_loss": "rgb",
     "temperature_loss": "temperature",
+    "edi_prior_loss": "rgb",
 }
 """Each data loss term and the output it compares with its target."""
 
@@ -78,6 +84,10 @@ class AgriNeRFModelConfig(ModelConfig):
     """Steps after which all volumes are upsampled (log-spaced resolutions from init to final, as TensoRF)."""
     num_coarse_samples: int = 64
     """Coarse samples per ray (density only, no gradient)."""
+    coarse_sampler: Literal["box", "lindisp"] = "box"
+    """Spacing of the coarse samples (scene contraction only). box: half uniform up to where the ray leaves the
+    full-resolution box, half linear in disparity beyond (`BoxPiecewiseSampler`). lindisp: Nerfstudio's
+    `UniformLinDispPiecewiseSampler` (half uniform up to distance 1)."""
     num_fine_samples: int = 64
     """Fine samples per ray drawn from the coarse weights (PDF)."""
     fine_include_coarse: bool = False
@@ -156,6 +166,20 @@ class AgriNeRFModelConfig(ModelConfig):
     """Colour (and thermal value) behind the last sample; "last_sample" uses the last sample's value."""
     weight_threshold: float = 1.0e-4
     """Fine samples whose rendering weight is below this skip the appearance heads (TensoRF's app mask)."""
+    box_fit_iters: Tuple[int, ...] = (100, 500)
+    """Steps after which the full-resolution box is fitted to the scene (`grid_mapping.fit_box` on the median-depth
+    points of `box_fit_rays` rendered training rays) and every volume resampled into it; () keeps the first box (the
+    SfM points' box where the dataset has them, else the scene box around the cameras). Contraction only."""
+    box_fit_rays: int = 8192
+    """Training rays rendered for each box fit."""
+    box_grid_fraction: float = 0.8
+    """Fraction of each grid axis that the fitted box spans (the rest holds the contracted sky and far background)."""
+    box_fit_growth: float = 8.0
+    """A fit may grow the box to at most this many times its size about its centre (an early, still blurry field
+    cannot throw the box far out; the next fit goes on from there)."""
+    box_depth_cut: float = 2.5
+    """Surface points farther from their camera than this times the median distance are background, outside the box
+    (sky, hedges, far rows)."""
     occupancy_resolution: int = 64
     """Cells per axis of the occupancy grid that prunes empty space (0: no pruning)."""
     occupancy_update_iters: Tuple[int, ...] = (2000, 4000, 6000)
@@ -174,6 +198,7 @@ class AgriNeRFModelConfig(ModelConfig):
             "thermal_camera_loss": 1.0,
             "event_loss": 0.1,
             "temperature_loss": 1.0,
+            "edi_prior_loss": 1.0,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
@@ -193,10 +218,14 @@ class AgriNeRFModelConfig(ModelConfig):
     event_threshold: float = 0.2
     """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
     synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
-    event_supervision: Literal["stream", "frames"] = "stream"
-    """What the event loss reads. stream: the events at the event camera's own pixels, each pixel rendered along its
-    own ray from the event camera (the dataset's ``events/stream.h5``; datasets without one fall back to frames).
-    frames: the per-frame counts warped into the RGB pixels, on the batch's RGB pixels."""
+    event_supervision: Literal["pairs", "stream", "frames"] = "stream"
+    """What the event loss reads. pairs: EvDeblurNeRF's event-to-event samples: an event that has a successor at its
+    pixel, drawn uniformly over the stream, rendered along the event pixel's ray at both events' times, target C times
+    the successor's polarity, response log(BT.601 luma of the linear render (after the learnt `event_crf`) + eps)
+    (`model/event_pairs.py`). stream: the events at the event camera's own pixels in random sub-windows of the frames'
+    windows, target C (N_on - N_off), pixels without events included, response log(Rec. 709 luminance + eps). Both
+    read the dataset's ``events/stream.h5`` (datasets without one fall back to frames). frames: the per-frame counts
+    warped into the RGB pixels, on the batch's RGB pixels."""
     event_window_min_fraction: float = 0.25
     """stream: each event pixel's window is a random sub-window of its frame's event window, its length uniform in
     [this, 1] of the window (1: whole frame windows)."""
@@ -219,6 +248,22 @@ class AgriNeRFModelConfig(ModelConfig):
     """Offset of the event response log(Y + eps), in the linear units of the rendered colour."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
     """Camera pose refinement (off by default)."""
+    blur_kernel: Literal["trajectory", "learnt"] = "trajectory"
+    """The blur model's kernel (`blur_samples` rays per blurred pixel, from `blur_start_step`). trajectory: poses from
+    the rig's known trajectory at equal parts of the exposure, equal weights (what a rig with poses can afford).
+    learnt: EvDeblurNeRF's (DP-NeRF's) rigid blur kernel, the frame ray and `blur_samples` - 1 copies moved by learnt
+    SE(3) motions, blended with learnt weights, from a per-image latent code (`model/rigid_blur.py`; EvDeblurNeRF: 10
+    rays from step 1200); needs no trajectory. Its adaptive weight proposal is not reproduced."""
+    event_crf: bool = False
+    """Pairs supervision: learn EvDeblurNeRF's event camera response (`model/event_crf.py`; an MLP on each linear
+    channel and the successor's polarity, fit to the identity first) from `event_crf_start_step`."""
+    event_crf_start_step: int = 1200
+    """Step from which the event response is learnt (the identity before; EvDeblurNeRF: 1200)."""
+    edi_prior: bool = False
+    """EvDeblurNeRF's EDI prior: the frame ray's colour against the event-deblurred frame (`model/edi_prior.py`:
+    events at the event camera's pixel that sees the RGB pixel on the alignment plane, 9 times across the exposure),
+    weight 0.01 decayed on a cosine to 1e-5 over 10k steps (times `loss_coefficients.edi_prior_loss`), from step 0.
+    Needs the event stream, its calibration and the frames' exposures."""
 
 
 class AgriNeRFModel(Model):
@@ -259,6 +304,8 @@ class AgriNeRFModel(Model):
             )
         # dataset temperatures in degrees C (mean_c, std_c, min_c, max_c): only with a radiometric calibration
         self.temperature_stats: Optional[Dict[str, float]] = metadata.get("temperature_stats")
+        # metres per scene unit, where the dataset's poses are metric (dataparser metadata; None: unknown scale)
+        self.metres_per_unit: Optional[float] = metadata.get("metres_per_unit")
         self.has_temperature = self.use_thermal and config.temperature_output and self.temperature_stats is not None
         # timing of the training frames (dataparser metadata): what the blur model and the event loss need
         self.frame_times: Optional[Tensor] = metadata.get("times")
@@ -269,7 +316,11 @@ class AgriNeRFModel(Model):
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
         self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
         timed = self.trajectory is not None and self.frame_times is not None
-        self.use_blur = self.use_rgb and timed and self.exposure is not None and config.blur_samples > 1
+        self.use_blur = (
+            self.use_rgb
+            and config.blur_samples > 1
+            and (config.blur_kernel == "learnt" or (timed and self.exposure is not None))
+        )
         self.use_event_loss = (
             self.use_rgb
             and self.use_events
@@ -288,6 +339,21 @@ class AgriNeRFModel(Model):
         self.event_stream: Optional[EventStream] = None
         if self.use_event_loss and config.event_supervision == "stream" and self.event_camera_native is not None:
             self.event_stream = self.event_camera_native.stream()
+        self.event_pairs: Optional[EventPairs] = None
+        if self.use_event_loss and config.event_supervision == "pairs" and self.event_camera_native is not None:
+            native = self.event_camera_native
+            self.event_pairs = EventPairs.from_h5(native.path, native.width, native.height)
+        # the EDI prior's counts at the event pixels (EventStream), where its inputs are all there
+        self.edi_stream: Optional[EventStream] = None
+        if (
+            config.edi_prior
+            and self.use_rgb
+            and self.use_events
+            and timed
+            and self.exposure is not None
+            and self.event_camera_native is not None
+        ):
+            self.edi_stream = self.event_stream or self.event_camera_native.stream()
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         self._loss_means: Optional[Tuple[float, float]] = None  # running RGB and event losses (`noise` weighting)
         self.event_weight = 0.0  # the `noise` weighting's last factor, logged as a metric
@@ -320,6 +386,14 @@ class AgriNeRFModel(Model):
         self.log_event_threshold: Optional[Parameter] = None  # ON, OFF (config `event_threshold_learnt`)
         if self.use_event_loss and cfg.event_threshold_learnt:
             self.log_event_threshold = Parameter(torch.full((2,), math.log(cfg.event_threshold)))
+        self.blur_kernel: Optional[RigidBlurKernel] = None  # EvDeblurNeRF's learnt kernel (config `blur_kernel`)
+        self.event_crf: Optional[EventCRF] = None  # EvDeblurNeRF's learnt event response (config `event_crf`)
+        with torch.random.fork_rng(devices=[]):  # optional parts leave the field's (and the batches') draws alone
+            torch.manual_seed(SIDE_STREAM_SEED)
+            if self.use_blur and cfg.blur_kernel == "learnt":
+                self.blur_kernel = RigidBlurKernel(self.num_train_data, num_motions=cfg.blur_samples - 1)
+            if self.event_pairs is not None and cfg.event_crf:
+                self.event_crf = EventCRF()
 
         # fields
         self.field = AgriNeRFField(
@@ -347,8 +421,17 @@ class AgriNeRFModel(Model):
             vm_lookup=cfg.vm_lookup,
         )
 
+        # the first full-resolution box: around the dataset's SfM points where it has them (refitted in training)
+        points = (self.kwargs.get("metadata") or {}).get("points3D_xyz")
+        if self.field.mapping is not None and points is not None:
+            box = fit_box(torch.as_tensor(points, dtype=torch.float32))
+            if box is not None:
+                self.field.refit_box(box, cfg.box_grid_fraction, cfg.init_resolution)
+
         # samplers
-        if cfg.scene_contraction:
+        if cfg.scene_contraction and cfg.coarse_sampler == "box":
+            self.sampler_coarse = BoxPiecewiseSampler(cfg.num_coarse_samples, box=self.field.full_resolution_box)
+        elif cfg.scene_contraction:
             self.sampler_coarse = UniformLinDispPiecewiseSampler(
                 num_samples=cfg.num_coarse_samples, single_jitter=False
             )
@@ -390,6 +473,10 @@ class AgriNeRFModel(Model):
         }
         if self.log_event_threshold is not None:
             groups["fields"].append(self.log_event_threshold)
+        if self.blur_kernel is not None:
+            groups["blur_kernel"] = list(self.blur_kernel.parameters())
+        if self.event_crf is not None:
+            groups["event_crf"] = list(self.event_crf.parameters())
         self.camera_optimizer.get_param_groups(param_groups=groups)
         return groups
 
@@ -400,19 +487,61 @@ class AgriNeRFModel(Model):
         return self.config.init_resolution if done == 0 else self.upsampling_resolutions[done - 1]
 
     def upsample_volumes(self, resolution: int) -> None:
-        """Resample every volume to `resolution` (Nerfstudio's `upsample_grid`: new Parameters)."""
+        """Resample every volume to the per-axis resolution of a `resolution`^3 budget (new Parameters)."""
+        target = self.field.axis_resolution(resolution)
         for volume in self.field.volumes().values():
-            if volume.resolution != resolution:
-                volume.upsample_grid(resolution)
+            if volume.resolution != target:
+                volume.upsample_grid(target)
 
-    def update_to_step(self, step: int) -> None:
-        """Replays the schedule before a checkpoint of step `step` loads (its volumes have that step's size)."""
-        self.upsample_volumes(self.resolution_at_step(step))
+    @torch.no_grad()
+    def fit_box(self, cameras: Any, step: int) -> Optional[Tensor]:
+        """Fit the full-resolution box to the median-depth points of `box_fit_rays` training rays of `cameras` (drawn
+        with a generator seeded by `step`, so the global random stream is untouched) and resample the volumes into it
+        at the current resolution; returns the new box, or None when too few rays hit anything (box kept)."""
+        if self.field.mapping is None:
+            return None
+        gen = torch.Generator().manual_seed(SIDE_STREAM_SEED + step)
+        n = self.config.box_fit_rays
+        index = torch.randint(0, cameras.shape[0], (n,), generator=gen)
+        heights, widths = cameras.height[index, 0].float(), cameras.width[index, 0].float()
+        rows = (torch.rand(n, generator=gen) * heights).floor() + 0.5
+        cols = (torch.rand(n, generator=gen) * widths).floor() + 0.5
+        bundle = cameras.generate_rays(camera_indices=index[:, None], coords=torch.stack([rows, cols], -1))
+        bundle = bundle.to(self.device)
+        points, weights, origins = [], [], []
+        was_training = self.training
+        self.eval()
+        try:
+            for start in range(0, n, self.config.eval_num_rays_per_chunk):
+                part = self.collider(bundle[start : start + self.config.eval_num_rays_per_chunk])
+                out = self._render(part, routed=False, heads=())
+                points.append(part.origins + part.directions * out["depth"])
+                weights.append(out["accumulation"][:, 0])
+                origins.append(part.origins)
+        finally:
+            self.train(was_training)
+        box = fit_box(torch.cat(points), torch.cat(weights), torch.cat(origins), depth_cut=self.config.box_depth_cut)
+        if box is None:
+            return None
+        old = self.field.full_resolution_box()
+        centre, reach = old.mean(dim=0), (old[1] - old[0]) / 2 * self.config.box_fit_growth
+        box = torch.stack([torch.maximum(box[0], centre - reach), torch.minimum(box[1], centre + reach)])
+        if not bool((box[1] > box[0]).all()):
+            return None
+        self.field.refit_box(box, self.config.box_grid_fraction, self.resolution_at_step(step))
+        if self.occupancy_updated(step):
+            self.field.update_occupancy(self.config.occupancy_density_threshold)
+        return box
 
-    def sync_optimizers(self, optimizers: Optimizers) -> int:
-        """Point every optimizer at this model's current Parameters (upsampling replaces them); returns how many
-        were replaced. Adam moments move with a Parameter when their shape still fits (a checkpoint loaded after
-        `update_to_step`), and are dropped otherwise (right after an upsampling step: Adam re-initialises them).
+    def occupancy_updated(self, step: int) -> bool:
+        """Whether the occupancy grid has been computed after training step `step` (an update step has run)."""
+        return self.config.occupancy_resolution > 0 and any(it <= step for it in self.config.occupancy_update_iters)
+
+    def sync_optimizers(self, optimizers: Optimizers, keep_moments: bool = True) -> int:
+        """Point every optimizer at this model's current Parameters (upsampling and box fits replace them); returns how
+        many were replaced. Adam moments move with a Parameter when their shape still fits (a checkpoint loaded into
+        volumes its pre-hooks resized) and `keep_moments`, and are dropped otherwise (after an upsampling step or a box
+        fit, whose moments belong to other places: Adam re-initialises them).
         """
         current = self.get_param_groups()
         replaced = 0
@@ -427,7 +556,7 @@ class AgriNeRFModel(Model):
                     continue
                 state = optimizer.state.pop(old, None)
                 moments = [v for v in (state or {}).values() if isinstance(v, Tensor) and v.dim() > 0]
-                if state is not None and all(v.shape == new.shape for v in moments):
+                if keep_moments and state is not None and all(v.shape == new.shape for v in moments):
                     optimizer.state[new] = state
                 params[i] = new
                 replaced += 1
@@ -439,8 +568,8 @@ class AgriNeRFModel(Model):
     ) -> List[TrainingCallback]:
         """Upsampling of all volumes (optimizers re-pointed) and occupancy updates.
 
-        Called after a checkpoint has loaded: the optimizers, built before `update_to_step` replaced the volumes'
-        Parameters, are re-pointed here first (their loaded moments already have the new size).
+        Called after a checkpoint has loaded: the optimizers, built before the checkpoint's load hooks resized the
+        volumes' Parameters, are re-pointed here first (their loaded moments already have the new size).
         """
         optimizers = training_callback_attributes.optimizers
         if optimizers is not None:
@@ -455,6 +584,14 @@ class AgriNeRFModel(Model):
             del step
             self.field.update_occupancy(self.config.occupancy_density_threshold)
 
+        def refit_box(step: int) -> None:
+            pipeline = training_callback_attributes.pipeline
+            dataset = getattr(getattr(pipeline, "datamanager", None), "train_dataset", None)
+            if dataset is None or self.fit_box(dataset.cameras, step) is None:
+                return
+            if optimizers is not None:
+                self.sync_optimizers(optimizers, keep_moments=False)
+
         def keep_step(step: int) -> None:
             self.step = step
 
@@ -468,6 +605,14 @@ class AgriNeRFModel(Model):
                 func=upsample,
             ),
         ]
+        if self.field.mapping is not None and self.config.box_fit_iters:
+            callbacks.append(
+                TrainingCallback(
+                    where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
+                    iters=tuple(self.config.box_fit_iters),
+                    func=refit_box,
+                )
+            )
         if self.config.occupancy_resolution > 0 and self.config.occupancy_update_iters:
             callbacks.append(
                 TrainingCallback(
@@ -493,9 +638,15 @@ class AgriNeRFModel(Model):
         outputs = self._render(ray_bundle)
         if self.training and torch.is_grad_enabled():
             with self._side_stream():
-                if self.use_blur and self.step >= self.config.blur_start_step:
+                if self.use_blur and self.step >= self.config.blur_start_step and self.blur_kernel is not None:
+                    outputs["rgb_blurred"] = self._kernel_rgb(ray_bundle, outputs.get("rgb/rgb_loss", outputs["rgb"]))
+                elif self.use_blur and self.step >= self.config.blur_start_step:
                     outputs["rgb_blurred"] = self._blurred_rgb(ray_bundle)
-                if self.use_event_loss and self.event_stream is not None:
+                if self.edi_stream is not None:
+                    outputs.update(self._edi_outputs(ray_bundle))
+                if self.use_event_loss and self.event_pairs is not None:
+                    outputs.update(self._pair_event_logs(ray_bundle))
+                elif self.use_event_loss and self.event_stream is not None:
                     outputs.update(self._stream_event_logs(ray_bundle))
                 elif self.use_event_loss:
                     outputs["event_log_start"], outputs["event_log_end"] = self._event_window_logs(ray_bundle)
@@ -521,9 +672,8 @@ class AgriNeRFModel(Model):
         frame_times = self.frame_times[camera_rows(bundle)]
         moved = self.collider(reposed_rays(bundle, self.trajectory, frame_times, times, **camera))
         n, k = times.shape
-        return self._render(moved, routed=False, density_scale=self.density_gradient_scale(term))["rgb"].reshape(
-            n, k, 3
-        )
+        rendered = self._render(moved, routed=False, density_scale=self.density_gradient_scale(term), heads=("rgb",))
+        return rendered["rgb"].reshape(n, k, 3)
 
     def _blurred_rgb(self, bundle: RayBundle) -> Float[Tensor, "n 3"]:
         """The blur model: the mean in linear radiance of `blur_samples` renders across each frame's exposure."""
@@ -533,6 +683,80 @@ class AgriNeRFModel(Model):
         times = exposure_times(self.exposure[camera_rows(bundle)], self.config.blur_samples)
         renders = self._render_at(bundle, times, "rgb_loss")
         return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
+
+    def _kernel_rgb(self, bundle: RayBundle, frame_rgb: Float[Tensor, "n 3"]) -> Float[Tensor, "n 3"]:
+        """The learnt blur kernel: the frame ray's colour and the renders of its learnt rigid motions, blended in linear
+        radiance with the learnt weights (`model/rigid_blur.py`)."""
+        from agrinerf_ns.model.rigid_blur import blend, warp_rays
+        from agrinerf_ns.model.timed_rays import camera_rows
+
+        assert self.blur_kernel is not None
+        rotation, translation, weights = self.blur_kernel(camera_rows(bundle).to(frame_rgb.device))
+        origins, directions = warp_rays(bundle.origins, bundle.directions, rotation, translation)
+        n, m = origins.shape[:2]
+        assert bundle.camera_indices is not None
+        moved = RayBundle(
+            origins=origins.reshape(n * m, 3),
+            directions=directions.reshape(n * m, 3),
+            pixel_area=bundle.pixel_area.repeat_interleave(m, dim=0),
+            camera_indices=bundle.camera_indices.repeat_interleave(m, dim=0),
+        )
+        scale = self.density_gradient_scale("rgb_loss")
+        renders = self._render(self.collider(moved), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
+            n, m, 3
+        )
+        linear = losses.srgb_to_linear(torch.cat([frame_rgb[:, None, :], renders], dim=1))
+        return losses.linear_to_srgb(blend(linear, weights))
+
+    def _edi_outputs(self, bundle: RayBundle) -> Dict[str, Tensor]:
+        """The EDI prior's per-ray factor (the blurred value over it is the sharp mid-exposure value) and where the
+        event camera sees the pixel (`model/edi_prior.py`)."""
+        from agrinerf_ns.model.timed_rays import camera_rows
+
+        assert self.edi_stream is not None and self.event_camera_native is not None
+        assert self.trajectory is not None and self.frame_times is not None and self.exposure is not None
+        rows = camera_rows(bundle)
+        pose = self.trajectory.poses_at_tensor(self.frame_times[rows].double(), dtype=torch.float64)
+        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double().cpu()[..., None])[..., 0]
+        depth = float(self.event_camera.get("plane_depth", math.inf))
+        pixel, inside = edi_prior.event_pixels(self.event_camera_native, local, depth)
+        c_on, c_off = (float(c) for c in self._event_thresholds())
+        factor = edi_prior.edi_factors(self.edi_stream, pixel, self.exposure[rows], c_on, c_off)
+        device = bundle.origins.device
+        return {"edi_factor": factor.to(device), "edi_valid": inside.float()[:, None].to(device)}
+
+    def _pair_event_logs(self, like: RayBundle) -> Dict[str, Tensor]:
+        """`event_rays_per_batch` EvDeblurNeRF event samples (`model/event_pairs.py`) rendered along the event camera's
+        rays at both events' times: their log luma (after the learnt response, from its start step) and targets."""
+        from agrinerf_ns.model.event_crf import event_log_luma
+        from agrinerf_ns.model.event_pairs import pair_targets, polarity_features
+        from agrinerf_ns.model.event_stream import event_rays
+
+        assert self.event_pairs is not None and self.trajectory is not None and self.frame_times is not None
+        assert self.event_camera_native is not None
+        pixel, t0, t1, polarity = self.event_pairs.sample(self.config.event_rays_per_batch)
+        m = int(pixel.shape[0])
+        if m == 0:  # a stream without two events at any pixel: no sample, no loss
+            return {}
+        times = torch.stack([t0, t1], -1).double() * 1e-6
+        origins, directions = event_rays(self.trajectory, self.event_camera_native, pixel, times)
+        frames = (times[:, :1] - self.frame_times.double()[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
+        device, dtype = like.origins.device, like.origins.dtype
+        bundle = RayBundle(
+            origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
+            camera_indices=frames.repeat_interleave(2)[:, None].to(device),
+        )
+        scale = self.density_gradient_scale("event_loss")
+        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
+            m, 2, 3
+        )
+        crf = self.event_crf if self.step >= self.config.event_crf_start_step else None
+        features = polarity_features(polarity).to(device)
+        logs = event_log_luma(losses.srgb_to_linear(rgb), self.config.event_log_eps, crf, features)
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1],
+                "event_target": pair_targets(polarity, *self._event_thresholds()).to(device)}  # fmt: skip
 
     def _stream_event_logs(self, like: RayBundle) -> Dict[str, Tensor]:
         """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
@@ -557,7 +781,9 @@ class AgriNeRFModel(Model):
             camera_indices=frames.repeat_interleave(2)[:, None].to(device),
         )
         scale = self.density_gradient_scale("event_loss")
-        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale)["rgb"].reshape(m, 2, 3)
+        rgb = self._render(self.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
+            m, 2, 3
+        )
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
                 "event_off": off.to(device)}  # fmt: skip
@@ -576,10 +802,18 @@ class AgriNeRFModel(Model):
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]
 
-    def _render(self, ray_bundle: RayBundle, routed: bool = True, density_scale: float = 1.0) -> Dict[str, Tensor]:
+    def _render(
+        self,
+        ray_bundle: RayBundle,
+        routed: bool = True,
+        density_scale: float = 1.0,
+        heads: Optional[Tuple[str, ...]] = None,
+    ) -> Dict[str, Tensor]:
         """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold.
         `routed`: add the training-only routed copies of the outputs (`density_gradient_scales`). `density_scale`:
-        scale of the gradient every output sends the density (the renders of one loss term: blur, events)."""
+        scale of the gradient every output sends the density (the renders of one loss term: blur, events). `heads`:
+        the heads to evaluate ("rgb", "thermal"; None: all; a side render whose loss reads only "rgb" skips the
+        others)."""
         with torch.no_grad():
             samples_coarse = self.sampler_coarse(ray_bundle)
             density_coarse, _ = self.field.get_density(samples_coarse)
@@ -598,11 +832,13 @@ class AgriNeRFModel(Model):
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
         every_sample = float(selected.float().mean()) >= DENSE_HEADS_FRACTION
-        if every_sample:  # heads on all samples, masked after: the volumes reuse the density's transposed lookups
-            flat_values = self.field.appearance_at(coords.reshape(-1, 3), directions.reshape(-1, 3), corners)
+        if heads is not None and not heads:
+            flat_values = {}
+        elif every_sample:  # heads on all samples, masked after: the volumes reuse the density's transposed lookups
+            flat_values = self.field.appearance_at(coords.reshape(-1, 3), directions.reshape(-1, 3), corners, heads)
         else:
             flat_values = self.field.appearance_at(
-                coords[selected], directions[selected], corners.select(selected.reshape(-1))
+                coords[selected], directions[selected], corners.select(selected.reshape(-1)), heads
             )
 
         dense: Dict[str, Tensor] = {}  # per output: the head's values at every sample (zero where not selected)
@@ -630,6 +866,14 @@ class AgriNeRFModel(Model):
         }
         outputs["depth"] = self.renderer_depth(weights, samples)
         outputs["accumulation"] = accumulation
+        if not self.training:  # where the weight falls and how fine the grid is there (`grid_diagnostics`)
+            positions = samples.frustums.get_positions()
+            inside = self.field.full_resolution(positions).to(weights.dtype)[..., None]
+            outputs["full_resolution_weight"] = (weights * inside).sum(dim=-2)
+            surface = ray_bundle.origins + ray_bundle.directions * outputs["depth"]
+            outputs["voxel_size"] = self.field.voxel_size(surface).amax(dim=-1, keepdim=True)
+            final = self.field.axis_resolution(self.config.final_resolution)
+            outputs["voxel_size_final"] = self.field.voxel_size(surface, final).amax(dim=-1, keepdim=True)
         if routed and self.training and torch.is_grad_enabled():
             outputs.update(self._routed_outputs(weights, dense))
         if not self.training:
@@ -689,7 +933,14 @@ class AgriNeRFModel(Model):
         image = batch["image"][..., :3].to(self.device) if "image" in batch else None
         if self.use_rgb and image is not None:
             terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", pred("rgb_loss")), image)
-        if "event_on" in outputs:  # the stream's event pixels carry their own counts
+        if "edi_factor" in outputs and image is not None:  # EvDeblurNeRF's EDI prior on the frame ray
+            sharp = losses.linear_to_srgb(losses.srgb_to_linear(image) / outputs["edi_factor"])
+            terms["edi_prior_loss"] = losses.masked_mse(pred("edi_prior_loss"), sharp, outputs["edi_valid"])
+        if "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples
+            terms["event_loss"] = losses.event_pair_loss(
+                outputs["event_log_start"], outputs["event_log_end"], outputs["event_target"]
+            )
+        elif "event_on" in outputs:  # the stream's event pixels carry their own counts
             terms["event_loss"] = losses.event_loss(
                 outputs["event_log_start"],
                 outputs["event_log_end"],
@@ -740,12 +991,11 @@ class AgriNeRFModel(Model):
         volumes = self.field.volumes()
         if coef.get("l1_reg", 0.0) > 0:
             density = volumes["density"]
-            terms["l1_reg"] = losses.l1_volume_loss(density.plane_coef, density.line_coef)
+            terms["l1_reg"] = losses.l1_volume_loss(density.plane_table, density.line_table)
         if coef.get("tv_reg_density", 0.0) > 0:
-            terms["tv_reg_density"] = losses.tv_plane_loss(volumes["density"].plane_coef)
+            terms["tv_reg_density"] = plane_tv(volumes["density"])
         if coef.get("tv_reg_appearance", 0.0) > 0:
-            appearance = [v.plane_coef for name, v in volumes.items() if name != "density"]
-            terms["tv_reg_appearance"] = sum(losses.tv_plane_loss(p) for p in appearance)
+            terms["tv_reg_appearance"] = sum(plane_tv(v) for name, v in volumes.items() if name != "density")
         return terms
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
@@ -776,6 +1026,8 @@ class AgriNeRFModel(Model):
         coef = self.config.loss_coefficients
         # out of place (misc.scale_dict multiplies in place, which would also scale the raw terms in the metrics)
         loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
+        if "edi_prior_loss" in loss_dict:  # EvDeblurNeRF's cosine-decayed weight
+            loss_dict["edi_prior_loss"] = loss_dict["edi_prior_loss"] * edi_prior.cosine_weight(self.step)
         if "event_loss" in loss_dict and "rgb_loss" in raw and self.config.event_loss_weighting == "noise":
             loss_dict["event_loss"] = loss_dict["event_loss"] * self._event_noise_weight(raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
@@ -823,6 +1075,7 @@ class AgriNeRFModel(Model):
             "accumulation": colormaps.apply_colormap(outputs["accumulation"]),
             "depth": colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"]),
         }
+        metrics.update(self.grid_diagnostics(outputs))
         if self.use_rgb:
             gt = batch["image"][..., :3].to(self.device).float()
             pred = outputs["rgb"]
@@ -853,6 +1106,25 @@ class AgriNeRFModel(Model):
             )
         self.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
         return metrics, images
+
+    def grid_diagnostics(self, outputs: Dict[str, Tensor]) -> Dict[str, float]:
+        """How well the grids fit the scene in a rendered image: `fine_region_weight`, the share of its rendering
+        weight inside the full-resolution box, and `voxel_size_m`, the median over the rays that hit something
+        (accumulation > 0.5) of the largest side of the grid cell at the ray's median depth, in metres (NaN where the
+        dataset's scale is unknown; `voxel_size_units` in scene units); `voxel_size_final_m`: the same at the
+        preset's final resolution in the current box."""
+        if "full_resolution_weight" not in outputs:
+            return {}
+        acc = outputs["accumulation"]
+        share = outputs["full_resolution_weight"].sum() / acc.sum().clamp(min=1e-12)
+        hits = acc[..., 0] > 0.5
+        scale = float("nan") if self.metres_per_unit is None else float(self.metres_per_unit)
+        metrics = {"fine_region_weight": float(share)}
+        for key in ("voxel_size", "voxel_size_final"):
+            sizes = outputs[key][..., 0][hits] if bool(hits.any()) else outputs[key].reshape(-1)
+            metrics[f"{key}_units"] = float(sizes.median())
+            metrics[f"{key}_m"] = metrics[f"{key}_units"] * scale
+        return metrics
 
     def _thermal_metrics(
         self,

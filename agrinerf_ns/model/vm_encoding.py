@@ -1,44 +1,79 @@
-"""TensoRF VM encoding with a bilinear lookup that is cheaper to train than `grid_sample` on a CPU.
+"""TensoRF VM volume with a resolution per axis and a bilinear row lookup that is cheap to train on a CPU.
 
-`BilinearVMEncoding` is Nerfstudio's `TensorVMEncoding` (same parameters, same initialisation, same upsampling, same
-features for coordinates in [-1, 1]) with a different lookup: the planes are stored channels-last, so that a plane is
-a table of `3 * resolution**2` rows of `num_components` features, and a bilinear sample is a weighted sum of four rows
-(`F.embedding_bag`). The backward pass is a sparse matrix product: the transpose of the lookup, built once from the
-corner indices, times the gradient rows (`scatter_matrix`), where `grid_sample`'s backward scatters single values into
-channel-major planes, and `index_add_` scatters element by element.
-The corners (`VMCorners`) depend only on the coordinates and the resolution, so volumes of the same resolution share
-them and their transposed lookups (the field computes them once for its density, RGB and thermal volumes).
+`VMVolume` holds the three planes (xy, xz, yz) and three lines (z, y, x) of a VM decomposition (TensoRF's
+`TensorVMSplit`; Nerfstudio's `TensorVMEncoding` for a cube) as two channels-last tables: `plane_table`, the planes'
+texels one row each (`sum_p H_p * W_p` rows of `num_components` features), and `line_table` (`sum_p R_p` rows). Each
+axis has its own resolution, so a box that is long and flat (an orchard row) gets square voxels. A bilinear sample is
+a weighted sum of four rows (`F.embedding_bag`); its backward pass is a sparse matrix product, the transpose of the
+lookup built once from the corner indices (`scatter_matrix`), where `grid_sample`'s backward scatters single values
+into channel-major planes. The corners (`VMCorners`) depend only on the coordinates and the resolution, so volumes of
+one resolution share them and their transposed lookups (the field computes them once for all its volumes).
+
+For a cube the features, the initial values (same random draws) and the upsampling are those of Nerfstudio's
+`TensorVMEncoding`; checkpoints written with its `plane_coef` / `line_coef` layout load (`_load_legacy_layout`).
 """
 
 from __future__ import annotations
 
 import warnings
 from functools import cached_property
-from typing import Literal, NamedTuple, Optional, Tuple
+from typing import Any, Dict, List, Literal, NamedTuple, Optional, Sequence, Tuple, Union
 
 import torch
 import torch.nn.functional as F
 from jaxtyping import Bool, Float, Int
-from nerfstudio.field_components.encodings import TensorVMEncoding
 from torch import Tensor, nn
 
-_PLANE_AXES_W = (0, 0, 1)
+PLANE_AXES_W = (0, 0, 1)
 """Coordinate axis along each plane's width (Nerfstudio's plane order: xy, xz, yz; grid x is the width)."""
-_PLANE_AXES_H = (1, 2, 2)
+PLANE_AXES_H = (1, 2, 2)
 """Coordinate axis along each plane's height."""
-_LINE_AXES = (2, 1, 0)
+LINE_AXES = (2, 1, 0)
 """Coordinate axis along each line (paired with the plane that lacks it)."""
+
+Resolution = Tuple[int, int, int]
+"""Grid points along x, y and z."""
+
+
+def as_resolution(resolution: Union[int, Sequence[int]]) -> Resolution:
+    """`resolution` as three ints (one int: a cube); each must be at least 2."""
+    res = (int(resolution),) * 3 if isinstance(resolution, int) else tuple(int(r) for r in resolution)
+    if len(res) != 3 or min(res) < 2:
+        raise ValueError(f"A VM volume needs a resolution of at least 2 along each of 3 axes, got {resolution}")
+    return res  # type: ignore[return-value]
+
+
+class VMLayout(NamedTuple):
+    """Where each plane and line of a volume of one resolution sits in its tables."""
+
+    plane_shapes: Tuple[Tuple[int, int], ...]
+    """(height, width) of each plane."""
+    plane_offsets: Tuple[int, ...]
+    """First table row of each plane, and the row count at the end."""
+    line_offsets: Tuple[int, ...]
+    """First table row of each line, and the row count at the end."""
+
+    @staticmethod
+    def of(resolution: Resolution) -> "VMLayout":
+        shapes = tuple((resolution[h], resolution[w]) for h, w in zip(PLANE_AXES_H, PLANE_AXES_W, strict=True))
+        plane_offsets = [0]
+        for h, w in shapes:
+            plane_offsets.append(plane_offsets[-1] + h * w)
+        line_offsets = [0]
+        for axis in LINE_AXES:
+            line_offsets.append(line_offsets[-1] + resolution[axis])
+        return VMLayout(shapes, tuple(plane_offsets), tuple(line_offsets))
 
 
 class CornerRows(NamedTuple):
     """Table rows and weights of a lookup; row `3 * i + p` is point `i` in plane (or line) `p`."""
 
     plane_index: Int[Tensor, "n3 4"]
-    """Row of each corner in the flattened planes (`3 * resolution**2` rows)."""
+    """Row of each corner in the plane table."""
     plane_weight: Float[Tensor, "n3 4"]
     """Bilinear weight of each corner."""
     line_index: Int[Tensor, "n3 2"]
-    """Row of each end in the flattened lines (`3 * resolution` rows)."""
+    """Row of each end in the line table."""
     line_weight: Float[Tensor, "n3 2"]
     """Linear weight of each end."""
 
@@ -52,13 +87,14 @@ class VMCorners:
 
     Args:
         coords: the points, already clamped to [-1, 1] (build with `vm_corners`).
-        resolution: grid resolution the indices refer to.
+        resolution: grid resolution per axis the indices refer to.
         rows: their `CornerRows`, when already known (else computed on first use).
     """
 
-    def __init__(self, coords: Float[Tensor, "n 3"], resolution: int, rows: Optional[CornerRows] = None) -> None:
+    def __init__(self, coords: Float[Tensor, "n 3"], resolution: Resolution, rows: Optional[CornerRows] = None) -> None:
         self.coords = coords
         self.resolution = resolution
+        self.layout = VMLayout.of(resolution)
         self._rows = rows
 
     @property
@@ -69,20 +105,19 @@ class VMCorners:
     def rows(self) -> CornerRows:
         """Corner rows and weights of the points (`_corner_rows`), cached."""
         if self._rows is None:
-            self._rows = _corner_rows(self.coords, self.resolution)
+            self._rows = _corner_rows(self.coords, self.resolution, self.layout)
         return self._rows
 
     @cached_property
     def plane_scatter(self) -> Tensor:
-        """Sparse (`3 * resolution**2` x `3n`) transpose of the plane lookup (`scatter_matrix`)."""
-        res, rows = self.resolution, self.rows
-        return scatter_matrix(rows.plane_index[:, 0], (0, 1, res, res + 1), rows.plane_weight, 3 * res * res)
+        """Sparse (plane rows x `3n`) transpose of the plane lookup (`scatter_matrix`)."""
+        offsets = [(0, 1, w, w + 1) for _, w in self.layout.plane_shapes]
+        return scatter_matrix(self.rows.plane_index[:, 0], offsets, self.rows.plane_weight, self.layout.plane_offsets)
 
     @cached_property
     def line_scatter(self) -> Tensor:
-        """Sparse (`3 * resolution` x `3n`) transpose of the line lookup (`scatter_matrix`)."""
-        rows = self.rows
-        return scatter_matrix(rows.line_index[:, 0], (0, 1), rows.line_weight, 3 * self.resolution)
+        """Sparse (line rows x `3n`) transpose of the line lookup (`scatter_matrix`)."""
+        return scatter_matrix(self.rows.line_index[:, 0], [(0, 1)] * 3, self.rows.line_weight, self.layout.line_offsets)
 
     def select(self, mask: Bool[Tensor, " n"]) -> "VMCorners":
         """The corners of the points where `mask` is True (these corners themselves when it selects every point)."""
@@ -97,37 +132,37 @@ class VMCorners:
         return VMCorners(self.coords[mask], self.resolution, CornerRows(*(pick(t) for t in self._rows)))
 
 
-def vm_corners(coords: Float[Tensor, "n 3"], resolution: int) -> VMCorners:
+def vm_corners(coords: Float[Tensor, "n 3"], resolution: Union[int, Sequence[int]]) -> VMCorners:
     """Corners of `coords` (in [-1, 1], `align_corners=True` convention) in a VM volume of `resolution`.
 
     Coordinates outside [-1, 1] are clamped to the border and NaN is read as 0, so indices are always valid.
     """
-    res = int(resolution)
-    if res < 2:
-        raise ValueError(f"A VM volume needs a resolution of at least 2, got {res}")
+    res = as_resolution(resolution)
     dtype = torch.promote_types(coords.dtype, torch.float32)  # float16 -> float32, float64 stays
     return VMCorners(torch.nan_to_num(coords.detach().to(dtype)).clamp(-1.0, 1.0), res)
 
 
-def _corner_rows(clamped: Float[Tensor, "n 3"], res: int) -> CornerRows:
+def _corner_rows(clamped: Float[Tensor, "n 3"], res: Resolution, layout: VMLayout) -> CornerRows:
     """Plane corner rows and bilinear weights, line end rows and linear weights of clamped points."""
-    pos = (clamped + 1.0) * (0.5 * (res - 1))  # [n, 3]
-    low = pos.floor().clamp(0, res - 2)
+    device = clamped.device
+    res_t = torch.tensor(res, device=device, dtype=clamped.dtype)
+    pos = (clamped + 1.0) * (0.5 * (res_t - 1))  # [n, 3]
+    low = torch.minimum(pos.floor().clamp(min=0), res_t - 2)
     frac = pos - low  # in [0, 1]
     low = low.long()
     n = clamped.shape[0]
-    device = clamped.device
 
-    w_axes = torch.tensor(_PLANE_AXES_W, device=device)
-    h_axes = torch.tensor(_PLANE_AXES_H, device=device)
-    plane_offset = torch.arange(3, device=device) * (res * res)
-    base = plane_offset + low[:, h_axes] * res + low[:, w_axes]  # [n, 3]
-    plane_index = torch.stack((base, base + 1, base + res, base + res + 1), dim=-1)  # [n, 3, 4]
+    w_axes = torch.tensor(PLANE_AXES_W, device=device)
+    h_axes = torch.tensor(PLANE_AXES_H, device=device)
+    widths = torch.tensor([w for _, w in layout.plane_shapes], device=device)
+    plane_offset = torch.tensor(layout.plane_offsets[:3], device=device)
+    base = plane_offset + low[:, h_axes] * widths + low[:, w_axes]  # [n, 3]
+    plane_index = torch.stack((base, base + 1, base + widths, base + widths + 1), dim=-1)  # [n, 3, 4]
     fw, fh = frac[:, w_axes], frac[:, h_axes]
     plane_weight = torch.stack(((1 - fw) * (1 - fh), fw * (1 - fh), (1 - fw) * fh, fw * fh), dim=-1)
 
-    l_axes = torch.tensor(_LINE_AXES, device=device)
-    line_base = torch.arange(3, device=device) * res + low[:, l_axes]  # [n, 3]
+    l_axes = torch.tensor(LINE_AXES, device=device)
+    line_base = torch.tensor(layout.line_offsets[:3], device=device) + low[:, l_axes]  # [n, 3]
     line_index = torch.stack((line_base, line_base + 1), dim=-1)  # [n, 3, 2]
     fl = frac[:, l_axes]
     line_weight = torch.stack((1 - fl, fl), dim=-1)
@@ -138,31 +173,42 @@ def _corner_rows(clamped: Float[Tensor, "n 3"], res: int) -> CornerRows:
 
 
 def scatter_matrix(
-    base: Int[Tensor, " m"], offsets: Tuple[int, ...], weight: Float[Tensor, "m k"], rows: int
+    base: Int[Tensor, " m"],
+    offsets: Sequence[Sequence[int]],
+    weight: Float[Tensor, "m k"],
+    segments: Sequence[int],
 ) -> Tensor:
-    """Sparse CSR matrix `S` (rows x m) with `S[base[i] + offsets[k], i] = weight[i, k]`: `S @ g` adds row `i` of `g`,
-    weighted, into table rows `base[i] + offsets[k]` (the transpose of a `k`-corner lookup).
+    """Sparse CSR matrix `S` (rows x m) with `S[base[i] + offsets[s][k], i] = weight[i, k]`, where `s` is the segment
+    of table rows (`segments[s] <= base[i] < segments[s + 1]`; the last entry of `segments` is the row count) that
+    holds `base[i]`: `S @ g` adds row `i` of `g`, weighted, into the table rows of its `k` corners (the transpose of a
+    `k`-corner lookup). Corners never leave their segment (a plane's or a line's rows).
 
     Built with one sort of `base` (`m` keys, not `m * k`) and counting placement of the `k` corners.
     """
     m, k = weight.shape
+    rows = int(segments[-1])
     device = base.device
     sorted_base, order = torch.sort(base)
     count = torch.bincount(base, minlength=rows)  # [rows]: points whose first corner is that row
     start = torch.cumsum(count, 0) - count  # exclusive prefix: first sorted position of each base row
     rank = torch.arange(m, device=device) - start[sorted_base]  # position among the points of one base row
     shifted = torch.zeros(k, rows, dtype=count.dtype, device=device)  # corner j's points per table row
-    for j, off in enumerate(offsets):
-        shifted[j, off:] = count[: rows - off]
+    for s, offs in enumerate(offsets):
+        lo, hi = int(segments[s]), int(segments[s + 1])
+        for j, off in enumerate(offs):
+            if hi - lo > off:
+                shifted[j, lo + off : hi] = count[lo : hi - off]
     per_row = shifted.sum(0)
     crow = torch.zeros(rows + 1, dtype=torch.int64, device=device)
     torch.cumsum(per_row, 0, out=crow[1:])
     before = torch.cumsum(shifted, 0) - shifted  # entries of earlier corners in the same row
+    segment = torch.bucketize(sorted_base, torch.tensor(segments[1:], device=device), right=True)
+    offset_table = torch.tensor(offsets, device=device, dtype=torch.int64)  # [segments, k]
     col = torch.empty(m * k, dtype=torch.int64, device=device)
     val = torch.empty(m * k, dtype=weight.dtype, device=device)
     sorted_weight = weight[order]
-    for j, off in enumerate(offsets):
-        row = sorted_base + off
+    for j in range(k):
+        row = sorted_base + offset_table[segment, j]
         pos = crow[row] + before[j, row] + rank
         col[pos] = order
         val[pos] = sorted_weight[:, j]
@@ -220,54 +266,218 @@ VMLookup = Literal["auto", "rows", "grid_sample"]
 """How a VM volume is sampled: "rows" (weighted row sums, fastest on a CPU), "grid_sample" (Nerfstudio's lookup),
 "auto" (rows on a CPU, grid_sample elsewhere)."""
 
+AxisSource = Tensor
+"""Float [r]: for each of the r grid points along one axis of a resampled volume, the coordinate in [-1, 1] of the old
+volume it takes its value from (`VMVolume.resample`; each axis has its own r)."""
 
-class BilinearVMEncoding(TensorVMEncoding):
-    """Nerfstudio's `TensorVMEncoding` with a row-gather bilinear lookup (see the module docstring).
+
+class VMVolume(nn.Module):
+    """A TensoRF VM volume (three planes, three lines) with one resolution per axis (see the module docstring).
 
     Args:
-        resolution: initial resolution of the grid.
+        resolution: grid points per axis (x, y, z), or one int for a cube.
         num_components: components per plane and line.
-        init_scale: scale of the random initialisation.
+        init_scale: scale of the random initialisation (normal, as Nerfstudio's `TensorVMEncoding`).
         lookup: see `VMLookup`.
     """
 
+    res: Int[Tensor, "3"]
+    """The resolution, a buffer, so that a checkpoint restores the tables' shapes before their values."""
+
     def __init__(
-        self, resolution: int = 128, num_components: int = 24, init_scale: float = 0.1, lookup: VMLookup = "auto"
+        self,
+        resolution: Union[int, Sequence[int]] = 128,
+        num_components: int = 24,
+        init_scale: float = 0.1,
+        lookup: VMLookup = "auto",
     ) -> None:
-        super().__init__(resolution=resolution, num_components=num_components, init_scale=init_scale)
+        super().__init__()
         if lookup not in ("auto", "rows", "grid_sample"):
             raise ValueError(f"Unknown VM lookup {lookup!r}; expected 'auto', 'rows' or 'grid_sample'")
+        res = as_resolution(resolution)
+        self.num_components = int(num_components)
         self.lookup = lookup
-        self._to_channels_last()
+        self.register_buffer("res", torch.tensor(res, dtype=torch.int64))
+        comps = self.num_components
+        layout = VMLayout.of(res)
+        if len(set(res)) == 1:  # a cube: Nerfstudio's draws, `randn(3, C, R, R)` then `randn(3, C, R, 1)`
+            planes = list(init_scale * torch.randn(3, comps, res[0], res[0]))
+            lines = list(init_scale * torch.randn(3, comps, res[0], 1))
+        else:
+            planes = [init_scale * torch.randn(comps, h, w) for h, w in layout.plane_shapes]
+            lines = [init_scale * torch.randn(comps, res[a], 1) for a in LINE_AXES]
+        self.plane_table = nn.Parameter(torch.cat([p.permute(1, 2, 0).reshape(-1, comps) for p in planes]))
+        self.line_table = nn.Parameter(torch.cat([q.permute(1, 2, 0).reshape(-1, comps) for q in lines]))
+        self._register_load_state_dict_pre_hook(self._load_legacy_layout)
+
+    # ---------------------------------------------------------------- layout
+    @property
+    def resolution(self) -> Resolution:
+        """Grid points along x, y and z."""
+        return tuple(int(r) for r in self.res.tolist())  # type: ignore[return-value]
+
+    @property
+    def layout(self) -> VMLayout:
+        return VMLayout.of(self.resolution)
+
+    def get_out_dim(self) -> int:
+        return 3 * self.num_components
+
+    def planes(self, table: Optional[Tensor] = None) -> List[Float[Tensor, "h w c"]]:
+        """Views of the three planes (height, width, components) of `table` (default: this volume's plane table)."""
+        return _plane_views(self.plane_table if table is None else table, self.layout)
+
+    def lines(self) -> List[Float[Tensor, "r c"]]:
+        """Views of the three lines (length, components)."""
+        offs = self.layout.line_offsets
+        return [self.line_table[offs[p] : offs[p + 1]] for p in range(3)]
 
     def uses_rows(self) -> bool:
-        """Whether lookups gather rows (else Nerfstudio's `grid_sample`)."""
-        return self.lookup == "rows" or (self.lookup == "auto" and self.plane_coef.device.type == "cpu")
+        """Whether lookups gather rows (else `grid_sample`)."""
+        return self.lookup == "rows" or (self.lookup == "auto" and self.plane_table.device.type == "cpu")
 
-    def _to_channels_last(self) -> None:
-        """Store planes and lines channels-last, so that their row tables are views (no copy per lookup)."""
-        self.plane_coef = nn.Parameter(self.plane_coef.data.contiguous(memory_format=torch.channels_last))
-        self.line_coef = nn.Parameter(self.line_coef.data.contiguous(memory_format=torch.channels_last))
-
+    # ---------------------------------------------------------------- lookup
     def features(self, corners: VMCorners) -> Float[Tensor, "n out_dim"]:
         """Features (`3 * num_components`, Nerfstudio's order: plane-major) at precomputed corners."""
         if corners.resolution != self.resolution:
             raise ValueError(f"Corners for resolution {corners.resolution} used on a volume of {self.resolution}")
         if not self.uses_rows():
-            return super().forward(corners.coords)
-        comps = self.num_components
-        plane_table = self.plane_coef.permute(0, 2, 3, 1).reshape(-1, comps)  # [3 * res * res, comps]
-        line_table = self.line_coef.permute(0, 2, 3, 1).reshape(-1, comps)  # [3 * res, comps]
-        return vm_product(plane_table, line_table, corners).view(corners.num_points, 3 * comps)
+            return self._grid_sample_features(corners.coords)
+        return vm_product(self.plane_table, self.line_table, corners).view(corners.num_points, self.get_out_dim())
+
+    def _grid_sample_features(self, coords: Float[Tensor, "n 3"]) -> Float[Tensor, "n out_dim"]:
+        """The same features by `F.grid_sample`, one plane and line at a time (the GPU path)."""
+        feats = []
+        for p, (plane, line) in enumerate(zip(self.planes(), self.lines(), strict=True)):
+            uv = coords[:, [PLANE_AXES_W[p], PLANE_AXES_H[p]]].view(1, -1, 1, 2)
+            plane_f = F.grid_sample(plane.permute(2, 0, 1)[None], uv, align_corners=True)[0, :, :, 0]  # [C, n]
+            lc = coords[:, LINE_AXES[p]]
+            lv = torch.stack([torch.zeros_like(lc), lc], dim=-1).view(1, -1, 1, 2)
+            line_f = F.grid_sample(line.T[None, :, :, None], lv, align_corners=True)[0, :, :, 0]  # [C, n]
+            feats.append((plane_f * line_f).T)
+        return torch.cat(feats, dim=-1)
 
     def forward(self, in_tensor: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs out_dim"]:
-        """Encoding of positions in [-1, 1] (clamped there), as `TensorVMEncoding.forward`."""
+        """Features at positions in [-1, 1] (clamped there)."""
         flat = in_tensor.reshape(-1, 3)
         out = self.features(vm_corners(flat, self.resolution))
         return out.reshape(*in_tensor.shape[:-1], out.shape[-1])
 
+    # ------------------------------------------------------------ resampling
     @torch.no_grad()
-    def upsample_grid(self, resolution: int) -> None:
-        """Nerfstudio's upsampling (new Parameters), then back to channels-last."""
-        super().upsample_grid(resolution)
-        self._to_channels_last()
+    def resample(self, resolution: Union[int, Sequence[int]], sources: Optional[Sequence[AxisSource]] = None) -> None:
+        """Replace the tables (new Parameters) by the volume resampled bilinearly at `resolution`.
+
+        `sources`: per axis, where in the old volume's coordinates each new grid point takes its value (an axis-wise
+        change of the grid's mapping, e.g. a refitted scene box); default: the same coordinates, a plain up- or
+        downsampling (Nerfstudio's `upsample_grid` for a cube). Exact for the VM product at the grid points: every plane
+        and line depends on its own axes only.
+        """
+        res = as_resolution(resolution)
+        device, dtype = self.plane_table.device, self.plane_table.dtype
+        if sources is None:
+            sources = [torch.linspace(-1.0, 1.0, r, device=device, dtype=dtype) for r in res]
+        if [int(s.shape[0]) for s in sources] != list(res):
+            raise ValueError(f"resample: sources of lengths {[s.shape[0] for s in sources]} for resolution {res}")
+        src = [s.to(device=device, dtype=dtype).clamp(-1.0, 1.0) for s in sources]
+        planes = []
+        for p, plane in enumerate(self.planes()):
+            sw, sh = src[PLANE_AXES_W[p]], src[PLANE_AXES_H[p]]
+            grid = torch.stack(torch.broadcast_tensors(sw[None, :], sh[:, None]), dim=-1)[None]  # [1, H, W, 2]
+            new = F.grid_sample(plane.permute(2, 0, 1)[None], grid, mode="bilinear", align_corners=True)[0]
+            planes.append(new.permute(1, 2, 0).reshape(-1, self.num_components))
+        lines = []
+        for p, line in enumerate(self.lines()):
+            sl = src[LINE_AXES[p]]
+            grid = torch.stack([torch.zeros_like(sl), sl], dim=-1).view(1, -1, 1, 2)
+            new = F.grid_sample(line.T[None, :, :, None], grid, mode="bilinear", align_corners=True)[0, :, :, 0]
+            lines.append(new.T)
+        self.plane_table = nn.Parameter(torch.cat(planes).contiguous())
+        self.line_table = nn.Parameter(torch.cat(lines).contiguous())
+        self.res.copy_(torch.tensor(res, dtype=torch.int64))
+
+    def upsample_grid(self, resolution: Union[int, Sequence[int]]) -> None:
+        """Resample to `resolution` over the same coordinates (Nerfstudio's `upsample_grid`)."""
+        self.resample(resolution)
+
+    # ------------------------------------------------------------ checkpoints
+    def _load_legacy_layout(self, state_dict: Dict[str, Any], prefix: str, *args: Any) -> None:
+        """Before a checkpoint loads: give the tables the checkpoint's shapes (its `res`), and convert the cube layout
+        of Nerfstudio's `TensorVMEncoding` (`plane_coef` [3, C, R, R], `line_coef` [3, C, R, 1]) to tables."""
+        del args
+        plane_coef = state_dict.pop(prefix + "plane_coef", None)
+        line_coef = state_dict.pop(prefix + "line_coef", None)
+        if plane_coef is not None and line_coef is not None:
+            comps, r = plane_coef.shape[1], plane_coef.shape[-1]
+            state_dict[prefix + "plane_table"] = plane_coef.permute(0, 2, 3, 1).reshape(-1, comps)
+            state_dict[prefix + "line_table"] = line_coef.permute(0, 2, 3, 1).reshape(-1, comps)
+            state_dict.setdefault(prefix + "res", torch.tensor([r, r, r], dtype=torch.int64))
+        saved_res = state_dict.get(prefix + "res")
+        if saved_res is None:
+            return
+        res = as_resolution([int(v) for v in saved_res.tolist()])
+        if res != self.resolution:
+            layout = VMLayout.of(res)
+            device, dtype = self.plane_table.device, self.plane_table.dtype
+            comps = self.num_components
+            self.plane_table = nn.Parameter(torch.empty(layout.plane_offsets[-1], comps, device=device, dtype=dtype))
+            self.line_table = nn.Parameter(torch.empty(layout.line_offsets[-1], comps, device=device, dtype=dtype))
+            self.res.copy_(torch.tensor(res, dtype=torch.int64))
+
+
+def plane_tv(volume: VMVolume) -> Float[Tensor, ""]:
+    """Total variation of a volume's planes: the mean squared difference of neighbours along the height plus that
+    along the width, each averaged over every difference of the three planes and all components (for a cube, half of
+    Nerfstudio's `tv_loss` on the stacked planes; TensoRF's `TV_loss_density` sums a TV per plane with its own scale:
+    the loss weights absorb the constant). The gradient is written by hand (`_PlaneTV`): autograd's dense chain of
+    slices, differences and powers over every plane was most of a step at 300^3."""
+    return _PlaneTV.apply(volume.plane_table, volume.layout)
+
+
+class _PlaneTV(torch.autograd.Function):
+    """`plane_tv` with a hand-written backward: d/dP of sum(d^2) / N is 2 d / N added at the later neighbour and
+    subtracted at the earlier one, per plane, written into one gradient table."""
+
+    @staticmethod
+    def forward(ctx, table: Tensor, layout: VMLayout) -> Tensor:  # type: ignore[override]
+        n_h, n_w = _tv_counts(layout, table.shape[-1])
+        total_h = table.new_zeros(())
+        total_w = table.new_zeros(())
+        for plane in _plane_views(table, layout):
+            total_h = total_h + (plane[1:] - plane[:-1]).pow(2).sum()
+            total_w = total_w + (plane[:, 1:] - plane[:, :-1]).pow(2).sum()
+        ctx.save_for_backward(table)
+        ctx.layout = layout
+        return total_h / max(n_h, 1) + total_w / max(n_w, 1)
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor) -> Tuple[Optional[Tensor], None]:  # type: ignore[override]
+        (table,) = ctx.saved_tensors
+        layout: VMLayout = ctx.layout
+        n_h, n_w = _tv_counts(layout, table.shape[-1])
+        grad = torch.zeros_like(table)
+        scale_h = 2.0 * grad_out / max(n_h, 1)
+        scale_w = 2.0 * grad_out / max(n_w, 1)
+        for plane, g in zip(_plane_views(table, layout), _plane_views(grad, layout), strict=True):
+            dh = (plane[1:] - plane[:-1]).mul_(scale_h)
+            g[1:] += dh
+            g[:-1] -= dh
+            dw = (plane[:, 1:] - plane[:, :-1]).mul_(scale_w)
+            g[:, 1:] += dw
+            g[:, :-1] -= dw
+        return grad, None
+
+
+def _plane_views(table: Float[Tensor, "rows c"], layout: VMLayout) -> List[Float[Tensor, "h w c"]]:
+    """The (height, width, components) views of the planes in a plane table."""
+    return [
+        table[layout.plane_offsets[p] : layout.plane_offsets[p + 1]].view(h, w, -1)
+        for p, (h, w) in enumerate(layout.plane_shapes)
+    ]
+
+
+def _tv_counts(layout: VMLayout, comps: int) -> Tuple[int, int]:
+    """Differences along the height and along the width over all planes and components."""
+    n_h = sum((h - 1) * w for h, w in layout.plane_shapes) * comps
+    n_w = sum(h * (w - 1) for h, w in layout.plane_shapes) * comps
+    return n_h, n_w

@@ -26,8 +26,9 @@ import yaml
 
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.process import readers
+from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.event_h5 import EventH5Writer
-from agrinerf_ns.process.readers import RawInputError
+from agrinerf_ns.process.readers import read_time_list
 
 ECD_FILES = ("events.txt", "images.txt", "images", "groundtruth.txt", "calib.txt")
 
@@ -53,21 +54,12 @@ def read_ecd_images(ecd: Path) -> Tuple[List[Path], np.ndarray]:
     path = ecd / "images.txt"
     frames: List[Path] = []
     times: List[float] = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
-        parts = line.split()
-        if not parts or parts[0].startswith("#"):
-            continue
-        if len(parts) != 2:
-            raise RawInputError(f"{path}:{lineno}: expected '<time> <image path>', got {line!r}")
-        try:
-            t = float(parts[0])
-        except ValueError as err:
-            raise RawInputError(f"{path}:{lineno}: time {parts[0]!r} is not a number") from err
-        frame = ecd / parts[1]
+    for row in read_time_list(path, ("time", "image path"), name_column=1):
+        frame = ecd / row.name
         if not frame.is_file():
-            raise RawInputError(f"{path}:{lineno}: image {frame} does not exist")
+            raise RawInputError(f"{path}:{row.lineno}: image {frame} does not exist")
         frames.append(frame)
-        times.append(t)
+        times.append(row.times[0])
     if not frames:
         raise RawInputError(f"{path}: no images listed")
     t_arr = np.asarray(times)

@@ -19,7 +19,7 @@ from typing import BinaryIO, Dict, Iterator, Optional, Tuple
 import numpy as np
 from jaxtyping import Int64, Integer, UInt8, UInt16
 
-from agrinerf_ns.process.readers import RawInputError
+from agrinerf_ns.process.errors import RawInputError
 
 
 @dataclass

@@ -12,7 +12,8 @@ from typing import Any, Dict, Literal, Optional, Tuple
 import numpy as np
 from jaxtyping import Float
 
-from agrinerf_ns.process.readers import FrameList, RawInputError
+from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.readers import FrameList, read_time_list
 
 EXPOSURES_FILE = "exposures.txt"
 TimestampAt = Literal["middle", "start", "end"]
@@ -25,24 +26,14 @@ def read_exposures(rgb_dir: Path, frames: FrameList) -> Optional[Float[np.ndarra
     if not path.is_file():
         return None
     by_name: Dict[str, Tuple[float, float]] = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        parts = line.split()
-        if len(parts) != 3:
-            raise RawInputError(
-                f"{path}:{lineno}: expected '<file name> <exposure start> <exposure end>', got {line!r}"
-            )
-        try:
-            start, end = float(parts[1]), float(parts[2])
-        except ValueError as err:
-            raise RawInputError(f"{path}:{lineno}: exposure times {parts[1]!r} {parts[2]!r} are not numbers") from err
-        if not (np.isfinite(start) and np.isfinite(end)) or end < start:
-            raise RawInputError(f"{path}:{lineno}: exposure end {parts[2]} must be finite and >= its start {parts[1]}")
-        if parts[0] in by_name:
-            raise RawInputError(f"{path}:{lineno}: frame {parts[0]} is listed twice")
-        by_name[parts[0]] = (start, end)
+    columns = ("file name", "exposure start", "exposure end")
+    for row in read_time_list(path, columns, what="exposure times"):
+        start, end = row.times
+        if end < start:
+            raise RawInputError(f"{path}:{row.lineno}: exposure end {end} must be finite and >= its start {start}")
+        if row.name in by_name:
+            raise RawInputError(f"{path}:{row.lineno}: frame {row.name} is listed twice")
+        by_name[row.name] = (start, end)
     missing = [p.name for p in frames.paths if p.name not in by_name]
     if missing:
         raise RawInputError(

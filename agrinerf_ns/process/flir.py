@@ -16,7 +16,7 @@ from typing import Dict
 import numpy as np
 from jaxtyping import Float, UInt16
 
-from agrinerf_ns.process.readers import RawInputError
+from agrinerf_ns.process.errors import RawInputError
 
 PLANCK_KEYS = ("planck_r1", "planck_r2", "planck_b", "planck_f", "planck_o")
 MAP = "kelvin = planck_b / ln(planck_r1 / (planck_r2 * (counts + planck_o)) + planck_f)"

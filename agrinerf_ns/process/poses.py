@@ -14,7 +14,8 @@ from typing import Dict, List, Literal, Optional, Tuple
 import numpy as np
 from jaxtyping import Float
 
-from agrinerf_ns.process.readers import RawInputError, read_tum
+from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.readers import read_tum
 
 
 def opencv_to_opengl(c2w: Float[np.ndarray, "*b 4 4"]) -> Float[np.ndarray, "*b 4 4"]:

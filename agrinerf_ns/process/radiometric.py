@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.process import flir
-from agrinerf_ns.process.readers import RawInputError
+from agrinerf_ns.process.errors import RawInputError
 
 LINEAR_KEYS = ("counts_at_0c", "counts_per_kelvin")
 

@@ -28,8 +28,9 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.atomic import atomic_output_dir
+from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.event_h5 import EventH5Writer
-from agrinerf_ns.process.readers import RawInputError, read_calibration
+from agrinerf_ns.process.readers import read_calibration
 
 
 @dataclass

@@ -16,7 +16,8 @@ from typing import Dict, Literal, Optional
 import numpy as np
 from jaxtyping import Float
 
-from agrinerf_ns.process.readers import RawInputError, TriggerEvents
+from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.readers import TriggerEvents
 
 
 @dataclass(frozen=True)

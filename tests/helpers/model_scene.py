@@ -103,6 +103,8 @@ def tiny_trainer_config(data: Path, output_dir: Path, max_num_iterations: int = 
         mlp_width=32,
         occupancy_resolution=16,
         occupancy_update_iters=(),
+        box_fit_iters=(10,),  # the box is fitted to the scene within a short run: every run loaded in tests has one
+        box_fit_rays=1024,
         eval_num_rays_per_chunk=4096,
     )
     small.update(model_overrides)

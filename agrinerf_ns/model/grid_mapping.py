@@ -1,0 +1,154 @@
+"""Where the field's grids are at full resolution: a box fitted to the scene, contracted per axis outside it.
+
+`BoxContraction` maps world points to grid coordinates in [-1, 1]. Inside the box (|u|_inf <= 1, u = (x - centre) /
+half) the map is linear, `c = inner * u`, so the box spans the fraction `inner` of the grid along every axis; outside
+it each axis is contracted on its own, `c = sign(u) (inner + (1 - inner)(1 - 1/|u|))`, so sky and far trees still land
+in the grid (mip-NeRF 360's contraction, per axis rather than with a norm). Because every axis is mapped on its own, a
+VM volume (planes and lines of the axes) can be resampled exactly into a new box (`VMVolume.resample`).
+
+`fit_box` chooses the box from where the scene is: the surface points of rendered rays (each ray's median depth) or
+SfM points, without the far background (sky, hedges: beyond `depth_cut` times the median depth), by weighted per-axis
+quantiles (TensoRF refits its grid to the occupied box the same way: `updateAlphaMask` + `shrink`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence, Tuple
+
+import torch
+from jaxtyping import Bool, Float
+from torch import Tensor, nn
+
+START_INNER = 0.5
+"""Grid fraction of the first box (the scene box around the cameras, before any fit): the share of today's
+L-inf contraction, so that the far scene has a usable resolution until the box is fitted."""
+
+
+class BoxContraction(nn.Module):
+    """World -> grid coordinates: a box at full resolution, each axis contracted on its own outside it.
+
+    Args:
+        box: (2, 3) world lo / hi corners of the box.
+        inner: fraction of the grid (per axis) the box spans.
+    """
+
+    centre: Float[Tensor, "3"]
+    radius: Float[Tensor, "3"]
+    inner: Float[Tensor, ""]
+
+    def __init__(self, box: Float[Tensor, "2 3"], inner: float = START_INNER) -> None:
+        super().__init__()
+        self.register_buffer("centre", torch.zeros(3))
+        self.register_buffer("radius", torch.ones(3))
+        self.register_buffer("inner", torch.tensor(float(inner)))
+        self.set_box(box, inner)
+
+    @torch.no_grad()
+    def set_box(self, box: Float[Tensor, "2 3"], inner: float) -> None:
+        box = box.detach().to(self.centre)
+        if not (0.0 < inner < 1.0) or not bool(torch.isfinite(box).all()) or not bool((box[1] > box[0]).all()):
+            raise ValueError(f"A grid box needs finite corners lo < hi and 0 < inner < 1, got {box.tolist()}, {inner}")
+        self.centre.copy_((box[0] + box[1]) / 2)
+        self.radius.copy_((box[1] - box[0]) / 2)
+        self.inner.fill_(float(inner))
+
+    def box(self) -> Float[Tensor, "2 3"]:
+        """World lo / hi corners of the full-resolution box."""
+        return torch.stack([self.centre - self.radius, self.centre + self.radius])
+
+    def unit(self, positions: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
+        """Positions in box units: the box is [-1, 1]^3."""
+        return (positions - self.centre) / self.radius
+
+    def forward(self, positions: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
+        """Grid coordinates in [-1, 1] (+-1 only at infinity)."""
+        return contract_axes(self.unit(positions), float(self.inner))
+
+    def inverse(self, coords: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
+        """World positions of grid coordinates in (-1, 1) (+-1 maps to a large finite distance)."""
+        return uncontract_axes(coords, float(self.inner)) * self.radius + self.centre
+
+    def full_resolution(self, positions: Float[Tensor, "*bs 3"]) -> Bool[Tensor, "*bs"]:
+        """Whether each position lies in the box, where the grid has its full resolution."""
+        return self.unit(positions).abs().amax(dim=-1) <= 1.0
+
+    def voxel_size(self, positions: Float[Tensor, "*bs 3"], resolution: Sequence[int]) -> Float[Tensor, "*bs 3"]:
+        """World size of a grid cell along each axis at `positions`, for a volume of `resolution` grid points."""
+        u = self.unit(positions).abs()
+        a = float(self.inner)
+        slope = torch.where(u <= 1.0, torch.full_like(u, a), (1.0 - a) / u.clamp(min=1.0).pow(2))  # dc/du
+        cell = 2.0 / (torch.tensor(resolution, dtype=u.dtype, device=u.device) - 1.0)
+        return cell / slope * self.radius
+
+
+def contract_axes(u: Float[Tensor, "*bs 3"], inner: float) -> Float[Tensor, "*bs 3"]:
+    """`inner * u` inside [-1, 1], `sign(u) (inner + (1 - inner)(1 - 1/|u|))` outside, per axis."""
+    mag = u.abs()
+    outer = inner + (1.0 - inner) * (1.0 - 1.0 / mag.clamp(min=1.0))
+    return torch.where(mag <= 1.0, inner * u, torch.sign(u) * outer)
+
+
+def uncontract_axes(c: Float[Tensor, "*bs 3"], inner: float, limit: float = 1.0e6) -> Float[Tensor, "*bs 3"]:
+    """The inverse of `contract_axes`; |c| >= 1 (infinity) gives +-`limit`."""
+    mag = c.abs()
+    outer = (1.0 - inner) / (1.0 - mag).clamp(min=(1.0 - inner) / limit)
+    return torch.where(mag <= inner, c / inner, torch.sign(c) * outer)
+
+
+def axis_resolution(box: Float[Tensor, "2 3"], inner: float, cube: int, minimum: int = 4) -> Tuple[int, int, int]:
+    """Grid points per axis with the voxel budget of a `cube`^3 grid and cells of one size in the box.
+
+    The box spans `inner` of every axis, so its cells have side `extent_i / (inner * res_i)`: equal sides for
+    res_i proportional to extent_i, with prod(res_i) = cube^3 (TensoRF's `N_to_reso` for a bounding box)."""
+    extent = (box[1] - box[0]).double().clamp(min=1e-9)
+    scale = float(extent.log().mean().exp())
+    res = [max(minimum, int(round(cube * float(e) / scale))) for e in extent]
+    return res[0], res[1], res[2]
+
+
+def _weighted_quantile(values: Float[Tensor, " n"], weights: Float[Tensor, " n"], q: Float[Tensor, " k"]) -> Tensor:
+    order = torch.argsort(values)
+    cdf = torch.cumsum(weights[order].double(), 0)
+    cdf = cdf / cdf[-1].clamp(min=1e-30)
+    idx = torch.searchsorted(cdf, q.double().to(cdf.device)).clamp(max=values.shape[0] - 1)
+    return values[order][idx]
+
+
+def fit_box(
+    points: Float[Tensor, "n 3"],
+    weights: Optional[Float[Tensor, " n"]] = None,
+    origins: Optional[Float[Tensor, "n 3"]] = None,
+    depth_cut: float = 2.5,
+    quantile: float = 0.01,
+    margin: float = 0.05,
+) -> Optional[Float[Tensor, "2 3"]]:
+    """The box (lo, hi) that holds the scene's surface points, or None when too few are finite.
+
+    Args:
+        points: surface points (rendered median-depth points, SfM points).
+        weights: how much each point counts (e.g. the ray's accumulation); default 1.
+        origins: the camera centre each point was seen from: points farther than `depth_cut` times the weighted median
+            distance are far background (sky, hedges, the next rows) and left out.
+        depth_cut: see `origins`.
+        quantile: weighted per-axis quantiles [q, 1 - q] bound the box (robust to stray points).
+        margin: each side moves out by this fraction of the box's largest extent.
+    """
+    weights = torch.ones(points.shape[0], device=points.device) if weights is None else weights
+    keep = torch.isfinite(points).all(dim=-1) & torch.isfinite(weights) & (weights > 0)
+    if origins is not None:
+        dist = (points - origins).norm(dim=-1)
+        keep &= torch.isfinite(dist)
+        if int(keep.sum()) >= 8:
+            median = _weighted_quantile(dist[keep], weights[keep], torch.tensor([0.5]))[0]
+            keep &= dist <= depth_cut * median
+    if int(keep.sum()) < 8:
+        return None
+    pts, w = points[keep].double(), weights[keep].double()
+    q = torch.tensor([quantile, 1.0 - quantile])
+    bounds = torch.stack([_weighted_quantile(pts[:, a], w, q) for a in range(3)], dim=-1)  # [2, 3]
+    pad = margin * float((bounds[1] - bounds[0]).max().clamp(min=1e-6))
+    box = torch.stack([bounds[0] - pad, bounds[1] + pad]).float()
+    if not bool(torch.isfinite(box).all()) or not math.isfinite(pad):
+        return None
+    return box
