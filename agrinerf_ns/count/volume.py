@@ -115,13 +115,12 @@ def render_depth_views(model: Any, cameras: Any, config: VolumeConfig) -> List[D
     return views
 
 
-def occupied_box(views: Sequence[DepthView], config: VolumeConfig, pad: float) -> Float[np.ndarray, "2 3"]:
+def occupied_box(
+    views: Sequence[DepthView], config: VolumeConfig, pad: float, field: Any = None
+) -> Float[np.ndarray, "2 3"]:
     """The scene's occupied box (Nerfstudio frame): per-axis percentiles of the views' rendered surface points within
-    ``box_max_depth`` x their median distance from their camera, padded by ``pad`` (Nerfstudio units).
-
-    TODO(full_resolution_box): where the field fits its grids to the scene, ``AgriNeRFField.full_resolution_box()``
-    gives this box; switch to it (intersected with this one, which keeps the far hedge out) once it is on main.
-    """
+    ``box_max_depth`` x their median distance from their camera, padded by ``pad`` (Nerfstudio units), and within
+    the field's full-resolution box (``AgriNeRFField.full_resolution_box``, fitted to the scene) where it has one."""
     parts, distances = [], []
     for view in views:
         parts.append(view.surface)
@@ -133,6 +132,11 @@ def occupied_box(views: Sequence[DepthView], config: VolumeConfig, pad: float) -
     near = points[distance <= config.box_max_depth * float(np.median(distance))]
     low = np.percentile(near, config.box_percentile, axis=0) - pad
     high = np.percentile(near, 100.0 - config.box_percentile, axis=0) + pad
+    if field is not None and hasattr(field, "full_resolution_box"):
+        fitted = field.full_resolution_box().detach().float().cpu().numpy().astype(np.float64)
+        inner_low, inner_high = np.maximum(low, fitted[0]), np.minimum(high, fitted[1])
+        if np.all(inner_high > inner_low):  # else the fit missed what the views render: keep theirs
+            low, high = inner_low, inner_high
     return np.stack([low, high])
 
 
@@ -351,7 +355,7 @@ def sample_field(
     no views are given), and their ``source`` feature. ``seen_margin`` and ``pad`` are in Nerfstudio units."""
     device = getattr(model, "device", "cpu")
     if box is None:
-        box = occupied_box(views, config, pad)
+        box = occupied_box(views, config, pad, model.field)
     grid = VoxelGrid.over(np.asarray(box, np.float64), config.voxel_size * frame.scale, config.max_voxels)
     flat = dense_voxels(model.field, grid, config.density_threshold, device)
     dense = len(flat)
