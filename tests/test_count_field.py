@@ -80,19 +80,30 @@ def rgb_run(tmp_path_factory) -> Path:
 
 def test_a_run_without_thermal_frames_counts_from_rgb_and_says_so(rgb_run: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "count"
-    main(CountArgs(out=out, config=rgb_run.parent, field=FieldCountConfig(volume=SMALL_GRID)))
+    main(CountArgs(out=out, config=rgb_run.parent, path="field", field=FieldCountConfig(volume=SMALL_GRID)))
     report = json.loads((out / "count.json").read_text())
     assert report["path"] == "field" and report["source"] == "rgb"
     assert "no thermal" in report["source_note"]
     assert "Counting from RGB" in capsys.readouterr().out
     assert {"fruits.csv", "fruits.ply", "fruit_map.png"} <= {p.name for p in out.iterdir()}
     with pytest.raises(SystemExit):  # the thermal output it does not have, asked for by name
-        main(CountArgs(out=tmp_path / "t", config=rgb_run, field=FieldCountConfig(source="thermal", volume=SMALL_GRID)))
+        main(
+            CountArgs(
+                out=tmp_path / "t",
+                config=rgb_run,
+                path="field",
+                field=FieldCountConfig(source="thermal", volume=SMALL_GRID),
+            )
+        )
     assert "no 'thermal' output" in capsys.readouterr().out
 
 
 def test_the_tri_modal_run_counts_from_its_thermal_camera_channel(tiny_run_config: Path, tmp_path: Path) -> None:
-    main(CountArgs(out=tmp_path / "count", config=tiny_run_config, field=FieldCountConfig(volume=SMALL_GRID)))
+    main(
+        CountArgs(
+            out=tmp_path / "count", config=tiny_run_config, path="field", field=FieldCountConfig(volume=SMALL_GRID)
+        )
+    )
     report = json.loads((tmp_path / "count" / "count.json").read_text())
     assert report["source"] == "thermal_camera" and report["views_rendered"] == 4
     assert np.prod(report["grid_shape"]) <= SMALL_GRID.max_voxels
@@ -101,10 +112,11 @@ def test_the_tri_modal_run_counts_from_its_thermal_camera_channel(tiny_run_confi
 def test_a_folder_that_is_not_a_trained_run_is_named(tmp_path: Path, rgb_run: Path, capsys) -> None:
     empty = tmp_path / "not-a-run"
     empty.mkdir()
-    with pytest.raises(SystemExit):
-        main(CountArgs(out=tmp_path / "out", config=empty))
-    message = capsys.readouterr().out.replace("\n", "")
-    assert str(empty) in message and "not a trained Nerfstudio run" in message
+    for path in ("field", "views"):
+        with pytest.raises(SystemExit):
+            main(CountArgs(out=tmp_path / "out", config=empty, path=path))
+        message = capsys.readouterr().out.replace("\n", "")
+        assert str(empty) in message and "not a trained Nerfstudio run" in message
     untrained = tmp_path / "untrained"
     untrained.mkdir()
     (untrained / "config.yml").write_text(rgb_run.read_text())

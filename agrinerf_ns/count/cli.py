@@ -12,7 +12,7 @@ from typing import Annotated, Literal, Optional, Tuple
 import tyro
 
 from agrinerf_ns.atomic import OutputExistsError
-from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count
+from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count, trained_run_config
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, run_count
 from agrinerf_ns.count.render import CountInputError
 
@@ -28,8 +28,9 @@ class CountArgs:
     """Output folder (written to a temporary sibling, then renamed into place)."""
     config: Optional[Path] = None
     """The run's config.yml (outputs/<name>/<method>/<time>/config.yml) or its folder."""
-    path: Literal["field", "views"] = "field"
-    """field: count in the sampled field, in 3D; views: detect in rendered views and lift (--renders: always)."""
+    path: Literal["views", "field"] = "views"
+    """views: detect in rendered views and lift (the better on trained runs, docs/count.md; --renders: always);
+    field: count in the sampled field, in 3D."""
     renders: Optional[Path] = None
     """Instead of --config: a render folder written by an earlier count (OUT/renders), to re-detect without rendering."""
     truth: Optional[Path] = None
@@ -52,9 +53,7 @@ def main(args: CountArgs) -> CountResult:
             if args.config is None:
                 raise ValueError("give --config RUN/config.yml (or the run folder)")
             return run_field_count(args.config, args.out, args.field, args.truth, args.overwrite, args.count)[0]
-        config = args.config
-        if config is not None and config.is_dir():
-            config = config / "config.yml"
+        config = trained_run_config(args.config) if args.config is not None else None
         return run_count(
             args.out, args.count, config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits
         )
