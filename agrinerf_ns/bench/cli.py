@@ -40,7 +40,8 @@ class BenchConfig:
     """Folder for scenes, runs, results.csv, results.md and tradeoff.png."""
     profile: str = "quick"
     """quick (CPU), full (GPU, paper settings: 30k steps), detect (CPU: the dark garden at 320x240 for
-    ``agrinerf-detect evaluate --bench``) or tiny (tests)."""
+    ``agrinerf-detect evaluate --bench``), count (CPU: fruit counted in every run, OUT/count.csv and count.md) or tiny
+    (tests)."""
     methods: Tuple[str, ...] = tuple(METHODS)
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf)."""
     scenes: Optional[Tuple[str, ...]] = None
