@@ -151,7 +151,7 @@ def _num(row: Row, key: str, digits: int = 2) -> str:
 class TablesArgs:
     """Pool the count.csv of several agrinerf-bench folders (one per seed) into one count.csv and count.md."""
 
-    csvs: Tuple[Path, ...]
+    csvs: tyro.conf.Positional[Tuple[Path, ...]]
     """count.csv files (or the benchmark folders that hold them)."""
     out: Path = Path("results/count-3d")
     """Folder for the pooled count.csv and count.md."""
