@@ -9,8 +9,11 @@ import time
 from pathlib import Path
 from typing import Any, Dict, List, Sequence, Set, Tuple
 
+import numpy as np
+
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.bench.layout import BenchLayout, split_scene
+from agrinerf_ns.count.detectors import Source
 from agrinerf_ns.count.pipeline import (
     CONSOLE,
     CountConfig,
@@ -25,7 +28,7 @@ from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
 from agrinerf_ns.count.score import read_frames
 from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
-VIEW_SOURCES = ("thermal", "rgb")
+VIEW_SOURCES: Tuple[Source, ...] = ("thermal", "rgb")
 ORACLE_METHOD = "oracle"
 
 
@@ -144,7 +147,7 @@ def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, 
         score_against_truth(renders, result, raw, view_config)
         rows.append(_row(scene, method, seed, loaded.step, "views", source, result,
                          rendered + time.perf_counter() - begin))  # fmt: skip
-        view_cameras = renders.frame.to_dataset([v.origins[0, 0] for v in renders.views])
+        view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
         _write(folder / f"views-{source}", result, renders.frame, surface_points(renders), view_cameras,
                {"path": "views", "source": source, "run": str(config)}, view_config, raw)  # fmt: skip
     return rows

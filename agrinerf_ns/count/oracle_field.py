@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, List, Optional, Tuple
+from typing import Annotated, Any, Dict, List, Optional, Tuple
 
 import numpy as np
 import tyro
@@ -51,7 +51,8 @@ def true_field(raw: Path, grid: VoxelGrid, to_capture: Similarity) -> Tuple[np.n
     from agrinerf_ns.synth.scene import BARK, FRUIT, LEAF, STAKE
 
     written = json.loads((Path(raw) / "truth" / "scene.json").read_text())["config"]
-    config = SynthConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in written.items()})
+    settings: Dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in written.items()}
+    config = SynthConfig(**settings)
     scene, _ = make_scene(config)
     prims, temps = scene.prims, scene.temps
     shape = np.array(grid.shape)

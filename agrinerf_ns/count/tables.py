@@ -13,7 +13,7 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Iterable, List, Sequence, Tuple
+from typing import Dict, Iterable, List, Mapping, Sequence, Tuple
 
 import numpy as np
 import tyro
@@ -38,7 +38,7 @@ def read_rows(path: Path) -> List[Row]:
         return list(csv.DictReader(handle))
 
 
-def append_rows(path: Path, rows: Iterable[Dict[str, object]]) -> None:
+def append_rows(path: Path, rows: Iterable[Mapping[str, object]]) -> None:
     """Append rows to ``count.csv`` (header first when new)."""
     path = Path(path)
     new = not path.is_file()
