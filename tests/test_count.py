@@ -251,7 +251,11 @@ def test_count_a_trained_run(tiny_run_config: Path, tmp_path: Path) -> None:
     out = tmp_path / "count"
     main(
         CountArgs(
-            out=out, config=tiny_run_config, splits=("eval",), count=CountConfig(cluster=ClusterConfig(min_views=1))
+            out=out,
+            config=tiny_run_config,
+            path="views",
+            splits=("eval",),
+            count=CountConfig(cluster=ClusterConfig(min_views=1)),
         )
     )
     names = {p.name for p in out.iterdir()}

@@ -40,7 +40,8 @@ class BenchConfig:
     """Folder for scenes, runs, results.csv, results.md and tradeoff.png."""
     profile: str = "quick"
     """quick (CPU), full (GPU, paper settings: 30k steps), detect (CPU: the dark garden at 320x240 for
-    ``agrinerf-detect evaluate --bench``) or tiny (tests)."""
+    ``agrinerf-detect evaluate --bench``), count (CPU: fruit counted in every run, OUT/count.csv and count.md) or tiny
+    (tests)."""
     methods: Tuple[str, ...] = tuple(METHODS)
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf)."""
     scenes: Optional[Tuple[str, ...]] = None
@@ -237,6 +238,11 @@ def main(config: BenchConfig) -> List[results.Row]:
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in keys]
     write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
     CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
+    if profile.count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
+        from agrinerf_ns.count.bench import count_bench, run_note
+
+        methods = {results.seed_key(m, s): METHODS[m].ns_method for m in config.methods for s in config.run_seeds}
+        count_bench(layout, scenes, methods, config.seed, run_note("agrinerf-bench " + " ".join(sys.argv[1:])))
     if report is not None and (report.failed or report.skipped):
         raise bench_grid.RunsFailed(report, config.out / bench_grid.FAILURES_MD)
     return rows

@@ -34,6 +34,8 @@ class BenchProfile:
     baseline."""
     synth: Dict[str, Any] = field(default_factory=dict)
     """Further ``SynthConfig`` fields of the scenes (e.g. ``speed``)."""
+    count: bool = False
+    """Also count the fruit of every finished run (``OUT/count.csv``, ``OUT/count.md``: ``agrinerf_ns.count.bench``)."""
 
 
 PROFILES: Dict[str, BenchProfile] = {
@@ -94,6 +96,15 @@ PROFILES: Dict[str, BenchProfile] = {
                "event_threshold_sigma": 0.0},
         extra_args={"agrinerf-lite": ("--pipeline.model.upsampling-iters", "100", "200", "300",
                                       "--pipeline.model.final-resolution", "128")},
+    ),
+    # Fruit counted from trained runs on a CPU (OUT/count.csv, count.md): frames large enough that a fruit covers a
+    # median 12 visible pixels in RGB and 4 in the half-width thermal camera (measured from the truth boxes,
+    # docs/count.md), and more views so that more fruit are seen twice; one run (train and count) in 30 minutes.
+    "count": BenchProfile(
+        views=48, width=200, height=150,
+        steps={"agrinerf-lite": 3000, "evdeblurnerf-lite": 3000, "agrinerf": 900, "nerfacto": 250, "nerfacto-thermal": 250, "tensorf": 1000},
+        evaluations=1, eval_views=3, count=True,
+        scenes=tuple(f"{s}-{light}" for s in ("orchard", "garden") for light in ("bright", "shadowed", "dusk", "dark")),
     ),
     # The machinery end to end in a test: minutes on a CPU.
     "tiny": BenchProfile(

@@ -1,7 +1,9 @@
-"""``agrinerf-count --config RUN/config.yml --out DIR [--truth RAW_CAPTURE]``: fruit in 3D from a trained run."""
+"""``agrinerf-count --config RUN/config.yml --out DIR [--truth RAW_CAPTURE]``: fruit in 3D from a trained run, counted
+in the sampled field (``--path field``) or detected in rendered views and lifted (``--path views``)."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,20 +12,25 @@ from typing import Annotated, Literal, Optional, Tuple
 import tyro
 
 from agrinerf_ns.atomic import OutputExistsError
+from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count, trained_run_config
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, run_count
 from agrinerf_ns.count.render import CountInputError
 
 
 @dataclass
 class CountArgs:
-    """Count fruit in 3D: render every camera of a trained run, detect fruit per view, lift the detections to 3D with
-    the rendered depth, fuse them across views; writes fruits.csv, fruits.ply, fruit_map.png and count.json (and
-    score.md against a synthetic capture's truth)."""
+    """Count fruit in 3D from a trained run: sample the field on a grid and group the voxels that stand out in
+    temperature (or colour) into fruit (--path field), or render every camera, detect fruit per view, lift the
+    detections with the rendered depth and fuse them (--path views); writes fruits.csv, fruits.ply, fruit_map.png
+    and count.json (and score.md against a synthetic capture's truth)."""
 
     out: Path
     """Output folder (written to a temporary sibling, then renamed into place)."""
     config: Optional[Path] = None
-    """The run's config.yml (outputs/<name>/<method>/<time>/config.yml)."""
+    """The run's config.yml (outputs/<name>/<method>/<time>/config.yml) or its folder."""
+    path: Literal["views", "field"] = "views"
+    """views: detect in rendered views and lift (the better on trained runs, docs/count.md; --renders: always);
+    field: count in the sampled field, in 3D."""
     renders: Optional[Path] = None
     """Instead of --config: a render folder written by an earlier count (OUT/renders), to re-detect without rendering."""
     truth: Optional[Path] = None
@@ -35,13 +42,20 @@ class CountArgs:
     save_renders: bool = True
     """Keep the rendered views under OUT/renders (npz per view)."""
     count: Annotated[CountConfig, tyro.conf.arg(name="")] = field(default_factory=CountConfig)
-    """Detection, clustering and scoring options."""
+    """Detection (views), clustering and scoring options."""
+    field: FieldCountConfig = dataclasses.field(default_factory=FieldCountConfig)
+    """The field path's options."""
 
 
 def main(args: CountArgs) -> CountResult:
     try:
+        if args.path == "field" and args.renders is None:
+            if args.config is None:
+                raise ValueError("give --config RUN/config.yml (or the run folder)")
+            return run_field_count(args.config, args.out, args.field, args.truth, args.overwrite, args.count)[0]
+        config = trained_run_config(args.config) if args.config is not None else None
         return run_count(
-            args.out, args.count, args.config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits
+            args.out, args.count, config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits
         )
     except (CountInputError, OutputExistsError, FileExistsError, FileNotFoundError, ValueError) as err:
         CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)

@@ -19,7 +19,7 @@ from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
-from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders, render_run
+from agrinerf_ns.count.render import CountInputError, RenderSet, WorldFrame, load_renders, render_run
 from agrinerf_ns.count.score import (
     Align,
     CountScore,
@@ -104,23 +104,44 @@ def fuse(lifted: Sequence[LiftedDetection], renders: RenderSet, config: ClusterC
 
 def score_against_truth(renders: RenderSet, result: CountResult, raw: Path, config: CountConfig) -> None:
     """Fill ``result.score`` and ``result.to_capture`` against the synthetic capture ``raw``."""
-    truth = read_truth_fruit(raw)
     if renders.dataset is None:
         raise CountInputError(f"{raw}: the renders do not name their dataset folder, needed to score them")
-    train = training_frames(renders)
+    score_result(result, renders.dataset, training_frames(renders), raw, config)
+
+
+def score_result(result: CountResult, dataset: Path, train: Sequence[str], raw: Path, config: CountConfig) -> None:
+    """Fill ``result.score``, ``result.to_capture``, ``result.truth`` and ``result.visible`` against the synthetic
+    capture ``raw`` (``train``: the raw frame stems of the run's training views; ``dataset``: its dataset folder)."""
+    truth = read_truth_fruit(raw)
     result.truth, result.visible = truth, visible_fruit(raw, train, truth, config.min_visible_pixels)
-    result.to_capture = align_to_capture(renders.dataset, raw) if config.align == "poses" else Similarity.identity()
-    centres = np.stack([f.centre for f in result.fruit]) if result.fruit else np.zeros((0, 3))
-    result.score = score_fruit(result.to_capture.apply(centres), truth, result.visible, config.match_distance)
+    result.to_capture = align_to_capture(dataset, raw) if config.align == "poses" else Similarity.identity()
+    result.score = score_fruit(
+        result.to_capture.apply(_centres(result.fruit)), truth, result.visible, config.match_distance,
+        _temperatures(result.fruit),
+    )  # fmt: skip
+
+
+def _centres(fruit: Sequence[Fruit]) -> np.ndarray:
+    return np.stack([f.centre for f in fruit]) if fruit else np.zeros((0, 3))
+
+
+def _temperatures(fruit: Sequence[Fruit]) -> np.ndarray:
+    return np.array([np.nan if f.temperature is None else f.temperature for f in fruit], np.float64)
 
 
 def training_frames(renders: RenderSet) -> List[str]:
     """The raw capture's frame stems of the run's training views: the dataset's ``train_filenames`` where
     ``transforms.json`` lists them, else the rendered training views."""
     assert renders.dataset is not None
-    frames = dataset_frames(renders.dataset)
-    listed = read_split(renders.dataset, "train_filenames")
-    names = listed if listed else [v.file_path for v in renders.views if v.split == "train"]
+    return raw_training_frames(renders.dataset, [v.file_path for v in renders.views if v.split == "train"])
+
+
+def raw_training_frames(dataset: Path, fallback: Sequence[str]) -> List[str]:
+    """The raw capture's frame stems of a dataset's training frames: its ``train_filenames`` where
+    ``transforms.json`` lists them, else ``fallback`` (dataset file paths)."""
+    frames = dataset_frames(dataset)
+    listed = read_split(dataset, "train_filenames")
+    names = listed if listed else list(fallback)
     return [raw_stem(frames.get(name, {}), name) for name in names]
 
 
@@ -194,29 +215,13 @@ def run_count(
 def _write_outputs(
     tmp: Path, renders: RenderSet, result: CountResult, config: CountConfig, truth: Optional[Path], source: Any
 ) -> None:
-    fruit = result.fruit
-    centres = np.stack([f.centre for f in fruit]) if fruit else np.zeros((0, 3))
-    ns_centres = renders.frame.to_ns(centres)
-    capture, truth_ids = None, None
-    if result.truth is not None and result.to_capture is not None:
-        capture = result.to_capture.apply(centres)
-        rows, cols = match_fruit(capture, result.truth.centres, config.match_distance)
-        ids = np.full(len(fruit), -1, np.int64)
-        ids[rows] = result.truth.ids[cols]
-        truth_ids = ids.tolist()
-    write_csv(tmp / "fruits.csv", fruit, ns_centres, capture, truth_ids)
-    write_ply(tmp / "fruits.ply", fruit)
     cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
     title = (
-        f"{len(fruit)} fruit counted on '{config.detect.source}' ({config.detect.detector}), "
+        f"{len(result.fruit)} fruit counted on '{config.detect.source}' ({config.detect.detector}), "
         f"{len(renders.views)} views of {renders.method or 'the run'}"
     )
-    if result.score is not None:
-        s = result.score
-        title += f"; visible truth {s.visible}, F1 {s.f1:.2f} at {s.match_distance:g} m"
-    draw_map(tmp / "fruit_map.png", fruit, surface_points(renders), title, result.truth, result.visible, result.to_capture,
-             cameras)  # fmt: skip
     settings = {
+        "path": "views",
         "source": str(source),
         "method": renders.method,
         "views": len(renders.views),
@@ -226,9 +231,41 @@ def _write_outputs(
         "depth_spread": result.depth_spread,
         "detections": len(result.detections),
         "detections_per_view": result.detections_per_view,
-        "fruit": len(fruit),
     }
-    report: Dict[str, Any] = dict(settings)
+    write_count(tmp, result, renders.frame, surface_points(renders), cameras, title, settings, config, truth,
+                f"{config.detect.detector} on {config.detect.source}")  # fmt: skip
+
+
+def write_count(
+    tmp: Path,
+    result: CountResult,
+    frame: WorldFrame,
+    surface: np.ndarray,
+    cameras: np.ndarray,
+    title: str,
+    settings: Dict[str, Any],
+    config: CountConfig,
+    truth: Optional[Path],
+    detector: str,
+) -> None:
+    """fruits.csv, fruits.ply, fruit_map.png, count.json (``settings`` and, scored, the score) and, scored, score.md
+    into ``tmp`` (``surface``, ``cameras``: dataset frame)."""
+    fruit = result.fruit
+    centres = _centres(fruit)
+    capture, truth_ids = None, None
+    if result.truth is not None and result.to_capture is not None:
+        capture = result.to_capture.apply(centres)
+        rows, cols = match_fruit(capture, result.truth.centres, config.match_distance)
+        ids = np.full(len(fruit), -1, np.int64)
+        ids[rows] = result.truth.ids[cols]
+        truth_ids = ids.tolist()
+    write_csv(tmp / "fruits.csv", fruit, frame.to_ns(centres), capture, truth_ids)
+    write_ply(tmp / "fruits.ply", fruit)
+    if result.score is not None:
+        s = result.score
+        title += f"; visible truth {s.visible}, F1 {s.f1:.2f} at {s.match_distance:g} m"
+    draw_map(tmp / "fruit_map.png", fruit, surface, title, result.truth, result.visible, result.to_capture, cameras)
+    report: Dict[str, Any] = dict(settings) | {"fruit": len(fruit)}
     if result.score is not None and result.to_capture is not None:
         report["truth"] = str(truth)
         report["score"] = result.score.as_dict()
@@ -245,9 +282,9 @@ def _write_outputs(
             score_markdown(
                 result.score,
                 {
-                    "run": str(source),
+                    "run": str(settings.get("source")),
                     "truth": str(truth),
-                    "detector": f"{config.detect.detector} on {config.detect.source}",
+                    "detector": detector,
                     "min views per fruit": config.cluster.min_views,
                     "visible": f">= {config.min_visible_pixels} pixels in a training view",
                     "alignment": f"{config.align} (camera residual RMS {result.to_capture.residual_rms:.3f})",

@@ -155,7 +155,7 @@ def render_run(
                     outputs = run.pipeline.model.get_outputs_for_camera(camera)
                 view = _view_from_outputs(outputs, rays, camera, dataset, index, split, config_path)
                 if dataset_dir is not None:
-                    view.file_path = _relative(Path(dataset.image_filenames[index]), dataset_dir)
+                    view.file_path = relative_path(Path(dataset.image_filenames[index]), dataset_dir)
                 views.append(view)
                 progress.advance(task)
     result = RenderSet(views, frame, dataset_dir, config_path, run.method)
@@ -170,7 +170,7 @@ def dataset_folder(data: Path) -> Path:
     return data.parent if data.suffix == ".json" else data
 
 
-def _relative(image: Path, dataset_dir: Path) -> str:
+def relative_path(image: Path, dataset_dir: Path) -> str:
     """An image's path relative to the dataset folder (as ``transforms.json``'s ``file_path``), else its name."""
     try:
         return str(image.resolve().relative_to(dataset_dir.resolve()))

@@ -33,11 +33,13 @@ Align = Literal["poses", "none"]
 
 @dataclass(frozen=True)
 class TruthFruit:
-    """A capture's true fruit: centres (capture frame), diameters (mean of the ellipsoid's axes) and ids."""
+    """A capture's true fruit: centres (capture frame), diameters (mean of the ellipsoid's axes), ids and
+    temperatures (degrees C; NaN where the list has none)."""
 
     centres: Float[np.ndarray, "n 3"]
     diameters: Float[np.ndarray, " n"]
     ids: np.ndarray
+    temperatures: Optional[Float[np.ndarray, " n"]] = None
 
 
 @dataclass(frozen=True)
@@ -79,6 +81,9 @@ class CountScore:
     match_distance: float
     mean_match_error: float
     """Mean distance of the true positives to their fruit (NaN without any)."""
+    mean_temperature_error: float = float("nan")
+    """Mean absolute difference of the true positives' temperatures from their true fruit's (degrees C; NaN without
+    counted or true temperatures)."""
 
     def as_dict(self) -> Dict[str, Union[int, float]]:
         return asdict(self)
@@ -96,11 +101,12 @@ def read_truth_fruit(raw: Path) -> TruthFruit:
         centres = np.asarray([f["center"] for f in fruits], np.float64).reshape(-1, 3)
         diameters = np.asarray([2.0 * np.mean(f["radii"]) for f in fruits], np.float64)
         ids = np.asarray([int(f["id"]) for f in fruits], np.int64)
+        temperatures = np.asarray([float(f.get("temperature_c", np.nan)) for f in fruits], np.float64)
     except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise CountInputError(f"{path}: not a fruit list (id, center, radii per fruit) ({err!r})") from err
     if len(ids) == 0:
         raise CountInputError(f"{path}: the scene has no true fruit to score against")
-    return TruthFruit(centres, diameters, ids)
+    return TruthFruit(centres, diameters, ids, temperatures)
 
 
 def visible_fruit(raw: Path, frames: Iterable[str], truth: TruthFruit, min_pixels: int = 3) -> Bool[np.ndarray, " n"]:
@@ -147,9 +153,11 @@ def score_fruit(
     truth: TruthFruit,
     visible: Optional[Bool[np.ndarray, " n"]] = None,
     match_distance: float = 0.05,
+    temperatures: Optional[Float[np.ndarray, " m"]] = None,
 ) -> CountScore:
     """Count error and precision / recall / F1 of ``predicted`` centres (capture frame) against the visible true
-    fruit (all of them when ``visible`` is None)."""
+    fruit (all of them when ``visible`` is None); with the counted fruit's ``temperatures`` (degrees C, NaN where
+    unknown) also their mean error on the true positives."""
     visible = np.ones(len(truth.ids), dtype=bool) if visible is None else np.asarray(visible, bool)
     rows, cols = match_fruit(predicted, truth.centres, match_distance)
     counted = len(np.asarray(predicted).reshape(-1, 3))
@@ -175,7 +183,18 @@ def score_fruit(
         f1=f1,
         match_distance=match_distance,
         mean_match_error=float(errors.mean()) if errors.size else float("nan"),
+        mean_temperature_error=_temperature_error(temperatures, truth, rows[tp_mask], cols[tp_mask]),
     )
+
+
+def _temperature_error(
+    temperatures: Optional[np.ndarray], truth: TruthFruit, rows: np.ndarray, cols: np.ndarray
+) -> float:
+    if temperatures is None or truth.temperatures is None or len(rows) == 0:
+        return float("nan")
+    error = np.abs(np.asarray(temperatures, np.float64)[rows] - truth.temperatures[cols])
+    error = error[np.isfinite(error)]
+    return float(error.mean()) if error.size else float("nan")
 
 
 def read_frames(dataset: Path) -> List[dict]:

@@ -1,0 +1,376 @@
+"""The trained field sampled on a world-space voxel grid: density, what the training cameras see, and the outputs
+fruit are told apart by (temperature, the thermal camera's channel, the cross-spectral ``thermal``, RGB).
+
+The grid spans the scene's occupied box (:func:`occupied_box`) in Nerfstudio's frame, at a voxel size in dataset units
+(metres for metric poses). A voxel is *dense* when the field's density there reaches ``density_threshold`` and *seen*
+when it lies no farther than a fruit radius behind the rendered depth of at least one training view (the views are
+rendered at a reduced resolution, their depth max-pooled over 3x3 pixels, so a voxel behind a thin leaf rim still
+counts as seen): the heads are trained only where some camera looks, so outputs elsewhere (inside the canopy, behind
+the rows) are not read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple
+
+import numpy as np
+from jaxtyping import Bool, Float, Int
+
+from agrinerf_ns.count.render import CountInputError, WorldFrame
+
+FieldSource = Literal["auto", "temperature", "thermal_camera", "thermal", "rgb"]
+"""What fruit are told apart by in the field: ``temperature`` (degrees C, a radiometric thermal camera), the thermal
+camera's channel ``thermal_camera``, the cross-spectral ``thermal``, or ``rgb`` (fruit colour); ``auto``: the first the
+run has, in that order."""
+SOURCE_ORDER: Tuple[str, ...] = ("temperature", "thermal_camera", "thermal", "rgb")
+CHUNK = 1 << 18
+"""Points per field evaluation."""
+MIN_ACCUMULATION = 0.5
+"""Rendered pixels below this accumulation are sky or nothing: no surface point, no visibility."""
+
+
+@dataclass(frozen=True)
+class VolumeConfig:
+    """How the field is sampled."""
+
+    voxel_size: float = 0.01
+    """Grid spacing in dataset units (metres with metric poses); coarsened when the box would hold more than
+    ``max_voxels``."""
+    max_voxels: int = 16_000_000
+    """Most voxels in the grid (memory: about 20 bytes each while sampling)."""
+    density_threshold: float = 5.0
+    """A voxel is dense from this density (per Nerfstudio unit: the opacity of one dataset centimetre is then about
+    1 - exp(-threshold * scale / 100))."""
+    view_scale: float = 0.5
+    """Resolution of the training views rendered for the visibility test and the box (fraction of the dataset's)."""
+    max_views: int = 64
+    """Training views rendered for the visibility test, evenly spaced."""
+    box_percentile: float = 1.0
+    """The occupied box spans these percentiles (and 100 minus them) of the rendered surface points per axis."""
+    box_max_depth: float = 3.0
+    """Surface points farther than this many times the median rendered depth (far hedge, sky shell) are outside the
+    box."""
+
+
+@dataclass
+class DepthView:
+    """A training camera with its rendered depth (distance along unit rays) at reduced resolution, Nerfstudio frame."""
+
+    c2w: Float[np.ndarray, "3 4"]
+    """Camera-to-world, Nerfstudio's OpenGL axes (x right, y up, looking down -z)."""
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    depth: Float[np.ndarray, "h w"]
+    """Depth along each pixel's unit ray; +inf where nothing was rendered (accumulation below 0.5)."""
+    surface: Float[np.ndarray, "n 3"]
+    """The rendered surface points (accumulation >= 0.5)."""
+    pixel_area: float = 1.0
+    """Pixels of the dataset's images per pixel of this view (1 / view_scale^2)."""
+
+    @property
+    def centre(self) -> Float[np.ndarray, "3"]:
+        return self.c2w[:, 3]
+
+
+def render_depth_views(model: Any, cameras: Any, config: VolumeConfig) -> List[DepthView]:
+    """Render ``cameras`` (Nerfstudio ``Cameras``, the run's training cameras) at ``config.view_scale`` of their
+    resolution with ``model``; returns their depth views (evenly spaced, at most ``config.max_views``)."""
+    import torch
+
+    count = len(cameras)
+    indices = np.unique(np.linspace(0, count - 1, min(count, config.max_views)).round().astype(int))
+    views = []
+    for index in indices:
+        camera = cameras[int(index) : int(index) + 1].to(model.device)
+        camera.rescale_output_resolution(config.view_scale)
+        with torch.no_grad():
+            rays = camera.generate_rays(camera_indices=0, keep_shape=True)
+            outputs = model.get_outputs_for_camera(camera)
+        if "depth" not in outputs:
+            raise CountInputError(f"the run's model renders no 'depth' (outputs: {', '.join(sorted(outputs))})")
+        depth = outputs["depth"][..., 0].float().cpu().numpy().astype(np.float64)
+        acc = (
+            outputs["accumulation"][..., 0].float().cpu().numpy() if "accumulation" in outputs else np.ones_like(depth)
+        )
+        origins = rays.origins.float().cpu().numpy().astype(np.float64)
+        directions = rays.directions.float().cpu().numpy().astype(np.float64)
+        solid = (acc >= MIN_ACCUMULATION) & np.isfinite(depth)
+        surface = (origins + directions * depth[..., None])[solid]
+        views.append(
+            DepthView(
+                c2w=camera.camera_to_worlds[0].float().cpu().numpy().astype(np.float64),
+                fx=float(camera.fx[0, 0]),
+                fy=float(camera.fy[0, 0]),
+                cx=float(camera.cx[0, 0]),
+                cy=float(camera.cy[0, 0]),
+                depth=np.where(solid, depth, np.inf),
+                surface=surface,
+                pixel_area=1.0 / config.view_scale**2,
+            )
+        )
+    return views
+
+
+def occupied_box(
+    views: Sequence[DepthView], config: VolumeConfig, pad: float, field: Any = None
+) -> Float[np.ndarray, "2 3"]:
+    """The scene's occupied box (Nerfstudio frame): per-axis percentiles of the views' rendered surface points within
+    ``box_max_depth`` x their median distance from their camera, padded by ``pad`` (Nerfstudio units), and within
+    the field's full-resolution box (``AgriNeRFField.full_resolution_box``, fitted to the scene) where it has one."""
+    parts, distances = [], []
+    for view in views:
+        parts.append(view.surface)
+        distances.append(np.linalg.norm(view.surface - view.centre, axis=1))
+    points = np.concatenate(parts) if parts else np.zeros((0, 3))
+    if len(points) < 8:
+        raise CountInputError("the run renders no surface in its training views (accumulation < 0.5 everywhere)")
+    distance = np.concatenate(distances)
+    near = points[distance <= config.box_max_depth * float(np.median(distance))]
+    low = np.percentile(near, config.box_percentile, axis=0) - pad
+    high = np.percentile(near, 100.0 - config.box_percentile, axis=0) + pad
+    if field is not None and hasattr(field, "full_resolution_box"):
+        fitted = field.full_resolution_box().detach().float().cpu().numpy().astype(np.float64)
+        inner_low, inner_high = np.maximum(low, fitted[0]), np.minimum(high, fitted[1])
+        if np.all(inner_high > inner_low):  # else the fit missed what the views render: keep theirs
+            low, high = inner_low, inner_high
+    return np.stack([low, high])
+
+
+@dataclass
+class VoxelGrid:
+    """An axis-aligned grid of the Nerfstudio frame: voxel ``(i, j, k)`` has its centre at ``origin + (i, j, k) *
+    step``."""
+
+    origin: Float[np.ndarray, "3"]
+    step: float
+    """Voxel size in Nerfstudio units."""
+    shape: Tuple[int, int, int]
+
+    @classmethod
+    def over(cls, box: Float[np.ndarray, "2 3"], step: float, max_voxels: int) -> "VoxelGrid":
+        """The grid over ``box`` at ``step`` (enlarged until it holds at most ``max_voxels``)."""
+        extent = np.maximum(box[1] - box[0], 0.0)
+        step = max(float(step), float(np.cbrt(np.prod(extent) / max(max_voxels, 1))))
+        shape = tuple(int(n) for n in np.maximum(np.ceil(extent / step), 1).astype(int))
+        while int(np.prod(shape)) > max_voxels:
+            step *= 1.05
+            shape = tuple(int(n) for n in np.maximum(np.ceil(extent / step), 1).astype(int))
+        return cls(np.asarray(box[0], np.float64) + step / 2, step, (shape[0], shape[1], shape[2]))
+
+    def centres(self, flat: np.ndarray) -> Float[np.ndarray, "n 3"]:
+        """Centres of the voxels with these flat indices."""
+        ijk = np.stack(np.unravel_index(flat, self.shape), axis=-1)
+        return self.origin + ijk * self.step
+
+
+def field_density(field: Any, points: Float[np.ndarray, "n 3"], device: Any = "cpu") -> Float[np.ndarray, " n"]:
+    """The field's density at Nerfstudio-frame ``points`` (``to_grid`` then ``density_at``), in chunks."""
+    import torch
+
+    out = np.empty(len(points), np.float32)
+    with torch.no_grad():
+        for start in range(0, len(points), CHUNK):
+            part = torch.as_tensor(points[start : start + CHUNK], dtype=torch.float32, device=device)
+            coords, inside = field.to_grid(part)
+            out[start : start + CHUNK] = field.density_at(coords, inside)[..., 0].float().cpu().numpy()
+    return out
+
+
+def dense_voxels(field: Any, grid: VoxelGrid, threshold: float, device: Any = "cpu") -> np.ndarray:
+    """Flat indices of the voxels whose density reaches ``threshold`` (the grid is swept in slabs of ``CHUNK``
+    points)."""
+    total = int(np.prod(grid.shape))
+    keep = []
+    for start in range(0, total, CHUNK):
+        flat = np.arange(start, min(start + CHUNK, total))
+        density = field_density(field, grid.centres(flat), device)
+        keep.append(flat[density >= threshold])
+    return np.concatenate(keep) if keep else np.zeros(0, np.int64)
+
+
+def seen_pixels(
+    points: Float[np.ndarray, "n 3"], view: DepthView, margin: float
+) -> Tuple[Bool[np.ndarray, " n"], Int[np.ndarray, " n"]]:
+    """Whether ``view`` sees each point (it projects into the image, in front of the camera, and no farther than
+    ``margin``, Nerfstudio units, behind the largest rendered depth of the 3x3 pixels around it), and its pixel's flat
+    index."""
+    from scipy.ndimage import maximum_filter
+
+    rot, centre = view.c2w[:, :3], view.centre
+    local = (points - centre) @ rot  # camera axes: x right, y up, -z forward
+    forward = -local[:, 2]
+    ahead = forward > 1e-6
+    u = view.cx + view.fx * local[:, 0] / np.where(ahead, forward, 1.0)
+    v = view.cy - view.fy * local[:, 1] / np.where(ahead, forward, 1.0)
+    h, w = view.depth.shape
+    inside = ahead & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    depth = maximum_filter(np.where(np.isfinite(view.depth), view.depth, 1e9), size=3, mode="nearest")
+    iu = np.clip(u.astype(np.int64), 0, w - 1)
+    iv = np.clip(v.astype(np.int64), 0, h - 1)
+    distance = np.linalg.norm(points - centre, axis=1)
+    return inside & (distance <= depth[iv, iu] + margin), iv * w + iu
+
+
+def views_seeing(points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float) -> Int[np.ndarray, " n"]:
+    """How many ``views`` see each point (:func:`seen_pixels`)."""
+    counts = np.zeros(len(points), np.int32)
+    for view in views:
+        counts += seen_pixels(points, view, margin)[0]
+    return counts
+
+
+def views_showing_pixels(
+    points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float, min_pixels: float
+) -> int:
+    """In how many ``views`` the seen ``points`` (one object's voxels) cover at least ``min_pixels`` pixels of the
+    dataset's images (distinct pixels of the view times its ``pixel_area``; one pixel of a coarser view counts
+    its area at most once)."""
+    shown = 0
+    for view in views:
+        seen, pixel = seen_pixels(points, view, margin)
+        if seen.any() and len(np.unique(pixel[seen])) * view.pixel_area >= min_pixels:
+            shown += 1
+    return shown
+
+
+def field_sources(model: Any) -> Dict[str, bool]:
+    """Which of :data:`SOURCE_ORDER` the run's model can give."""
+    field = model.field
+    has_thermal = getattr(field, "thermal_head", None) is not None
+    return {
+        "temperature": getattr(field, "temperature_head", None) is not None,
+        "thermal_camera": has_thermal and bool(getattr(model, "has_thermal_camera", False)),
+        "thermal": has_thermal,
+        "rgb": getattr(field, "rgb_head", None) is not None,
+    }
+
+
+def choose_source(model: Any, wanted: str) -> Tuple[str, str]:
+    """(source, why): ``wanted`` when the run has it, else a :class:`CountInputError`; ``auto``: the first of
+    :data:`SOURCE_ORDER` the run has, with a note when that is RGB (no thermal frames)."""
+    available = field_sources(model)
+    if wanted != "auto":
+        if not available.get(wanted, False):
+            have = ", ".join(k for k, v in available.items() if v)
+            raise CountInputError(f"the run's model has no '{wanted}' output to count fruit from (it has: {have})")
+        return wanted, "asked for"
+    for source in SOURCE_ORDER:
+        if available[source]:
+            if source == "rgb":
+                return source, "the run has no thermal output (trained without thermal frames): fruit colour in RGB"
+            return source, f"the run's first thermal output ({', '.join(SOURCE_ORDER[:3])})"
+    raise CountInputError("the run's model has none of the outputs fruit are counted from")
+
+
+def field_features(
+    model: Any, points: Float[np.ndarray, "n 3"], source: str, eye: Float[np.ndarray, "3"], device: Any = "cpu"
+) -> Tuple[Float[np.ndarray, "n c"], Optional[Float[np.ndarray, " n"]]]:
+    """The ``source`` output of the model's heads at ``points`` (``appearance_at``; RGB viewed from ``eye``), and the
+    temperature in degrees C where the model has a temperature head (else None)."""
+    import torch
+    from nerfstudio.field_components.field_heads import FieldHeadNames
+
+    from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
+
+    field = model.field
+    values: List[np.ndarray] = []
+    temperatures: List[np.ndarray] = []
+    has_temperature = field.temperature_head is not None
+    with torch.no_grad():
+        for start in range(0, len(points), CHUNK):
+            part = torch.as_tensor(points[start : start + CHUNK], dtype=torch.float32, device=device)
+            coords, _ = field.to_grid(part)
+            directions = part - torch.as_tensor(eye, dtype=torch.float32, device=device)
+            directions = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+            heads = field.appearance_at(coords, directions)
+            if source == "rgb":
+                value = heads[FieldHeadNames.RGB]
+            elif source == "temperature":
+                value = field.temperature_head.to_celsius(heads[AgriNeRFFieldHeadNames.TEMPERATURE])
+            else:
+                thermal = heads[AgriNeRFFieldHeadNames.THERMAL]
+                value = thermal[..., 1:2] if source == "thermal_camera" else thermal[..., :1]
+            values.append(value.float().cpu().numpy())
+            if has_temperature:
+                celsius = field.temperature_head.to_celsius(heads[AgriNeRFFieldHeadNames.TEMPERATURE])
+                temperatures.append(celsius[..., 0].float().cpu().numpy())
+    channels = 3 if source == "rgb" else 1
+    feature = np.concatenate(values) if values else np.zeros((0, channels), np.float32)
+    temperature = (
+        (np.concatenate(temperatures) if temperatures else np.zeros(0, np.float32)) if has_temperature else None
+    )
+    return feature, temperature
+
+
+@dataclass
+class SampledField:
+    """The seen, dense voxels of a grid with their feature (and temperature)."""
+
+    grid: VoxelGrid
+    flat: np.ndarray
+    """Flat indices of the seen, dense voxels."""
+    feature: Float[np.ndarray, "n c"]
+    temperature: Optional[Float[np.ndarray, " n"]]
+    seen_by: np.ndarray
+    """Views that see each voxel."""
+    dense: int
+    """Dense voxels before the visibility test."""
+    source: str
+    source_note: str
+    frame: WorldFrame
+
+    eye: Float[np.ndarray, "3"] = dataclasses.field(default_factory=lambda: np.zeros(3))
+    """Where RGB is viewed from (the training cameras' mean centre)."""
+    views: Sequence[DepthView] = ()
+    """The depth views that decided what is seen."""
+    seen_margin: float = 0.0
+    """Their margin (Nerfstudio units)."""
+
+    def points(self) -> Float[np.ndarray, "n 3"]:
+        return self.grid.centres(self.flat)
+
+    def with_source(self, model: Any, source: str, note: str = "") -> "SampledField":
+        """The same voxels with the ``source`` feature of ``model`` instead."""
+        feature, _ = field_features(model, self.points(), source, self.eye, getattr(model, "device", "cpu"))
+        return dataclasses.replace(self, feature=feature, source=source, source_note=note)
+
+
+def sample_field(
+    model: Any,
+    views: Sequence[DepthView],
+    frame: WorldFrame,
+    source: str,
+    config: VolumeConfig,
+    seen_margin: float,
+    pad: float,
+    box: Optional[Float[np.ndarray, "2 3"]] = None,
+    source_note: str = "",
+) -> SampledField:
+    """Sample ``model.field`` on the grid over ``box`` (Nerfstudio frame; None: :func:`occupied_box` of ``views``
+    padded by ``pad``): dense voxels, those the views see (``seen_margin`` behind the rendered depth; all of them when
+    no views are given), and their ``source`` feature. ``seen_margin`` and ``pad`` are in Nerfstudio units."""
+    device = getattr(model, "device", "cpu")
+    if box is None:
+        box = occupied_box(views, config, pad, model.field)
+    grid = VoxelGrid.over(np.asarray(box, np.float64), config.voxel_size * frame.scale, config.max_voxels)
+    flat = dense_voxels(model.field, grid, config.density_threshold, device)
+    dense = len(flat)
+    points = grid.centres(flat)
+    seen_by = views_seeing(points, views, seen_margin) if views else np.ones(len(flat), np.int32)
+    keep = seen_by > 0
+    flat, points, seen_by = flat[keep], points[keep], seen_by[keep]
+    eye = np.mean([v.centre for v in views], axis=0) if views else points.mean(0) - np.array([0.0, 0.0, 1.0])
+    feature, temperature = field_features(model, points, source, eye, device)
+    return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame, eye, views,
+                        seen_margin)  # fmt: skip
+
+
+def mask_of(grid: VoxelGrid, flat: np.ndarray) -> Bool[np.ndarray, "i j k"]:
+    """A boolean volume of the grid that is True at ``flat``."""
+    mask = np.zeros(int(np.prod(grid.shape)), bool)
+    mask[flat] = True
+    return mask.reshape(grid.shape)

@@ -1,0 +1,149 @@
+"""agrinerf-count's field path: fruit found in 3D in a field fitted to known fruit, a run without thermal frames
+counted from RGB (and saying so), and what is not a trained run named."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from helpers.fruit_field import FRUIT_C, FRUIT_CENTRES, FRUIT_RADIUS, fruit_model
+
+from agrinerf_ns.count.cli import CountArgs, main
+from agrinerf_ns.count.components import ComponentConfig
+from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
+from agrinerf_ns.count.render import CountInputError, WorldFrame
+from agrinerf_ns.count.volume import DepthView, VolumeConfig, VoxelGrid, views_seeing
+
+SMALL_GRID = VolumeConfig(max_voxels=200_000, max_views=4)
+"""The tiny runs' grids: few voxels, few rendered views."""
+
+
+def test_the_field_counter_finds_the_known_fruit() -> None:
+    """Four warm fruit in front of a cool leaf wall above warm ground: four fruit, at their centres, of their size and
+    temperature; the ground (warm too, but not fruit-sized) and the wall are not fruit."""
+    model = fruit_model(steps=300)
+    config = FieldCountConfig(
+        source="temperature",
+        volume=VolumeConfig(voxel_size=0.025, density_threshold=10.0),
+        components=ComponentConfig(min_diameter=0.1, max_diameter=0.4, background_size=0.5, min_views=1),
+    )
+    box = np.array([[-1.0] * 3, [1.0] * 3])
+    result, sampled, info = count_model(model, None, WorldFrame(np.eye(4)[:3], 1.0), config, box=box)
+    assert info["source"] == "temperature" and info["too_large"] >= 1  # the ground
+    assert len(result.fruit) == len(FRUIT_CENTRES)
+    centres = np.stack([f.centre for f in result.fruit])
+    distance = np.linalg.norm(centres[:, None] - FRUIT_CENTRES[None], axis=-1)
+    assert sorted(distance.argmin(1).tolist()) == list(range(len(FRUIT_CENTRES)))
+    assert distance.min(1).max() < 0.03
+    for fruit in result.fruit:
+        assert abs(fruit.diameter - 2 * FRUIT_RADIUS) < 0.3 * 2 * FRUIT_RADIUS
+        assert fruit.temperature is not None and abs(fruit.temperature - FRUIT_C) < 1.0
+    cool = count_model(
+        model, None, WorldFrame(np.eye(4)[:3], 1.0),
+        FieldCountConfig(source="temperature", volume=config.volume,
+                         components=ComponentConfig(**{**config.components.__dict__, "polarity": "cool"})),
+        box=box,
+    )[0]  # fmt: skip
+    assert cool.fruit == []  # these fruit are warm
+
+
+def test_a_voxel_behind_the_rendered_surface_is_not_seen() -> None:
+    """One camera at the origin looking down -z at a surface 2 units away: points in front of it and up to the
+    margin behind it are seen, points farther behind or outside the image are not."""
+    depth = np.full((10, 10), 2.0)
+    view = DepthView(np.eye(4)[:3], 10.0, 10.0, 5.0, 5.0, depth, np.zeros((0, 3)))
+    points = np.array([[0, 0, -1.0], [0, 0, -2.04], [0, 0, -2.5], [5.0, 0, -1.0]])
+    assert views_seeing(points, [view], margin=0.05).tolist() == [1, 1, 0, 0]
+    grid = VoxelGrid.over(np.array([[0.0] * 3, [1.0] * 3]), 0.01, 1000)
+    assert int(np.prod(grid.shape)) <= 1000 and grid.step > 0.01
+
+
+@pytest.fixture(scope="module")
+def rgb_run(tmp_path_factory) -> Path:
+    """config.yml of a tiny agrinerf-lite run trained on RGB frames alone (no thermal frames in its dataset)."""
+    from helpers.model_scene import tiny_trainer_config, write_model_scene
+
+    root = tmp_path_factory.mktemp("rgb_run")
+    data = write_model_scene(root / "scene", modalities=("rgb",))
+    config = tiny_trainer_config(data, root / "outputs", max_num_iterations=10)
+    config.set_timestamp()
+    torch.manual_seed(0)
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+    config.save_config()
+    return config.get_base_dir() / "config.yml"
+
+
+def test_a_run_without_thermal_frames_counts_from_rgb_and_says_so(rgb_run: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "count"
+    main(CountArgs(out=out, config=rgb_run.parent, path="field", field=FieldCountConfig(volume=SMALL_GRID)))
+    report = json.loads((out / "count.json").read_text())
+    assert report["path"] == "field" and report["source"] == "rgb"
+    assert "no thermal" in report["source_note"]
+    assert "Counting from RGB" in capsys.readouterr().out
+    assert {"fruits.csv", "fruits.ply", "fruit_map.png"} <= {p.name for p in out.iterdir()}
+    with pytest.raises(SystemExit):  # the thermal output it does not have, asked for by name
+        main(
+            CountArgs(
+                out=tmp_path / "t",
+                config=rgb_run,
+                path="field",
+                field=FieldCountConfig(source="thermal", volume=SMALL_GRID),
+            )
+        )
+    assert "no 'thermal' output" in capsys.readouterr().out
+
+
+def test_the_tri_modal_run_counts_from_its_thermal_camera_channel(tiny_run_config: Path, tmp_path: Path) -> None:
+    main(
+        CountArgs(
+            out=tmp_path / "count", config=tiny_run_config, path="field", field=FieldCountConfig(volume=SMALL_GRID)
+        )
+    )
+    report = json.loads((tmp_path / "count" / "count.json").read_text())
+    assert report["source"] == "thermal_camera" and report["views_rendered"] == 4
+    assert np.prod(report["grid_shape"]) <= SMALL_GRID.max_voxels
+
+
+def test_a_folder_that_is_not_a_trained_run_is_named(tmp_path: Path, rgb_run: Path, capsys) -> None:
+    empty = tmp_path / "not-a-run"
+    empty.mkdir()
+    for path in ("field", "views"):
+        with pytest.raises(SystemExit):
+            main(CountArgs(out=tmp_path / "out", config=empty, path=path))
+        message = capsys.readouterr().out.replace("\n", "")
+        assert str(empty) in message and "not a trained Nerfstudio run" in message
+    untrained = tmp_path / "untrained"
+    untrained.mkdir()
+    (untrained / "config.yml").write_text(rgb_run.read_text())
+    with pytest.raises(CountInputError, match="no step-.*ckpt checkpoint"):
+        trained_run_config(untrained)
+    with pytest.raises(CountInputError, match="no such run folder"):
+        trained_run_config(tmp_path / "missing")
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_count_tables_pool_runs_with_bootstrap_intervals(tmp_path: Path) -> None:
+    from agrinerf_ns.count.tables import TablesArgs, append_rows, bootstrap_mean
+    from agrinerf_ns.count.tables import main as tables_main
+
+    interval = bootstrap_mean([0.5, 0.7, 0.9, float("nan")])
+    assert interval.value == pytest.approx(0.7) and 0.5 <= interval.low < 0.7 < interval.high <= 0.9
+    assert bootstrap_mean([0.4]).low == bootstrap_mean([0.4]).high == 0.4
+    for seed, f1 in ((0, 0.5), (1, 0.9)):
+        row = {"scene": "garden-dark", "lighting": "dark", "seed": seed, "method": "agrinerf-lite", "step": 10,
+               "path": "field", "source": "temperature", "counted": 10, "visible": 10, "count_error": 0.0,
+               "precision": f1, "recall": f1, "f1": f1, "mean_match_error": 0.01, "mean_temperature_error": 0.5,
+               "seconds": 3.0}  # fmt: skip
+        (tmp_path / f"seed{seed}").mkdir()
+        append_rows(tmp_path / f"seed{seed}" / "count.csv", [row])
+    rows = tables_main(TablesArgs(csvs=(tmp_path / "seed0", tmp_path / "seed1" / "count.csv"), out=tmp_path / "all"))
+    assert len(rows) == 2
+    text = (tmp_path / "all" / "count.md").read_text()
+    assert "| dark | agrinerf-lite | field | temperature | 2 | 0.70 [0.50, 0.90] |" in text
+    with pytest.raises(FileNotFoundError, match="no count.csv"):
+        tables_main(TablesArgs(csvs=(tmp_path / "nothing",), out=tmp_path / "x"))
