@@ -137,15 +137,7 @@ def test_the_model_fits_its_box_to_the_dense_region_it_renders() -> None:
     cfg = AgriNeRFModelConfig(modalities=("rgb",), **small)
     model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8, metadata={})
     dense = torch.tensor([[-0.5, -0.3, -0.2], [0.3, 0.5, 0.4]])  # world box of the only dense matter
-    with torch.no_grad():
-        volume = model.field.density_encoding
-        volume.plane_table.zero_()
-        volume.line_table.zero_()
-        lo, hi = model.field.mapping(dense[0]), model.field.mapping(dense[1])
-        axes = [torch.linspace(-1, 1, r) for r in volume.resolution]
-        inside = [(a >= lo[i]) & (a <= hi[i]) for i, a in enumerate(axes)]
-        volume.planes()[0][:, :, 0] = 30.0 * (inside[1][:, None] & inside[0][None, :]).float()  # plane xy: (y, x)
-        volume.lines()[0][:, 0] = inside[2].float()  # line z
+    _fill_density(model, dense)
     box = model.fit_box(_ring_cameras(), step=0)
     assert box is not None
     torch.testing.assert_close(model.field.full_resolution_box(), box)
@@ -157,6 +149,42 @@ def test_the_model_fits_its_box_to_the_dense_region_it_renders() -> None:
     coords, valid = model.field.to_grid(torch.stack([dense.mean(0), dense[1] + 0.3]))
     density = model.field.density_at(coords, valid)[:, 0]
     assert float(density[0]) > 1.0 and float(density[1]) < 0.1
+
+
+def test_later_fits_only_shrink_the_box() -> None:
+    from helpers.small_model import SMALL_MODEL
+    from nerfstudio.data.scene_box import SceneBox
+
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    torch.manual_seed(0)
+    small = {**SMALL_MODEL, "box_fit_rays": 2048, "density_shift": -12.0, "init_resolution": 24}
+    cfg = AgriNeRFModelConfig(modalities=("rgb",), box_fit_iters=(10, 20), **small)
+    model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8, metadata={})
+    _fill_density(model, torch.tensor([[-0.3, -0.3, -0.3], [0.3, 0.3, 0.3]]))
+    first = model.fit_box(_ring_cameras(), step=10)
+    assert first is not None
+    wider = torch.tensor([[-0.7, -0.6, -0.5], [0.6, 0.7, 0.5]])  # floaters grown around the matter
+    _fill_density(model, wider)
+    later = model.fit_box(_ring_cameras(), step=20)
+    assert later is not None
+    assert bool((later[0] >= first[0] - 1e-6).all() and (later[1] <= first[1] + 1e-6).all())  # shrink only
+    _fill_density(model, torch.tensor([[-0.2, -0.1, -0.2], [0.1, 0.2, 0.2]]))
+    smaller = model.fit_box(_ring_cameras(), step=30)
+    assert smaller is not None and float((smaller[1] - smaller[0]).prod()) < 0.5 * float((later[1] - later[0]).prod())
+
+
+def _fill_density(model, dense: torch.Tensor) -> None:
+    """Density 30 (per scene unit) inside world box `dense`, none elsewhere (zeroed planes and lines)."""
+    with torch.no_grad():
+        volume = model.field.density_encoding
+        volume.plane_table.zero_()
+        volume.line_table.zero_()
+        lo, hi = model.field.mapping(dense[0]), model.field.mapping(dense[1])
+        axes = [torch.linspace(-1, 1, r) for r in volume.resolution]
+        inside = [(a >= lo[i]) & (a <= hi[i]) for i, a in enumerate(axes)]
+        volume.planes()[0][:, :, 0] = 30.0 * (inside[1][:, None] & inside[0][None, :]).float()  # plane xy: (y, x)
+        volume.lines()[0][:, 0] = inside[2].float()  # line z
 
 
 def test_a_dataset_with_sfm_points_starts_with_their_box(tmp_path) -> None:

@@ -175,8 +175,11 @@ class AgriNeRFModelConfig(ModelConfig):
     box_grid_fraction: float = 0.8
     """Fraction of each grid axis that the fitted box spans (the rest holds the contracted sky and far background)."""
     box_fit_growth: float = 8.0
-    """A fit may grow the box to at most this many times its size about its centre (an early, still blurry field
-    cannot throw the box far out; the next fit goes on from there)."""
+    """The first fit (at the first of `box_fit_iters`) may grow the box to at most this many times its size about its
+    centre (an early, still blurry field cannot throw the box far out)."""
+    box_refit_growth: float = 1.0
+    """Each later fit may grow the box at most this many times (1: shrink only, as TensoRF's `shrink`). Floaters that a
+    dark, noisy capture grows before its field settles would otherwise widen the box and coarsen its voxels."""
     box_depth_cut: float = 2.5
     """Surface points farther from their camera than this times the median distance are background, outside the box
     (sky, hedges, far rows)."""
@@ -524,7 +527,9 @@ class AgriNeRFModel(Model):
         if box is None:
             return None
         old = self.field.full_resolution_box()
-        centre, reach = old.mean(dim=0), (old[1] - old[0]) / 2 * self.config.box_fit_growth
+        first = not self.config.box_fit_iters or step <= min(self.config.box_fit_iters)
+        growth = self.config.box_fit_growth if first else self.config.box_refit_growth
+        centre, reach = old.mean(dim=0), (old[1] - old[0]) / 2 * growth
         box = torch.stack([torch.maximum(box[0], centre - reach), torch.minimum(box[1], centre + reach)])
         if not bool((box[1] > box[0]).all()):
             return None
