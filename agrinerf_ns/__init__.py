@@ -1,3 +1,16 @@
 """AgriNeRF for Nerfstudio: RGB + event + thermal radiance fields of farms and orchards."""
 
+from pathlib import Path as _Path
+
 __version__ = "0.1.0"
+
+# Imported from a checkout (the checkout root on sys.path: a Ray worker started beside the driver, `python -c` in the
+# root) rather than from the install: the subpackages that pyproject.toml maps from other folders are not inside this
+# folder, so map them here. An installed package has them inside and skips this.
+if (
+    not (_Path(__file__).parent / "dataparsers").is_dir()
+    and (_Path(__file__).parent.parent / "pyproject.toml").is_file()
+):
+    from agrinerf_ns.source_tree import map_checkout_subpackages as _map
+
+    _map(_Path(__file__).parent.parent)

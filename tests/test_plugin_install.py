@@ -65,6 +65,21 @@ def test_entry_point_modules_are_light_and_activate_the_shims(tmp_path: Path) ->
     assert "LPIPS_PATCHED True" in out, out
 
 
+def test_a_checkout_on_sys_path_imports_its_mapped_subpackages() -> None:
+    """With the checkout root first on sys.path (a Ray worker beside the driver, `python -c` in the root), the
+    package and the subpackages pyproject.toml maps from other folders all come from the checkout."""
+    code = (
+        "import agrinerf_ns, agrinerf_ns.dataparsers.agrinerf_dataparser as d, agrinerf_ns.method_configs as m\n"
+        "print(agrinerf_ns.__file__); print(d.__file__); print(m.__file__)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    package, parser, configs = [Path(line).resolve() for line in proc.stdout.split()]
+    assert package == ROOT / "agrinerf_ns" / "__init__.py"
+    assert parser == ROOT / "dataparsers" / "agrinerf_dataparser.py"
+    assert configs == ROOT / "method_configs" / "__init__.py"
+
+
 def test_ns_train_lists_agrinerf() -> None:
     out = subprocess.run(["ns-train", "--help"], capture_output=True, text=True, check=True).stdout
     assert "agrinerf" in out and "nerfacto" in out
