@@ -7,6 +7,10 @@ from pathlib import Path
 
 import pytest
 
+# One thread per test process: pyproject.toml runs two test workers, and torch processes of 2 threads each on 2 cores
+# slow each other several times over. Set before any worker (or the commands the tests start) imports torch.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 _BIN = str(Path(sys.executable).parent)
 if os.environ.get("PATH", "").split(os.pathsep)[0] != _BIN:
     os.environ["PATH"] = _BIN + os.pathsep + os.environ.get("PATH", "")
