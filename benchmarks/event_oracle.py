@@ -27,9 +27,9 @@ from typing import Dict, List, Optional, Tuple
 import torch
 import tyro
 
+from agrinerf_ns.dataparsers.event_stream import EventStream, event_rays, sample_windows
 from agrinerf_ns.machine import device_name
-from agrinerf_ns.model import losses
-from agrinerf_ns.model.event_stream import EventStream, event_rays, sample_windows
+from agrinerf_ns.model import blur_renders, losses
 from agrinerf_ns.model.timed_rays import camera_rows
 
 
@@ -60,7 +60,7 @@ def _stats(pred: torch.Tensor, target: torch.Tensor) -> Tuple[float, float, floa
 def _render_logs(model, bundle, eps: float) -> torch.Tensor:
     out = []
     for s in range(0, len(bundle), 4096):
-        out.append(losses.log_luminance(model._render(model.collider(bundle[s : s + 4096]), routed=False)["rgb"], eps))
+        out.append(losses.log_luminance(model.render(model.collider(bundle[s : s + 4096]), routed=False)["rgb"], eps))
     return torch.cat(out)
 
 
@@ -133,7 +133,7 @@ def main(args: Args) -> None:
         for label, camera in (("frames, RGB rays", {}), ("frames, event-camera rays", metadata.get("event_camera"))):
             if camera is None:
                 continue
-            renders = model._render_at(bundle, win, **camera)
+            renders = blur_renders.render_at(model, bundle, win, "event_loss", **camera)
             logs = losses.log_luminance(renders, eps)
             rows.append((label, _stats((logs[:, 1] - logs[:, 0])[inside], target[inside])))
         # stream: random event pixels, whole frame windows and random sub-windows

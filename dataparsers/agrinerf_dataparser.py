@@ -48,7 +48,7 @@ from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 from agrinerf_ns.views import evenly_spaced
 
 if TYPE_CHECKING:
-    from agrinerf_ns.model.event_stream import EventCamera
+    from agrinerf_ns.dataparsers.event_stream import EventCamera
 
 # (modality, per-frame key in transforms.json, metadata key in DataparserOutputs, is_mask)
 FRAME_KEYS: Tuple[Tuple[Modality, str, str, bool], ...] = (
@@ -250,7 +250,7 @@ def _event_camera(block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[
     warped into the RGB camera at (inf: at infinity). None when the calibration has no event camera."""
     import numpy as np
 
-    from agrinerf_ns.model.event_stream import rig_offset
+    from agrinerf_ns.dataparsers.event_stream import rig_offset
 
     calib = (block.get("calibration") or {}).get("event")
     if not calib or "T_cam_rgb" not in calib:
@@ -264,12 +264,12 @@ def _event_camera(block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[
 def _event_stream(
     block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any], data_dir: Path, transforms_path: Path
 ) -> Optional["EventCamera"]:
-    """The event camera at its own pixels, for the event loss (:class:`agrinerf_ns.model.event_stream.EventCamera`:
+    """The event camera at its own pixels, for the event loss (:class:`agrinerf_ns.dataparsers.event_stream.EventCamera`:
     the dataset's ``events/stream.h5``, the calibration, the rig offset in this parser's scale). None when the
     dataset has no stream or no event calibration."""
     import numpy as np
 
-    from agrinerf_ns.model.event_stream import EventCamera, rig_offset
+    from agrinerf_ns.dataparsers.event_stream import EventCamera, rig_offset
 
     name = (block.get("events") or {}).get("stream")
     calib = (block.get("calibration") or {}).get("event")

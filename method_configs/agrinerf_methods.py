@@ -35,7 +35,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from agrinerf_ns.model.dataset import agrinerf_datamanager_config
+from agrinerf_ns.dataparsers.agrinerf_dataset import agrinerf_datamanager_config
 from agrinerf_ns.model.model import AgriNeRFModelConfig
 
 

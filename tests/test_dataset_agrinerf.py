@@ -13,7 +13,7 @@ from nerfstudio.data.datamanagers.parallel_datamanager import ParallelDataManage
 from PIL import Image
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataError, AgriNeRFDataParserConfig
-from agrinerf_ns.model.dataset import AgriNeRFDataset, agrinerf_datamanager_config, load_aligned_frame
+from agrinerf_ns.dataparsers.agrinerf_dataset import AgriNeRFDataset, agrinerf_datamanager_config, load_aligned_frame
 
 EXTRA = ("thermal", "thermal_mask", "event", "event_mask")
 

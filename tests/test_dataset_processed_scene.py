@@ -12,7 +12,7 @@ from helpers.dataset_fixtures import assert_batch_matches_dataset
 from PIL import Image
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
-from agrinerf_ns.model.dataset import agrinerf_datamanager_config
+from agrinerf_ns.dataparsers.agrinerf_dataset import agrinerf_datamanager_config
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
 

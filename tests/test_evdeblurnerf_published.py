@@ -16,10 +16,11 @@ from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 from scipy.spatial.transform import Rotation
 
-from agrinerf_ns.model import edi_prior, event_stream, losses
+from agrinerf_ns.dataparsers import event_stream
+from agrinerf_ns.dataparsers.event_stream import GL_FLIP, EventCamera, EventStream
+from agrinerf_ns.model import edi_prior, losses
 from agrinerf_ns.model.event_crf import EventCRF, event_log_luma
 from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_features
-from agrinerf_ns.model.event_stream import GL_FLIP, EventCamera, EventStream
 from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
 from agrinerf_ns.model.rigid_blur import blend, se3_exp, warp_rays
 from agrinerf_ns.trajectory import CameraTrajectory

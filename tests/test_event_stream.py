@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
-from agrinerf_ns.model.event_stream import EventStream, event_rays, pixel_directions, sample_windows
+from agrinerf_ns.dataparsers.event_stream import EventStream, event_rays, pixel_directions, sample_windows
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
 from agrinerf_ns.synth.capture import make_scene

@@ -333,13 +333,13 @@ def test_capture_with_events_raw_gives_the_dataset_of_events_h5(tmp_path: Path):
 
 @needs_rosbags
 def test_the_event_loss_counts_a_real_recording_like_brute_force(tmp_path: Path):
-    """The event loss's counting structure (agrinerf_ns.model.event_stream) on a real Prophesee recording: bursty,
+    """The event loss's counting structure (agrinerf_ns.dataparsers.event_stream) on a real Prophesee recording: bursty,
     hot pixels, a 640x480 sensor, times in microseconds of the sensor clock. Totals match the upstream reference
     counts and every random window matches a brute-force count."""
     import h5py
     import torch
 
-    from agrinerf_ns.model.event_stream import EventStream
+    from agrinerf_ns.dataparsers.event_stream import EventStream
     from agrinerf_ns.process.rosbag import BagTopics, bag_to_raw
 
     raw = bag_to_raw(BAGS / "test_events_1.bag", _calib(tmp_path), tmp_path / "raw",

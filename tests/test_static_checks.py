@@ -43,3 +43,105 @@ def test_mypy_catches_an_undefined_name(tmp_path):
     result = _run(command, tmp_path)
     assert result.returncode == 1, f"mypy passed a module with an undefined name:\n{result.stdout}\n{result.stderr}"
     assert 'Name "heigth" is not defined  [name-defined]' in result.stdout, result.stdout
+
+
+# --- the house: room sizes and import directions ------------------------------------------------------------
+
+MAX_LINES = 500
+"""No source file is longer: a module past this does several jobs (split it by job, as agrinerf_ns/model/)."""
+
+FOLDERS = {"agrinerf_ns": "agrinerf_ns", "dataparsers": "agrinerf_ns.dataparsers", "method_configs": "agrinerf_ns.method_configs"}  # fmt: skip
+"""Source folders and the package each installs as (pyproject.toml's package-dir)."""
+
+
+def _modules() -> dict:
+    """Module name -> file, for every module the package installs."""
+    found = {}
+    for folder, package in FOLDERS.items():
+        for path in sorted((REPO / folder).rglob("*.py")):
+            parts = list(path.relative_to(REPO / folder).with_suffix("").parts)
+            if parts[0] in ("dataparsers", "method_configs") and folder == "agrinerf_ns":
+                continue  # a checkout's git-ignored links to the mapped folders
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            found[".".join([package, *parts])] = path
+    return found
+
+
+def _imports(tree, modules: dict, module_level: bool) -> set:
+    """Modules of this package that ``tree`` imports: at import time only (module level, not under ``if
+    TYPE_CHECKING``) or anywhere (``module_level`` False)."""
+    import ast
+
+    names = set()
+
+    def visit(node, top: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                if not module_level:
+                    visit(child, False)
+                continue
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                if not module_level:
+                    visit(child, top)
+                for other in child.orelse:
+                    visit(ast.Module(body=[other], type_ignores=[]), top)
+                continue
+            if isinstance(child, ast.Import):
+                names.update(alias.name for alias in child.names)
+            elif isinstance(child, ast.ImportFrom) and child.module and child.level == 0:
+                for alias in child.names:
+                    full = f"{child.module}.{alias.name}"
+                    names.add(full if full in modules else child.module)
+            visit(child, top)
+
+    visit(tree, True)
+    return {name for name in names if name in modules}
+
+
+def test_no_source_file_is_over_500_lines():
+    long = {
+        str(p.relative_to(REPO)): n for p in _modules().values() if (n := len(p.read_text().splitlines())) > MAX_LINES
+    }
+    long.update({str(p.relative_to(REPO)): n for p in sorted((REPO / "benchmarks").glob("*.py"))
+                 if (n := len(p.read_text().splitlines())) > MAX_LINES})  # fmt: skip
+    assert not long, f"source files over {MAX_LINES} lines: {long}"
+
+
+def test_the_import_graph_has_no_circle():
+    """Module-level imports (what runs when a module is imported) between the package's modules form no cycle."""
+    import ast
+
+    modules = _modules()
+    graph = {name: _imports(ast.parse(path.read_text()), modules, module_level=True) for name, path in modules.items()}
+    state: dict = {}
+    stack: list = []
+
+    def visit(name: str) -> list:
+        state[name] = "open"
+        stack.append(name)
+        for other in sorted(graph[name]):
+            if state.get(other) == "open":
+                return stack[stack.index(other) :] + [other]
+            if other not in state and (cycle := visit(other)):
+                return cycle
+        state[name] = "done"
+        stack.pop()
+        return []
+
+    for name in sorted(graph):
+        if name not in state:
+            cycle = visit(name)
+            assert not cycle, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_data_stage_imports_nothing_of_the_model():
+    """dataparsers/ (dataparser, dataset, event stream) reads data for the model and never imports it, not even
+    inside a function."""
+    import ast
+
+    modules = _modules()
+    for path in sorted((REPO / "dataparsers").glob("*.py")):
+        model = sorted(m for m in _imports(ast.parse(path.read_text()), modules, module_level=False)
+                       if m == "agrinerf_ns.model" or m.startswith("agrinerf_ns.model."))  # fmt: skip
+        assert not model, f"{path.relative_to(REPO)} imports {model}"

@@ -19,8 +19,8 @@ from PIL import Image
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
+from agrinerf_ns.dataparsers.agrinerf_dataset import agrinerf_datamanager_config
 from agrinerf_ns.images import write_png
-from agrinerf_ns.model.dataset import agrinerf_datamanager_config
 from agrinerf_ns.process import ProcessConfig, align, process_capture, readers
 from agrinerf_ns.process.radiometric import parse_calibration
 from agrinerf_ns.synth import SynthConfig, generate_capture

@@ -24,7 +24,7 @@ import torch
 from jaxtyping import Bool, Float, Int
 from torch import Tensor
 
-from agrinerf_ns.model.event_stream import EventCamera, EventStream
+from agrinerf_ns.dataparsers.event_stream import EventCamera, EventStream
 
 EDI_STEPS = 9
 """Times across the exposure (``pts0_edi_steps``): 8 intervals, the 5th time is mid-exposure."""

@@ -19,7 +19,7 @@ import torch
 from jaxtyping import Float, Int, Integer
 from torch import Tensor
 
-from agrinerf_ns.model.event_stream import read_stream_h5
+from agrinerf_ns.dataparsers.event_stream import read_stream_h5
 
 
 class EventPairs:

@@ -102,7 +102,7 @@ def write_event_frames(
 
 STREAM_FILE = "stream.h5"
 """The dataset's copy of the events inside the frames' windows, at the event camera's pixels, times in microseconds of
-the frames' clock (the event loss reads it: ``agrinerf_ns.model.event_stream``)."""
+the frames' clock (the event loss reads it: ``agrinerf_ns.dataparsers.event_stream``)."""
 
 
 def _stream_copy(chunks, sink: EventH5Writer, sync, start_s: float, end_s: float):
