@@ -139,7 +139,9 @@ def test_ns_render_interpolate_on_one_held_out_camera_writes_a_video(tiny_run_co
     frames = mediapy.read_video(str(video))
     assert frames.shape == (3, 48, 64, 3)  # the one held-out camera, 3 frames of its rgb render
     assert frames.std() > 5
-    np.testing.assert_allclose(frames[0], frames[-1], atol=2)  # the path holds still
+    # the path holds still: the frames differ only by the lossy codec (an I-frame, then P-frames)
+    change = np.abs(frames[0].astype(int) - frames[-1].astype(int))
+    assert change.mean() < 0.5 and change.max() <= 8, (change.mean(), change.max())
 
 
 def test_system_deps_report_nothing_missing_after_install(capsys) -> None:
