@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from jaxtyping import Float
 
-from agrinerf_ns.bench.image_metrics import linear_to_srgb, srgb_to_linear
+from agrinerf_ns.colour import linear_to_srgb, srgb_to_linear
 
 Box = Tuple[float, float, float, float]
 """(x0, y0, x1, y1) in the pixels of a view's image."""

@@ -9,6 +9,7 @@ import pytest
 import torch
 import yaml
 
+from agrinerf_ns import colour
 from agrinerf_ns.bench import image_metrics, results
 from agrinerf_ns.bench.cli import BenchConfig, main
 from agrinerf_ns.views import CPU_RAYS_PER_CHUNK, evenly_spaced, rays_per_chunk
@@ -44,7 +45,7 @@ def test_csv_append_survives_and_resumes(tmp_path: Path) -> None:
 def test_exposure_alignment_scores_structure_not_exposure() -> None:
     torch.manual_seed(0)
     truth = torch.rand(24, 32, 3) * 0.8 + 0.1
-    dark = image_metrics.linear_to_srgb(image_metrics.srgb_to_linear(truth) * 0.05)
+    dark = colour.linear_to_srgb(colour.srgb_to_linear(truth) * 0.05)
     assert image_metrics.psnr(dark, truth) < 15
     assert image_metrics.psnr(image_metrics.exposure_align(dark, truth), truth) > 40
     noisy = (dark + 0.02 * torch.randn_like(dark)).clamp(0, 1)

@@ -7,17 +7,7 @@ from jaxtyping import Float
 from torch import Tensor
 from torchmetrics.functional.image import structural_similarity_index_measure
 
-
-def srgb_to_linear(image: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
-    """Inverse sRGB transfer function (IEC 61966-2-1)."""
-    image = image.clamp(0.0, 1.0)
-    return torch.where(image <= 0.04045, image / 12.92, ((image + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(image: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
-    """sRGB transfer function (IEC 61966-2-1)."""
-    image = image.clamp(0.0, 1.0)
-    return torch.where(image <= 0.0031308, image * 12.92, 1.055 * image.clamp(min=1e-12) ** (1 / 2.4) - 0.055)
+from agrinerf_ns.colour import linear_to_srgb, srgb_to_linear
 
 
 def exposure_align(pred: Float[Tensor, "h w 3"], truth: Float[Tensor, "h w 3"]) -> Float[Tensor, "h w 3"]:

@@ -12,7 +12,7 @@ from jaxtyping import Float
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
-from agrinerf_ns.model import losses
+from agrinerf_ns import colour
 from agrinerf_ns.model.model_config import SIDE_STREAM_SEED
 
 if TYPE_CHECKING:
@@ -53,7 +53,7 @@ def blurred_rgb(model: AgriNeRFModel, bundle: RayBundle) -> Float[Tensor, "n 3"]
     assert model.exposure is not None
     times = exposure_times(model.exposure[camera_rows(bundle)], model.config.blur_samples)
     renders = render_at(model, bundle, times, "rgb_loss")
-    return losses.linear_to_srgb(losses.srgb_to_linear(renders).mean(dim=1))
+    return colour.linear_to_srgb(colour.srgb_to_linear(renders).mean(dim=1))
 
 
 def kernel_rgb(model: AgriNeRFModel, bundle: RayBundle, frame_rgb: Float[Tensor, "n 3"]) -> Float[Tensor, "n 3"]:
@@ -77,5 +77,5 @@ def kernel_rgb(model: AgriNeRFModel, bundle: RayBundle, frame_rgb: Float[Tensor,
     renders = model.render(model.collider(moved), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
         n, m, 3
     )
-    linear = losses.srgb_to_linear(torch.cat([frame_rgb[:, None, :], renders], dim=1))
-    return losses.linear_to_srgb(blend(linear, weights))
+    linear = colour.srgb_to_linear(torch.cat([frame_rgb[:, None, :], renders], dim=1))
+    return colour.linear_to_srgb(blend(linear, weights))

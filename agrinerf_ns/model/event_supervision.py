@@ -12,6 +12,7 @@ from jaxtyping import Float
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
+from agrinerf_ns import colour
 from agrinerf_ns.model import blur_renders, edi_prior, losses
 
 if TYPE_CHECKING:
@@ -65,7 +66,7 @@ def pair_event_logs(model: AgriNeRFModel, like: RayBundle) -> Dict[str, Tensor]:
     )
     crf = model.event_crf if model.step >= model.config.event_crf_start_step else None
     features = polarity_features(polarity).to(device)
-    logs = event_log_luma(losses.srgb_to_linear(rgb), model.config.event_log_eps, crf, features)
+    logs = event_log_luma(colour.srgb_to_linear(rgb), model.config.event_log_eps, crf, features)
     return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1],
             "event_target": pair_targets(polarity, *event_thresholds(model)).to(device)}  # fmt: skip
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any, Dict, Tuple, cast
 from jaxtyping import Float
 from torch import Tensor
 
+from agrinerf_ns import colour
 from agrinerf_ns.model import event_supervision, losses
 from agrinerf_ns.model.vm_encoding import plane_tv
 
@@ -70,7 +71,7 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
     if model.use_rgb and image is not None:
         terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", pred("rgb_loss")), image)
     if "edi_factor" in outputs and image is not None:  # EvDeblurNeRF's EDI prior on the frame ray
-        sharp = losses.linear_to_srgb(losses.srgb_to_linear(image) / outputs["edi_factor"])
+        sharp = colour.linear_to_srgb(colour.srgb_to_linear(image) / outputs["edi_factor"])
         terms["edi_prior_loss"] = losses.masked_mse(pred("edi_prior_loss"), sharp, outputs["edi_valid"])
     if "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples
         terms["event_loss"] = losses.event_pair_loss(

@@ -12,6 +12,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
+from agrinerf_ns.colour import srgb_to_linear
+
 LUMA_WEIGHTS = (0.299, 0.587, 0.114)
 """ITU-R BT.601 luma weights: the RGB -> one channel mapping of L_reg (the same weights as OpenCV's RGB2GRAY, so a
 grey image computed by the processing stage and by the loss agree)."""
@@ -26,18 +28,6 @@ def luminance(rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 1"]:
 REC709_WEIGHTS = (0.2126, 0.7152, 0.0722)
 """Rec. 709 luminance weights of linear RGB: what an event pixel's photodiode integrates (approximately: a real sensor
 has its own spectral response; the synthetic event camera uses exactly these)."""
-
-
-def srgb_to_linear(rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
-    """Inverse sRGB transfer curve of values in [0, 1] (the frames and the RGB head are sRGB-encoded)."""
-    rgb = rgb.float().clamp(0.0, 1.0)
-    return torch.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055).clamp(min=1e-8) ** 2.4)
-
-
-def linear_to_srgb(linear: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
-    """sRGB transfer curve of linear values in [0, 1] (the inverse of `srgb_to_linear`)."""
-    linear = linear.float().clamp(0.0, 1.0)
-    return torch.where(linear <= 0.0031308, linear * 12.92, 1.055 * linear.clamp(min=1e-8) ** (1 / 2.4) - 0.055)
 
 
 def log_luminance(rgb: Float[Tensor, "*bs 3"], eps: float) -> Float[Tensor, "*bs 1"]:
