@@ -8,7 +8,7 @@ import math
 from typing import TYPE_CHECKING, Any, Dict, Tuple
 
 import torch
-from jaxtyping import Float
+from jaxtyping import Float, Int
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
@@ -37,6 +37,28 @@ def edi_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, Tensor]:
     return {"edi_factor": factor.to(device), "edi_valid": inside.float()[:, None].to(device)}
 
 
+def _render_event_rays(
+    model: AgriNeRFModel,
+    like: RayBundle,
+    origins: Float[Tensor, "m 2 3"],
+    directions: Float[Tensor, "m 2 3"],
+    frames: Int[Tensor, " m"],
+) -> Float[Tensor, "m 2 3"]:
+    """RGB of `m` event samples' rays at both their times (the device, dtype and pixel area of `like`; camera index:
+    the training frame `frames` [m] of each), with the event loss's density gradient scale."""
+    m = int(origins.shape[0])
+    device, dtype = like.origins.device, like.origins.dtype
+    bundle = RayBundle(
+        origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
+        directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
+        pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
+        camera_indices=frames.repeat_interleave(2)[:, None].to(device),
+    )
+    scale = model.density_gradient_scale("event_loss")
+    rendered = model.render(model.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))
+    return rendered["rgb"].reshape(m, 2, 3)
+
+
 def pair_event_logs(model: AgriNeRFModel, like: RayBundle) -> Dict[str, Tensor]:
     """`event_rays_per_batch` EvDeblurNeRF event samples (`model/event_pairs.py`) rendered along the event camera's
     rays at both events' times: their log luma (after the learnt response, from its start step) and targets."""
@@ -53,17 +75,8 @@ def pair_event_logs(model: AgriNeRFModel, like: RayBundle) -> Dict[str, Tensor]:
     times = torch.stack([t0, t1], -1).double() * 1e-6
     origins, directions = event_rays(model.trajectory, model.event_camera_native, pixel, times)
     frames = (times[:, :1] - model.frame_times.double()[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
-    device, dtype = like.origins.device, like.origins.dtype
-    bundle = RayBundle(
-        origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
-        directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
-        pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
-        camera_indices=frames.repeat_interleave(2)[:, None].to(device),
-    )
-    scale = model.density_gradient_scale("event_loss")
-    rgb = model.render(model.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
-        m, 2, 3
-    )
+    rgb = _render_event_rays(model, like, origins, directions, frames)
+    device = like.origins.device
     crf = model.event_crf if model.step >= model.config.event_crf_start_step else None
     features = polarity_features(polarity).to(device)
     logs = event_log_luma(colour.srgb_to_linear(rgb), model.config.event_log_eps, crf, features)
@@ -86,17 +99,8 @@ def stream_event_logs(model: AgriNeRFModel, like: RayBundle) -> Dict[str, Tensor
     origins, directions = event_rays(
         model.trajectory, model.event_camera_native, pixel, torch.stack([t0, t1], -1).double() * 1e-6
     )
-    device, dtype = like.origins.device, like.origins.dtype
-    bundle = RayBundle(
-        origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
-        directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
-        pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
-        camera_indices=frames.repeat_interleave(2)[:, None].to(device),
-    )
-    scale = model.density_gradient_scale("event_loss")
-    rgb = model.render(model.collider(bundle), routed=False, density_scale=scale, heads=("rgb",))["rgb"].reshape(
-        m, 2, 3
-    )
+    rgb = _render_event_rays(model, like, origins, directions, frames)
+    device = like.origins.device
     logs = losses.log_luminance(rgb, model.config.event_log_eps)
     return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
             "event_off": off.to(device)}  # fmt: skip
