@@ -27,6 +27,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from torch import Tensor
 from torch.nn import Parameter
 
+from agrinerf_ns import cpu_memory
 from agrinerf_ns.dataparsers.event_stream import EventCamera, EventStream
 from agrinerf_ns.modalities import normalise_modalities
 from agrinerf_ns.model import (
@@ -301,6 +302,8 @@ class AgriNeRFModel(Model):
         times ("rgb_blurred", "event_log_start", "event_log_end") where they are on."""
         if self.training:
             self.camera_optimizer.apply_to_raybundle(ray_bundle)
+            if self.config.keep_freed_memory:
+                cpu_memory.keep_freed_memory(ray_bundle.origins.device)
         outputs = self.render(ray_bundle)
         if self.training and torch.is_grad_enabled():
             with blur_renders.side_stream(self):
@@ -443,8 +446,7 @@ class AgriNeRFModel(Model):
             raw.update(loss_routing.data_terms(self, outputs, batch))
             if self.training:
                 raw.update(loss_routing.regularisers(self))
-        coef = self.config.loss_coefficients
-        # out of place (misc.scale_dict multiplies in place, which would also scale the raw terms in the metrics)
+        coef = self.config.loss_coefficients  # out of place below: misc.scale_dict would scale the raw metrics too
         loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
         if "edi_prior_loss" in loss_dict:  # EvDeblurNeRF's cosine-decayed weight
             loss_dict["edi_prior_loss"] = loss_dict["edi_prior_loss"] * edi_prior.cosine_weight(self.step)

@@ -141,6 +141,10 @@ class AgriNeRFModelConfig(ModelConfig):
     box_depth_cut: float = 2.5
     """Surface points farther from their camera than this times the median distance are background, outside the box
     (sky, hedges, far rows)."""
+    keep_freed_memory: bool = True
+    """Training on a CPU: keep freed memory in the process for the next step (glibc serves large blocks from its heap
+    and does not trim it) rather than fault fresh pages in every step; about half as long a step at the paper's final
+    grids, for a higher resident peak (`agrinerf_ns/cpu_memory.py`, docs/benchmark.md). No effect on a GPU."""
     occupancy_resolution: int = 64
     """Cells per axis of the occupancy grid that prunes empty space (0: no pruning)."""
     occupancy_update_iters: Tuple[int, ...] = (2000, 4000, 6000)
