@@ -79,4 +79,18 @@ def link_installed_layout(repo: Path, root: Path) -> Path:
             os.symlink(entry.resolve(), top / entry.name)
     for name, folder in mapped.items():
         os.symlink(folder.resolve(), top / name)
+    write_entry_points(repo, root)
     return root
+
+
+def write_entry_points(repo: Path, root: Path) -> None:
+    """``root/agrinerf_ns-<version>.dist-info`` with checkout ``repo``'s entry points, so that Nerfstudio, importing
+    from ``root`` ahead of site-packages, discovers that checkout's methods rather than the installed version's (the
+    first distribution of a name on the path wins)."""
+    project = tomllib.loads((repo / "pyproject.toml").read_text())["project"]
+    info = root / f"{PACKAGE}-{project['version']}.dist-info"
+    info.mkdir(parents=True, exist_ok=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {project['name']}\nVersion: {project['version']}\n")
+    groups = project.get("entry-points", {})
+    lines = [f"[{group}]\n" + "".join(f"{k} = {v}\n" for k, v in entries.items()) for group, entries in groups.items()]
+    (info / "entry_points.txt").write_text("\n".join(lines))

@@ -20,7 +20,7 @@ from rich.console import Console
 
 from agrinerf_ns.bench import results
 from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, machine_note, scene_folders, train_record
-from agrinerf_ns.bench.methods import METHODS, BenchMethod
+from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, BenchMethod
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
 from agrinerf_ns.orchestrate import bench_grid
@@ -42,8 +42,9 @@ class BenchConfig:
     """quick (CPU), full (GPU, paper settings: 30k steps), detect (CPU: the dark garden at 320x240 for
     ``agrinerf-detect evaluate --bench``), count (CPU: fruit counted in every run, OUT/count.csv and count.md) or tiny
     (tests)."""
-    methods: Tuple[str, ...] = tuple(METHODS)
-    """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf)."""
+    methods: Tuple[str, ...] = tuple(m for m in METHODS if m not in SAMPLE_BUDGETS)
+    """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf; sample-budget variants such as
+    agrinerf-fine32 only when named)."""
     scenes: Optional[Tuple[str, ...]] = None
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
     seed: int = 0

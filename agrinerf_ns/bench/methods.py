@@ -57,3 +57,22 @@ METHODS.update(
         for key, name in ABLATIONS.items()
     }
 )
+
+SAMPLE_BUDGETS: Dict[str, Tuple[str, int]] = {
+    "agrinerf-fine32": ("agrinerf", 32),
+    "agrinerf-lite-fine16": ("agrinerf-lite", 16),
+}
+"""Bench key -> (preset, fine samples per ray): a preset with half its fine samples, at its own step budget, to weigh
+the sample budget against wall time (docs/benchmark.md)."""
+METHODS.update(
+    {
+        key: BenchMethod(
+            f"{METHODS[preset].label} ({fine} fine samples)",
+            preset,
+            "transforms.json",
+            "rgb",
+            train_args=("--pipeline.model.num-fine-samples", str(fine)),
+        )
+        for key, (preset, fine) in SAMPLE_BUDGETS.items()
+    }
+)
