@@ -195,6 +195,39 @@ def test_the_blur_model_renders_across_the_exposure_and_zero_exposure_is_the_sha
         assert "rgb_blurred" not in blurred(_rays())  # evaluation renders the sharp frame pose
 
 
+@pytest.mark.parametrize(
+    ("samples", "stamp", "rendered"),
+    [(5, "centre", 4), (4, "centre", 4), (5, "start", 5)],
+    ids=["odd", "even", "start"],
+)
+def test_the_blur_model_reuses_the_frames_render_at_mid_exposure(samples: int, stamp: str, rendered: int) -> None:
+    """An odd number of blur samples puts the middle one at the exposure's centre: where frames are stamped there it
+    is the frame's own render (`sharp_rgb`), blended as the other renders are, and not rendered again."""
+    from agrinerf_ns.model.blur_renders import blurred_rgb, render_at
+    from agrinerf_ns.model.timed_rays import exposure_times
+
+    metadata = _metadata(exposure_s=0.04)
+    if stamp == "start":  # the frame's time stamp at the exposure's start: the middle pose is not the frame's
+        times = metadata["times"]
+        metadata["exposure"] = torch.stack([times, times + 0.04], -1)  # type: ignore[operator]
+    model = _model(metadata, blur_samples=samples, event_rays_per_batch=0)
+    bundle, n = _rays(), 48
+    counts, render = [], model.render
+    model.render = lambda rays, **kw: counts.append(len(rays)) or render(rays, **kw)  # type: ignore[method-assign]
+    planted = torch.full((n, 3), 0.25)
+    torch.manual_seed(7)
+    out = blurred_rgb(model, bundle, planted)
+    assert counts == [rendered * n]
+    if rendered == samples - 1:  # the expected blend of the other renders (same draws) and the planted frame render
+        all_times = exposure_times(model.exposure[bundle.camera_indices[:, 0]], samples)  # type: ignore[index]
+        middle = samples // 2
+        torch.manual_seed(7)
+        others = render_at(model, bundle, torch.cat([all_times[:, :middle], all_times[:, middle + 1 :]], 1), "rgb_loss")
+        blend = torch.cat([others[:, :middle], planted[:, None], others[:, middle:]], 1)
+        expected = colour.linear_to_srgb(colour.srgb_to_linear(blend).mean(dim=1))
+        assert torch.allclose(out, expected, atol=1e-6)
+
+
 def test_the_event_loss_reaches_the_density_and_the_rgb_appearance() -> None:
     model = _model(_metadata(), event_rays_per_batch=16)
     assert model.use_event_loss

@@ -5,7 +5,7 @@ own that these and the event renders draw from."""
 from __future__ import annotations
 
 import contextlib
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator, Optional
 
 import torch
 from jaxtyping import Float
@@ -17,6 +17,9 @@ from agrinerf_ns.model.model_config import SIDE_STREAM_SEED
 
 if TYPE_CHECKING:
     from agrinerf_ns.model.model import AgriNeRFModel
+
+FRAME_TIME_ATOL_S = 1e-6
+"""A blur sample this close (seconds) to its frame's time is at the frame's pose."""
 
 
 @contextlib.contextmanager
@@ -46,13 +49,28 @@ def render_at(
     return rendered["rgb"].reshape(n, k, 3)
 
 
-def blurred_rgb(model: AgriNeRFModel, bundle: RayBundle) -> Float[Tensor, "n 3"]:
-    """The blur model: the mean in linear radiance of `blur_samples` renders across each frame's exposure."""
+def blurred_rgb(
+    model: AgriNeRFModel, bundle: RayBundle, sharp_rgb: Optional[Float[Tensor, "n 3"]] = None
+) -> Float[Tensor, "n 3"]:
+    """The blur model: the mean in linear radiance of `blur_samples` renders across each frame's exposure.
+
+    `sharp_rgb`: the frame ray's own render (for the RGB loss). An odd number of samples puts the middle one at the
+    exposure's centre; where that is the frame's time (mid-exposure time stamps), the middle pose is the frame's pose
+    and its render is `sharp_rgb`, another draw of the same samplers: it is reused, not rendered again."""
     from agrinerf_ns.model.timed_rays import camera_rows, exposure_times
 
-    assert model.exposure is not None
-    times = exposure_times(model.exposure[camera_rows(bundle)], model.config.blur_samples)
-    renders = render_at(model, bundle, times, "rgb_loss")
+    assert model.exposure is not None and model.frame_times is not None
+    rows = camera_rows(bundle)
+    times = exposure_times(model.exposure[rows], model.config.blur_samples)
+    middle = times.shape[1] // 2
+    at_frame = times.shape[1] % 2 == 1 and torch.allclose(
+        times[:, middle], model.frame_times[rows].double(), rtol=0.0, atol=FRAME_TIME_ATOL_S
+    )
+    if sharp_rgb is not None and at_frame:
+        others = render_at(model, bundle, torch.cat([times[:, :middle], times[:, middle + 1 :]], dim=1), "rgb_loss")
+        renders = torch.cat([others[:, :middle], sharp_rgb[:, None, :], others[:, middle:]], dim=1)
+    else:
+        renders = render_at(model, bundle, times, "rgb_loss")
     return colour.linear_to_srgb(colour.srgb_to_linear(renders).mean(dim=1))
 
 
