@@ -307,11 +307,10 @@ class AgriNeRFModel(Model):
         outputs = self.render(ray_bundle)
         if self.training and torch.is_grad_enabled():
             with blur_renders.side_stream(self):
-                sharp = outputs.get("rgb/rgb_loss", outputs["rgb"])  # the frame ray's render for the RGB loss
-                if self.use_blur and self.step >= self.config.blur_start_step and self.blur_kernel is not None:
-                    outputs["rgb_blurred"] = blur_renders.kernel_rgb(self, ray_bundle, sharp)
-                elif self.use_blur and self.step >= self.config.blur_start_step:
-                    outputs["rgb_blurred"] = blur_renders.blurred_rgb(self, ray_bundle, sharp)
+                if self.use_blur and self.step >= self.config.blur_start_step:
+                    sharp = outputs.get("rgb/rgb_loss", outputs["rgb"])  # the frame ray's render for the RGB loss
+                    blur = blur_renders.kernel_rgb if self.blur_kernel is not None else blur_renders.blurred_rgb
+                    outputs["rgb_blurred"] = blur(self, ray_bundle, sharp)
                 if self.edi_stream is not None:
                     outputs.update(event_supervision.edi_outputs(self, ray_bundle))
                 if self.use_event_loss and self.event_pairs is not None:
