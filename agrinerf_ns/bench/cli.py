@@ -237,8 +237,9 @@ def main(config: BenchConfig) -> List[results.Row]:
                                          config.retries, CONSOLE)  # fmt: skip
     keys = {results.seed_key(m, s) for m in config.methods for s in config.run_seeds}
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in keys]
-    write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
-    CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
+    if rows:  # none when every run failed: failures.md says why (RunsFailed below)
+        write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
+        CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
     if profile.count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
         from agrinerf_ns.count.bench import count_bench, run_note
 

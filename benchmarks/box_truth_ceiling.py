@@ -1,0 +1,83 @@
+"""How much of a synthetic scene's held-out views a trained run's full-resolution box can hold at all.
+
+    python benchmarks/box_truth_ceiling.py --config RUN/config.yml --raw SCENE/raw --data SCENE/data
+
+`fine_region_weight` (ns-eval) is the share of the rendered weight inside the run's fitted box. Its ceiling is the
+share of held-out pixels whose true surface (the capture's true depth) lies in that box: sky and the far background
+sit outside any box that keeps fruit-sized voxels. Prints both shares and, for boxes that would hold 80% and 90% of
+the true surfaces (per-axis central quantiles widened until they do), the voxel size in metres at the preset's final
+grids, as JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict
+
+import numpy as np
+import torch
+import tyro
+
+from agrinerf_ns.count.oracle import oracle_renders
+from agrinerf_ns.detect.render import load_run
+
+
+@dataclass
+class Args:
+    config: Path
+    """A trained run's config.yml (an AgriNeRF model with a fitted box)."""
+    raw: Path
+    """The synthetic capture (with truth/depth) the run's dataset was processed from."""
+    data: Path
+    """The processed dataset the run trained on."""
+
+
+def quantile_box_voxel(points: np.ndarray, share: float, resolution: int, grid_fraction: float) -> float:
+    """Largest voxel side (units) at `resolution` of a box of per-axis central quantiles holding `share` of points."""
+    for tail in np.linspace(0.0, 0.5, 501):
+        lo, hi = np.quantile(points, tail / 2, axis=0), np.quantile(points, 1 - tail / 2, axis=0)
+        inside = ((points >= lo) & (points <= hi)).all(axis=1).mean()
+        if inside < share:
+            break
+        best = (hi - lo).max() / (resolution * grid_fraction)
+    return float(best)
+
+
+def main(args: Args) -> Dict[str, float]:
+    run = load_run(args.config)
+    model = run.pipeline.model
+    transforms = json.loads((args.config.parent / "dataparser_transforms.json").read_text())
+    transform, scale = np.asarray(transforms["transform"], np.float64), float(transforms["scale"])
+    views = [v for v in oracle_renders(args.raw, args.data).views if v.split == "eval"]
+    hits, inside, surfaces = 0, 0, []
+    for view in views:
+        hit = view.accumulation > 0.5
+        world = (view.origins + view.directions * view.depth[..., None])[hit].astype(np.float64)
+        scene = scale * (world @ transform[:3, :3].T + transform[:3, 3])
+        with torch.no_grad():
+            inside += int(model.field.full_resolution(torch.from_numpy(scene).float()).sum())
+        hits += int(hit.sum())
+        surfaces.append(scene)
+    pixels = sum(v.accumulation.size for v in views)
+    points = np.concatenate(surfaces)
+    final = int(np.max(model.config.final_resolution))
+    metres = float(model.metres_per_unit) if model.metres_per_unit is not None else float("nan")
+    result = {
+        "heldout_views": len(views),
+        "share_of_pixels_with_true_surface_in_box": inside / pixels,
+        "share_of_pixels_with_any_true_surface": hits / pixels,
+        "share_of_true_surfaces_in_box": inside / max(hits, 1),
+        "voxel_m_box_holding_80pct_of_surfaces": quantile_box_voxel(points, 0.8, final, model.config.box_grid_fraction)
+        * metres,
+        "voxel_m_box_holding_90pct_of_surfaces": quantile_box_voxel(points, 0.9, final, model.config.box_grid_fraction)
+        * metres,
+        "final_resolution": final,
+    }
+    print(json.dumps(result, indent=1))
+    return result
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
