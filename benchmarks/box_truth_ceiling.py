@@ -35,13 +35,14 @@ class Args:
 
 
 def quantile_box_voxel(points: np.ndarray, share: float, resolution: int, grid_fraction: float) -> float:
-    """Largest voxel side (units) at `resolution` of a box of per-axis central quantiles holding `share` of points."""
+    """Voxel side (units) of a box of per-axis central quantiles holding `share` of `points`, with the voxel budget of a
+    `resolution`^3 grid in cubic cells over `grid_fraction` of each axis (as `grid_mapping.axis_resolution`)."""
     for tail in np.linspace(0.0, 0.5, 501):
         lo, hi = np.quantile(points, tail / 2, axis=0), np.quantile(points, 1 - tail / 2, axis=0)
         inside = ((points >= lo) & (points <= hi)).all(axis=1).mean()
         if inside < share:
             break
-        best = (hi - lo).max() / (resolution * grid_fraction)
+        best = np.exp(np.log(np.maximum(hi - lo, 1e-9)).mean()) / (resolution * grid_fraction)
     return float(best)
 
 
