@@ -21,7 +21,9 @@ import torch
 import tyro
 
 from agrinerf_ns.count.oracle import oracle_renders
+from agrinerf_ns.count.render import WorldFrame
 from agrinerf_ns.detect.render import load_run
+from agrinerf_ns.model.grid_mapping import axis_resolution
 
 
 @dataclass
@@ -35,28 +37,27 @@ class Args:
 
 
 def quantile_box_voxel(points: np.ndarray, share: float, resolution: int, grid_fraction: float) -> float:
-    """Voxel side (units) of a box of per-axis central quantiles holding `share` of `points`, with the voxel budget of a
-    `resolution`^3 grid in cubic cells over `grid_fraction` of each axis (as `grid_mapping.axis_resolution`)."""
+    """Voxel side (units, the largest axis) of a box of per-axis central quantiles holding `share` of `points`, at
+    the grid resolution per axis that the field would give it (`grid_mapping.axis_resolution`)."""
     for tail in np.linspace(0.0, 0.5, 501):
         lo, hi = np.quantile(points, tail / 2, axis=0), np.quantile(points, 1 - tail / 2, axis=0)
         inside = ((points >= lo) & (points <= hi)).all(axis=1).mean()
         if inside < share:
             break
-        best = np.exp(np.log(np.maximum(hi - lo, 1e-9)).mean()) / (resolution * grid_fraction)
-    return float(best)
+        res = axis_resolution(torch.from_numpy(np.stack([lo, hi])), grid_fraction, resolution)
+        best = float(((hi - lo) / (grid_fraction * np.asarray(res))).max())
+    return best
 
 
 def main(args: Args) -> Dict[str, float]:
     run = load_run(args.config)
     model = run.pipeline.model
-    transforms = json.loads((args.config.parent / "dataparser_transforms.json").read_text())
-    transform, scale = np.asarray(transforms["transform"], np.float64), float(transforms["scale"])
+    frame = WorldFrame.read(args.config.parent / "dataparser_transforms.json")
     views = [v for v in oracle_renders(args.raw, args.data).views if v.split == "eval"]
     hits, inside, surfaces = 0, 0, []
     for view in views:
         hit = view.accumulation > 0.5
-        world = (view.origins + view.directions * view.depth[..., None])[hit].astype(np.float64)
-        scene = scale * (world @ transform[:3, :3].T + transform[:3, 3])
+        scene = frame.to_ns((view.origins + view.directions * view.depth[..., None])[hit])
         with torch.no_grad():
             inside += int(model.field.full_resolution(torch.from_numpy(scene).float()).sum())
         hits += int(hit.sum())

@@ -204,7 +204,7 @@ def test_the_blur_model_reuses_the_frames_render_at_mid_exposure(samples: int, s
     """An odd number of blur samples puts the middle one at the exposure's centre: where frames are stamped there it
     is the frame's own render (`sharp_rgb`), blended as the other renders are, and not rendered again."""
     from agrinerf_ns.model.blur_renders import blurred_rgb, render_at
-    from agrinerf_ns.model.timed_rays import exposure_times
+    from agrinerf_ns.model.timed_rays import camera_rows, exposure_times
 
     metadata = _metadata(exposure_s=0.04)
     if stamp == "start":  # the frame's time stamp at the exposure's start: the middle pose is not the frame's
@@ -219,7 +219,7 @@ def test_the_blur_model_reuses_the_frames_render_at_mid_exposure(samples: int, s
     out = blurred_rgb(model, bundle, planted)
     assert counts == [rendered * n]
     if rendered == samples - 1:  # the expected blend of the other renders (same draws) and the planted frame render
-        all_times = exposure_times(model.exposure[bundle.camera_indices[:, 0]], samples)  # type: ignore[index]
+        all_times = exposure_times(model.exposure[camera_rows(bundle)], samples)  # type: ignore[index]
         middle = samples // 2
         torch.manual_seed(7)
         others = render_at(model, bundle, torch.cat([all_times[:, :middle], all_times[:, middle + 1 :]], 1), "rgb_loss")
