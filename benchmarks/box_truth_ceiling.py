@@ -5,7 +5,7 @@
 `fine_region_weight` (ns-eval) is the share of the rendered weight inside the run's fitted box. Its ceiling is the
 share of held-out pixels whose true surface (the capture's true depth) lies in that box: sky and the far background
 sit outside any box that keeps fruit-sized voxels. Prints both shares and, for boxes that would hold 80% and 90% of
-the true surfaces (per-axis central quantiles widened until they do), the voxel size in metres at the preset's final
+the true surfaces (`grid_mapping.smallest_box`, as the box fit finds them), the voxel size in metres at the preset's final
 grids, as JSON.
 """
 
@@ -23,7 +23,7 @@ import tyro
 from agrinerf_ns.count.oracle import oracle_renders
 from agrinerf_ns.count.render import WorldFrame
 from agrinerf_ns.detect.render import load_run
-from agrinerf_ns.model.grid_mapping import axis_resolution
+from agrinerf_ns.model.grid_mapping import axis_resolution, smallest_box
 
 
 @dataclass
@@ -36,17 +36,13 @@ class Args:
     """The processed dataset the run trained on."""
 
 
-def quantile_box_voxel(points: np.ndarray, share: float, resolution: int, grid_fraction: float) -> float:
-    """Voxel side (units, the largest axis) of a box of per-axis central quantiles holding `share` of `points`, at
-    the grid resolution per axis that the field would give it (`grid_mapping.axis_resolution`)."""
-    for tail in np.linspace(0.0, 0.5, 501):
-        lo, hi = np.quantile(points, tail / 2, axis=0), np.quantile(points, 1 - tail / 2, axis=0)
-        inside = ((points >= lo) & (points <= hi)).all(axis=1).mean()
-        if inside < share:
-            break
-        res = axis_resolution(torch.from_numpy(np.stack([lo, hi])), grid_fraction, resolution)
-        best = float(((hi - lo) / (grid_fraction * np.asarray(res))).max())
-    return best
+def share_box_voxel(points: np.ndarray, share: float, resolution: int, grid_fraction: float) -> float:
+    """Voxel side (units, the largest axis) of the smallest box that `grid_mapping.smallest_box` finds holding `share`
+    of `points`, at the grid resolution per axis that the field would give it (`grid_mapping.axis_resolution`)."""
+    pts = torch.from_numpy(points).double()
+    box = smallest_box(pts, torch.ones(pts.shape[0], dtype=torch.float64), share)
+    res = axis_resolution(box, grid_fraction, resolution)
+    return float(((box[1] - box[0]) / (grid_fraction * torch.tensor(res, dtype=torch.float64))).max())
 
 
 def main(args: Args) -> Dict[str, float]:
@@ -71,9 +67,9 @@ def main(args: Args) -> Dict[str, float]:
         "share_of_pixels_with_true_surface_in_box": inside / pixels,
         "share_of_pixels_with_any_true_surface": hits / pixels,
         "share_of_true_surfaces_in_box": inside / max(hits, 1),
-        "voxel_m_box_holding_80pct_of_surfaces": quantile_box_voxel(points, 0.8, final, model.config.box_grid_fraction)
+        "voxel_m_box_holding_80pct_of_surfaces": share_box_voxel(points, 0.8, final, model.config.box_grid_fraction)
         * metres,
-        "voxel_m_box_holding_90pct_of_surfaces": quantile_box_voxel(points, 0.9, final, model.config.box_grid_fraction)
+        "voxel_m_box_holding_90pct_of_surfaces": share_box_voxel(points, 0.9, final, model.config.box_grid_fraction)
         * metres,
         "final_resolution": final,
     }

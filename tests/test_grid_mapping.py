@@ -13,7 +13,14 @@ from nerfstudio.cameras.rays import RayBundle
 from scipy.spatial.transform import Rotation
 
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler, box_exit
-from agrinerf_ns.model.grid_mapping import BoxContraction, axis_resolution, contract_axes, fit_box, uncontract_axes
+from agrinerf_ns.model.grid_mapping import (
+    BoxContraction,
+    axis_resolution,
+    contract_axes,
+    fit_box,
+    smallest_box,
+    uncontract_axes,
+)
 
 
 def test_contraction_is_linear_in_the_box_continuous_and_inverted() -> None:
@@ -90,6 +97,40 @@ def test_fit_refuses_too_few_points_and_ignores_non_finite_ones() -> None:
     assert box is not None and bool(torch.isfinite(box).all()) and bool((box[0] < 0.1).all() and (box[1] > 0.9).all())
 
 
+@pytest.mark.parametrize("share", [0.8, 0.9, 0.97])
+def test_smallest_box_holds_its_share_and_drops_the_costly_tail_first(share: float) -> None:
+    gen = torch.Generator().manual_seed(0)
+    row = torch.rand(9000, 3, generator=gen, dtype=torch.float64) * torch.tensor([8.0, 1.0, 3.0])  # a long, flat row
+    far = torch.rand(600, 3, generator=gen, dtype=torch.float64) * torch.tensor([8.0, 1.0, 3.0]) + torch.tensor(
+        [0.0, 6.0, 0.0]
+    )  # the next row, 6 units behind: 6% of the points
+    strays = torch.randn(100, 3, generator=gen, dtype=torch.float64) * 40.0
+    points = torch.cat([row, far, strays])
+    weights = torch.ones(points.shape[0], dtype=torch.float64)
+    box = smallest_box(points, weights, share)
+    inside = ((points >= box[0]) & (points <= box[1])).all(dim=-1)
+    assert float(weights[inside].sum() / weights.sum()) >= share
+    assert float(inside[-100:].float().mean()) < 0.2  # strays cost the most volume per point: they go first
+    if share <= 0.9:  # the next row costs 7x the volume for 6% of the weight: outside
+        assert float(inside[9000:9600].float().mean()) < 0.05
+        assert float(inside[:9000].float().mean()) >= (share - 0.01) / 0.94
+        assert bool((box[1] - box[0] <= torch.tensor([8.0, 1.0, 3.0]) + 1e-6).all())
+    else:  # 97% cannot be held without it
+        assert float(inside[9000:9600].float().mean()) > 0.5
+
+
+def test_smallest_box_follows_the_weights() -> None:
+    gen = torch.Generator().manual_seed(1)
+    near = torch.rand(1000, 3, generator=gen, dtype=torch.float64)
+    heavy = torch.rand(100, 3, generator=gen, dtype=torch.float64) + 5.0  # few points, half the weight
+    points = torch.cat([near, heavy])
+    weights = torch.cat([torch.ones(1000), torch.full((100,), 10.0)]).double()
+    box = smallest_box(points, weights, 0.9)
+    assert bool((box[0] <= 0.2).all() and (box[1] >= 5.8).all())  # both clusters held (their near edges peeled)
+    light = smallest_box(points, torch.ones(1100, dtype=torch.float64), 0.9)
+    assert bool((light[1] <= 1.0).all())  # with equal weights the small cluster is the 9% left out
+
+
 def test_box_sampler_puts_half_the_samples_before_the_box_exit() -> None:
     box = torch.tensor([[-1.0, 4.0, -1.0], [1.0, 6.0, 1.0]])
     origins = torch.zeros(3, 3)
@@ -142,7 +183,9 @@ def test_the_model_fits_its_box_to_the_dense_region_it_renders() -> None:
     assert box is not None
     torch.testing.assert_close(model.field.full_resolution_box(), box)
     margin = 0.1 * float((dense[1] - dense[0]).max())
-    assert bool((box[0] <= dense[0] + 0.05).all() and (box[1] >= dense[1] - 0.05).all())  # holds the dense region
+    overlap = (torch.minimum(box[1], dense[1]) - torch.maximum(box[0], dense[0])).clamp(min=0).prod()
+    # holds the dense region, but for the little seen of it (its underside) that costs more volume than it weighs
+    assert float(overlap / (dense[1] - dense[0]).prod()) > 0.75
     assert bool((box[0] >= dense[0] - margin - 0.1).all() and (box[1] <= dense[1] + margin + 0.1).all())  # and no more
     assert math.prod(model.field.density_encoding.resolution) == pytest.approx(24**3, rel=0.15)
     # the resampled density is still dense where the matter is and empty around it

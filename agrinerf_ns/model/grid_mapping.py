@@ -7,13 +7,13 @@ in the grid (mip-NeRF 360's contraction, per axis rather than with a norm). Beca
 VM volume (planes and lines of the axes) can be resampled exactly into a new box (`VMVolume.resample`).
 
 `fit_box` chooses the box from where the scene is: the surface points of rendered rays (each ray's median depth) or
-SfM points, without the far background (sky, hedges: beyond `depth_cut` times the median depth), by weighted per-axis
-quantiles (TensoRF refits its grid to the occupied box the same way: `updateAlphaMask` + `shrink`).
+SfM points, without the far background (sky, hedges: beyond `depth_cut` times the median depth), as the smallest box
+found that holds a share of their weight (`smallest_box`; TensoRF refits its grid to the occupied box the same way:
+`updateAlphaMask` + `shrink`).
 """
 
 from __future__ import annotations
 
-import math
 from typing import Optional, Sequence, Tuple
 
 import torch
@@ -120,7 +120,7 @@ def fit_box(
     weights: Optional[Float[Tensor, " n"]] = None,
     origins: Optional[Float[Tensor, "n 3"]] = None,
     depth_cut: float = 2.5,
-    quantile: float = 0.01,
+    share: float = 0.95,
     margin: float = 0.05,
 ) -> Optional[Float[Tensor, "2 3"]]:
     """The box (lo, hi) that holds the scene's surface points, or None when too few are finite.
@@ -131,8 +131,9 @@ def fit_box(
         origins: the camera centre each point was seen from: points farther than `depth_cut` times the weighted median
             distance are far background (sky, hedges, the next rows) and left out.
         depth_cut: see `origins`.
-        quantile: weighted per-axis quantiles [q, 1 - q] bound the box (robust to stray points).
-        margin: each side moves out by this fraction of the box's largest extent.
+        share: the box is the smallest (by volume) that `smallest_box` finds holding this share of the remaining
+            weight: the rest is what costs the most volume per unit of weight (stray points, the ends of a row).
+        margin: each side moves out by this fraction of the box's extent along its axis (at least 5% of the largest).
     """
     weights = torch.ones(points.shape[0], device=points.device) if weights is None else weights
     keep = torch.isfinite(points).all(dim=-1) & torch.isfinite(weights) & (weights > 0)
@@ -144,11 +145,55 @@ def fit_box(
             keep &= dist <= depth_cut * median
     if int(keep.sum()) < 8:
         return None
-    pts, w = points[keep].double(), weights[keep].double()
-    q = torch.tensor([quantile, 1.0 - quantile])
-    bounds = torch.stack([_weighted_quantile(pts[:, a], w, q) for a in range(3)], dim=-1)  # [2, 3]
-    pad = margin * float((bounds[1] - bounds[0]).max().clamp(min=1e-6))
+    bounds = smallest_box(points[keep].double(), weights[keep].double(), share)
+    extent = bounds[1] - bounds[0]
+    pad = margin * torch.maximum(extent, 0.05 * extent.max()).clamp(min=1e-6)
     box = torch.stack([bounds[0] - pad, bounds[1] + pad]).float()
-    if not bool(torch.isfinite(box).all()) or not math.isfinite(pad):
+    if not bool(torch.isfinite(box).all()):
         return None
     return box
+
+
+def smallest_box(
+    points: Float[Tensor, "n 3"], weights: Float[Tensor, " n"], share: float, steps: int = 40
+) -> Float[Tensor, "2 3"]:
+    """A small axis-aligned box holding at least `share` of the points' weight (tight lo / hi corners).
+
+    Greedy face peeling: from the points' bounding box, move in one of the six faces at a time past a slice of
+    (1 - share) / `steps` of the weight (at least one point), always the face whose move shrinks the box's volume the most per unit of
+    weight it leaves out, until the next move would leave out more than 1 - `share`. Stray points and the far ends of
+    a long scene go first; a dense, compact scene keeps its extent. The voxel size of a grid of fixed budget over the
+    box goes with its volume's cube root (`axis_resolution`), so this trades weight for voxel size directly.
+    """
+    total = float(weights.sum())
+    chunk = (1.0 - share) * total / steps
+    inside = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+
+    def bounds(mask: Tensor) -> Tensor:
+        return torch.stack([points[mask].amin(dim=0), points[mask].amax(dim=0)])
+
+    box = bounds(inside)
+    while True:
+        kept = float(weights[inside].sum())
+        scale = float((box[1] - box[0]).max().clamp(min=1e-12))
+        best: Optional[Tuple[float, Tensor]] = None
+        for axis in range(3):
+            values, w = points[inside, axis], weights[inside]
+            for side in (0, 1):
+                q = chunk / kept if side == 0 else 1.0 - chunk / kept
+                face = _weighted_quantile(values, w, torch.tensor([q]))[0]
+                cut = points[:, axis] > face if side == 0 else points[:, axis] < face  # at least one point goes
+                candidate = inside & cut
+                lost = kept - float(weights[candidate].sum())
+                if lost <= 0.0 or kept - lost < share * total or int(candidate.sum()) < 8:
+                    continue
+                new_box = bounds(candidate)
+                before = (box[1] - box[0]).clamp(min=1e-9 * scale).log().sum()
+                after = (new_box[1] - new_box[0]).clamp(min=1e-9 * scale).log().sum()
+                score = float(before - after) / (lost / kept)
+                if best is None or score > best[0]:
+                    best = (score, candidate)
+        if best is None:
+            return box
+        inside = best[1]
+        box = bounds(inside)

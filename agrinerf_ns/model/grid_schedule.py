@@ -67,7 +67,11 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
     finally:
         model.train(was_training)
     box = fit_box_to_points(
-        torch.cat(points), torch.cat(weights), torch.cat(origins), depth_cut=model.config.box_depth_cut
+        torch.cat(points),
+        torch.cat(weights),
+        torch.cat(origins),
+        depth_cut=model.config.box_depth_cut,
+        share=model.config.box_surface_share,
     )
     if box is None:
         return None
