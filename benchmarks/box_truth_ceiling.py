@@ -23,7 +23,7 @@ import tyro
 from agrinerf_ns.count.oracle import oracle_renders
 from agrinerf_ns.count.render import WorldFrame
 from agrinerf_ns.detect.render import load_run
-from agrinerf_ns.model.grid_mapping import axis_resolution, smallest_box
+from agrinerf_ns.model.grid_mapping import box_voxel, smallest_box
 
 
 @dataclass
@@ -38,11 +38,9 @@ class Args:
 
 def share_box_voxel(points: np.ndarray, share: float, resolution: int, grid_fraction: float) -> float:
     """Voxel side (units, the largest axis) of the smallest box that `grid_mapping.smallest_box` finds holding `share`
-    of `points`, at the grid resolution per axis that the field would give it (`grid_mapping.axis_resolution`)."""
+    of `points`, at the grid resolution per axis that the field would give it (`grid_mapping.box_voxel`)."""
     pts = torch.from_numpy(points).double()
-    box = smallest_box(pts, torch.ones(pts.shape[0], dtype=torch.float64), share)
-    res = axis_resolution(box, grid_fraction, resolution)
-    return float(((box[1] - box[0]) / (grid_fraction * torch.tensor(res, dtype=torch.float64))).max())
+    return box_voxel(smallest_box(pts, torch.ones(pts.shape[0], dtype=torch.float64), share), grid_fraction, resolution)
 
 
 def main(args: Args) -> Dict[str, float]:

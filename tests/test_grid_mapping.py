@@ -16,6 +16,7 @@ from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler, box_exit
 from agrinerf_ns.model.grid_mapping import (
     BoxContraction,
     axis_resolution,
+    box_voxel,
     contract_axes,
     fit_box,
     smallest_box,
@@ -129,6 +130,22 @@ def test_smallest_box_follows_the_weights() -> None:
     assert bool((box[0] <= 0.2).all() and (box[1] >= 5.8).all())  # both clusters held (their near edges peeled)
     light = smallest_box(points, torch.ones(1100, dtype=torch.float64), 0.9)
     assert bool((light[1] <= 1.0).all())  # with equal weights the small cluster is the 9% left out
+
+
+def test_a_box_fine_enough_stops_shrinking_and_holds_more_than_its_share() -> None:
+    gen = torch.Generator().manual_seed(2)
+    scene = torch.rand(5000, 3, generator=gen, dtype=torch.float64)
+    strays = torch.rand(100, 3, generator=gen, dtype=torch.float64) * 50.0 + 10.0
+    points = torch.cat([scene, strays])
+    weights = torch.ones(points.shape[0], dtype=torch.float64)
+    share = 0.8
+    shrunk = smallest_box(points, weights, share)
+    stopped = smallest_box(points, weights, share, done=lambda box: bool((box[1] - box[0]).prod() <= 1.0))
+    held = [float(((points >= b[0]) & (points <= b[1])).all(dim=-1).double().mean()) for b in (shrunk, stopped)]
+    assert share <= held[0] < 0.85 and held[1] == pytest.approx(5000 / 5100, abs=2e-3)  # about only the strays go
+    assert float((stopped[1] - stopped[0]).prod()) <= 1.0
+    voxel = box_voxel(stopped, 0.8, 100)
+    assert voxel == pytest.approx(float((stopped[1] - stopped[0]).max()) / (0.8 * 99), rel=0.05)
 
 
 def test_box_sampler_puts_half_the_samples_before_the_box_exit() -> None:
@@ -260,3 +277,23 @@ def test_a_dataset_with_sfm_points_starts_with_their_box(tmp_path) -> None:
     (data / "transforms.json").write_text(json.dumps(missing))
     with pytest.raises(Exception, match="nowhere.ply"):
         AgriNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
+
+
+def test_the_voxel_target_applies_where_the_scale_is_metric() -> None:
+    from helpers.small_model import SMALL_MODEL
+    from nerfstudio.data.scene_box import SceneBox
+
+    from agrinerf_ns.model.grid_schedule import fine_enough
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    aabb = SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3]))
+    cfg = AgriNeRFModelConfig(modalities=("rgb",), **{**SMALL_MODEL, "final_resolution": 100})
+    assert fine_enough(cfg.setup(scene_box=aabb, num_train_data=8, metadata={})) is None  # no scale: share only
+    metric = cfg.setup(scene_box=aabb, num_train_data=8, metadata={"metres_per_unit": 0.5})
+    check = fine_enough(metric)
+    assert check is not None
+    # a 1-unit cube at 100^3 over 0.8 of the grid: cells of 1 / (0.8 * 99) units, 6.3 mm
+    assert check(torch.tensor([[0.0] * 3, [1.0] * 3]))
+    assert not check(torch.tensor([[0.0] * 3, [4.0] * 3]))  # 25 mm
+    off = AgriNeRFModelConfig(modalities=("rgb",), box_voxel_target_m=0.0, **SMALL_MODEL)
+    assert fine_enough(off.setup(scene_box=aabb, num_train_data=8, metadata={"metres_per_unit": 0.5})) is None

@@ -14,7 +14,7 @@ found that holds a share of their weight (`smallest_box`; TensoRF refits its gri
 
 from __future__ import annotations
 
-from typing import Optional, Sequence, Tuple
+from typing import Callable, Optional, Sequence, Tuple
 
 import torch
 from jaxtyping import Bool, Float
@@ -107,6 +107,13 @@ def axis_resolution(box: Float[Tensor, "2 3"], inner: float, cube: int, minimum:
     return res[0], res[1], res[2]
 
 
+def box_voxel(box: Float[Tensor, "2 3"], inner: float, cube: int) -> float:
+    """Largest side (world units) of a grid cell inside `box` at the per-axis resolution of a `cube`^3 budget, as
+    `BoxContraction.voxel_size` gives it there."""
+    res = torch.tensor(axis_resolution(box, inner, cube), dtype=torch.float64)
+    return float(((box[1] - box[0]).double() / (inner * (res - 1.0))).max())
+
+
 def _weighted_quantile(values: Float[Tensor, " n"], weights: Float[Tensor, " n"], q: Float[Tensor, " k"]) -> Tensor:
     order = torch.argsort(values)
     cdf = torch.cumsum(weights[order].double(), 0)
@@ -122,6 +129,7 @@ def fit_box(
     depth_cut: float = 2.5,
     share: float = 0.95,
     margin: float = 0.05,
+    small_enough: Optional[Callable[[Tensor], bool]] = None,
 ) -> Optional[Float[Tensor, "2 3"]]:
     """The box (lo, hi) that holds the scene's surface points, or None when too few are finite.
 
@@ -134,6 +142,8 @@ def fit_box(
         share: the box is the smallest (by volume) that `smallest_box` finds holding this share of the remaining
             weight: the rest is what costs the most volume per unit of weight (stray points, the ends of a row).
         margin: each side moves out by this fraction of the box's extent along its axis (at least 5% of the largest).
+        small_enough: whether a (padded) box is small enough (its voxels fine enough): the fit then stops shrinking
+            it, holding more than `share` where it can.
     """
     weights = torch.ones(points.shape[0], device=points.device) if weights is None else weights
     keep = torch.isfinite(points).all(dim=-1) & torch.isfinite(weights) & (weights > 0)
@@ -145,23 +155,32 @@ def fit_box(
             keep &= dist <= depth_cut * median
     if int(keep.sum()) < 8:
         return None
-    bounds = smallest_box(points[keep].double(), weights[keep].double(), share)
-    extent = bounds[1] - bounds[0]
-    pad = margin * torch.maximum(extent, 0.05 * extent.max()).clamp(min=1e-6)
-    box = torch.stack([bounds[0] - pad, bounds[1] + pad]).float()
+
+    def padded(bounds: Tensor) -> Tensor:
+        extent = bounds[1] - bounds[0]
+        pad = margin * torch.maximum(extent, 0.05 * extent.max()).clamp(min=1e-6)
+        return torch.stack([bounds[0] - pad, bounds[1] + pad])
+
+    done = None if small_enough is None else (lambda bounds: small_enough(padded(bounds)))
+    box = padded(smallest_box(points[keep].double(), weights[keep].double(), share, done)).float()
     if not bool(torch.isfinite(box).all()):
         return None
     return box
 
 
 def smallest_box(
-    points: Float[Tensor, "n 3"], weights: Float[Tensor, " n"], share: float, steps: int = 40
+    points: Float[Tensor, "n 3"],
+    weights: Float[Tensor, " n"],
+    share: float,
+    done: Optional[Callable[[Tensor], bool]] = None,
+    steps: int = 40,
 ) -> Float[Tensor, "2 3"]:
-    """A small axis-aligned box holding at least `share` of the points' weight (tight lo / hi corners).
+    """A small axis-aligned box holding at least `share` of the points' weight (tight lo / hi corners); with `done`,
+    the first box on the way there for which `done(box)` holds.
 
     Greedy face peeling: from the points' bounding box, move in one of the six faces at a time past a slice of
-    (1 - share) / `steps` of the weight (at least one point), always the face whose move shrinks the box's volume the most per unit of
-    weight it leaves out, until the next move would leave out more than 1 - `share`. Stray points and the far ends of
+    (1 - share) / `steps` of the weight (at least one point), always the face whose move shrinks the box's volume the
+    most per unit of weight it leaves out, until the next move would leave out more than 1 - `share`. Stray points and the far ends of
     a long scene go first; a dense, compact scene keeps its extent. The voxel size of a grid of fixed budget over the
     box goes with its volume's cube root (`axis_resolution`), so this trades weight for voxel size directly.
     """
@@ -173,7 +192,7 @@ def smallest_box(
         return torch.stack([points[mask].amin(dim=0), points[mask].amax(dim=0)])
 
     box = bounds(inside)
-    while True:
+    while done is None or not done(box):
         kept = float(weights[inside].sum())
         scale = float((box[1] - box[0]).max().clamp(min=1e-12))
         best: Optional[Tuple[float, Tensor]] = None
@@ -197,3 +216,4 @@ def smallest_box(
             return box
         inside = best[1]
         box = bounds(inside)
+    return box

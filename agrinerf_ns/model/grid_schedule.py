@@ -4,7 +4,7 @@ optimizers re-pointed at the Parameters these replace."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, List, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Callable, List, Optional, Sequence
 
 import numpy as np
 import torch
@@ -12,6 +12,7 @@ from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttrib
 from nerfstudio.engine.optimizers import Optimizers
 from torch import Tensor
 
+from agrinerf_ns.model.grid_mapping import box_voxel
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
 from agrinerf_ns.model.model_config import SIDE_STREAM_SEED
 
@@ -72,6 +73,7 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
         torch.cat(origins),
         depth_cut=model.config.box_depth_cut,
         share=model.config.box_surface_share,
+        small_enough=fine_enough(model),
     )
     if box is None:
         return None
@@ -86,6 +88,16 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
     if occupancy_updated(model, step):
         model.field.update_occupancy(model.config.occupancy_density_threshold)
     return box
+
+
+def fine_enough(model: AgriNeRFModel) -> Optional[Callable[[Tensor], bool]]:
+    """Whether a box's voxels at the preset's final grids are at most `box_voxel_target_m`; None where the dataset's
+    scale is unknown or the target is off (the fit then holds `box_surface_share`)."""
+    target, scale = model.config.box_voxel_target_m, model.metres_per_unit
+    if target <= 0 or scale is None:
+        return None
+    inner, cube = model.config.box_grid_fraction, int(model.config.final_resolution)
+    return lambda box: box_voxel(box, inner, cube) * float(scale) <= target
 
 
 def occupancy_updated(model: AgriNeRFModel, step: int) -> bool:
