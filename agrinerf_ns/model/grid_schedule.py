@@ -67,13 +67,14 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
             origins.append(part.origins)
     finally:
         model.train(was_training)
+    small_enough = fine_enough(model)
     box = fit_box_to_points(
         torch.cat(points),
         torch.cat(weights),
         torch.cat(origins),
         depth_cut=model.config.box_depth_cut,
-        share=model.config.box_surface_share,
-        small_enough=fine_enough(model),
+        share=model.config.box_surface_share if small_enough is None else model.config.box_min_share,
+        small_enough=small_enough,
     )
     if box is None:
         return None
@@ -92,7 +93,7 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
 
 def fine_enough(model: AgriNeRFModel) -> Optional[Callable[[Tensor], bool]]:
     """Whether a box's voxels at the preset's final grids are at most `box_voxel_target_m`; None where the dataset's
-    scale is unknown or the target is off (the fit then holds `box_surface_share`)."""
+    scale is unknown or the target is off (the fit then holds `box_surface_share`, else at least `box_min_share`)."""
     target, scale = model.config.box_voxel_target_m, model.metres_per_unit
     if target <= 0 or scale is None:
         return None

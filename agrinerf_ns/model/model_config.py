@@ -143,13 +143,15 @@ class AgriNeRFModelConfig(ModelConfig):
     """Surface points farther from their camera than this times the median distance are background, outside the box
     (sky, hedges, far rows)."""
     box_surface_share: float = 0.95
-    """Least share of the (accumulation-weighted) surface points within `box_depth_cut` that the fitted box holds
-    (`grid_mapping.smallest_box`: the box shrinks where that costs the least weight per volume). Higher holds more of
-    the scene at full resolution, at a larger voxel (results/box-fit)."""
+    """Share of the (accumulation-weighted) surface points within `box_depth_cut` that the fitted box holds where the
+    dataset's scale is not metric (`grid_mapping.smallest_box`: the box shrinks where that costs the least weight per
+    volume). Higher holds more of the scene at full resolution, at a larger voxel (results/box-fit)."""
     box_voxel_target_m: float = 0.02
-    """Where the dataset's scale is metric: the fit stops shrinking the box once its voxels at `final_resolution` are
-    at most this many metres (a 5 cm fruit spans 2.5 of them), so it holds more than `box_surface_share` where the
-    scene allows; 0: always shrink to `box_surface_share`."""
+    """Where the dataset's scale is metric: the fit shrinks the box until its voxels at `final_resolution` are at most
+    this many metres (a 5 cm fruit spans 2.5 of them) or it holds only `box_min_share`; 0: `box_surface_share` as
+    without a metric scale."""
+    box_min_share: float = 0.8
+    """The least share of the surface weight that a fit towards `box_voxel_target_m` keeps in the box."""
     keep_freed_memory: bool = True
     """Training on a CPU: keep freed memory in the process for the next step (glibc serves large blocks from its heap
     and does not trim it) rather than fault fresh pages in every step; about half as long a step at the paper's final
