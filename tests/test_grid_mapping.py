@@ -297,3 +297,31 @@ def test_the_voxel_target_applies_where_the_scale_is_metric() -> None:
     assert not check(torch.tensor([[0.0] * 3, [4.0] * 3]))  # 25 mm
     off = AgriNeRFModelConfig(modalities=("rgb",), box_voxel_target_m=0.0, **SMALL_MODEL)
     assert fine_enough(off.setup(scene_box=aabb, num_train_data=8, metadata={"metres_per_unit": 0.5})) is None
+
+
+def test_a_voxel_target_the_grids_cannot_reach_keeps_the_surface_share() -> None:
+    from helpers.small_model import SMALL_MODEL
+    from nerfstudio.data.scene_box import SceneBox
+
+    from agrinerf_ns.model.grid_schedule import fine_enough
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    dense = torch.tensor([[-0.5, -0.3, -0.2], [0.3, 0.5, 0.4]])
+    boxes = {}
+    for name, metadata, final in (("no scale", {}, 24), ("unreachable", {"metres_per_unit": 1.0}, 24),
+                                  ("reachable", {"metres_per_unit": 1.0}, 400)):  # fmt: skip
+        torch.manual_seed(0)
+        small = {**SMALL_MODEL, "box_fit_rays": 4096, "density_shift": -12.0, "init_resolution": 24,
+                 "final_resolution": final}  # fmt: skip
+        cfg = AgriNeRFModelConfig(modalities=("rgb",), box_voxel_target_m=0.005, **small)
+        model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8,
+                          metadata=metadata)  # fmt: skip
+        _fill_density(model, dense)
+        boxes[name] = model.fit_box(_ring_cameras(), step=0)
+        check = fine_enough(model)
+        assert (check is None) == (name == "no scale")
+        if check is not None:
+            assert check(boxes[name]) == (name == "reachable")
+    torch.testing.assert_close(boxes["unreachable"], boxes["no scale"])  # 2 cm cells at 24^3: hold 95%
+    volume = {name: float((box[1] - box[0]).prod()) for name, box in boxes.items()}
+    assert volume["reachable"] >= volume["no scale"]  # 5 mm cells at 400^3 without shrinking as far

@@ -67,15 +67,17 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
             origins.append(part.origins)
     finally:
         model.train(was_training)
+    surface = (torch.cat(points), torch.cat(weights), torch.cat(origins))
     small_enough = fine_enough(model)
-    box = fit_box_to_points(
-        torch.cat(points),
-        torch.cat(weights),
-        torch.cat(origins),
-        depth_cut=model.config.box_depth_cut,
-        share=model.config.box_surface_share if small_enough is None else model.config.box_min_share,
-        small_enough=small_enough,
-    )
+    box = None
+    if small_enough is not None:
+        box = fit_box_to_points(
+            *surface, model.config.box_depth_cut, model.config.box_min_share, small_enough=small_enough
+        )
+        if box is not None and not small_enough(box):  # the preset's grids cannot resolve fruit here: hold the scene
+            box = None
+    if box is None:
+        box = fit_box_to_points(*surface, model.config.box_depth_cut, model.config.box_surface_share)
     if box is None:
         return None
     old = model.field.full_resolution_box()
@@ -93,12 +95,12 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
 
 def fine_enough(model: AgriNeRFModel) -> Optional[Callable[[Tensor], bool]]:
     """Whether a box's voxels at the preset's final grids are at most `box_voxel_target_m`; None where the dataset's
-    scale is unknown or the target is off (the fit then holds `box_surface_share`, else at least `box_min_share`)."""
+    scale is unknown or the target is off (the fit then holds `box_surface_share`)."""
     target, scale = model.config.box_voxel_target_m, model.metres_per_unit
     if target <= 0 or scale is None:
         return None
     inner, cube = model.config.box_grid_fraction, int(model.config.final_resolution)
-    return lambda box: box_voxel(box, inner, cube) * float(scale) <= target
+    return lambda box: box_voxel(box, inner, cube) * float(scale) <= target * (1.0 + 1e-5)  # float32 corners
 
 
 def occupancy_updated(model: AgriNeRFModel, step: int) -> bool:

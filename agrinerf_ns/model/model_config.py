@@ -148,8 +148,8 @@ class AgriNeRFModelConfig(ModelConfig):
     volume). Higher holds more of the scene at full resolution, at a larger voxel (results/box-fit)."""
     box_voxel_target_m: float = 0.02
     """Where the dataset's scale is metric: the fit shrinks the box until its voxels at `final_resolution` are at most
-    this many metres (a 5 cm fruit spans 2.5 of them) or it holds only `box_min_share`; 0: `box_surface_share` as
-    without a metric scale."""
+    this many metres (a 5 cm fruit spans 2.5 of them), keeping at least `box_min_share`; where that cannot reach it
+    (small grids, a wide scene), and for 0, the box holds `box_surface_share` as without a metric scale."""
     box_min_share: float = 0.8
     """The least share of the surface weight that a fit towards `box_voxel_target_m` keeps in the box."""
     keep_freed_memory: bool = True
