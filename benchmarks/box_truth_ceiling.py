@@ -6,7 +6,8 @@
 share of held-out pixels whose true surface (the capture's true depth) lies in that box: sky and the far background
 sit outside any box that keeps fruit-sized voxels. Prints both shares and, for boxes that would hold 80% and 90% of
 the true surfaces (`grid_mapping.smallest_box`, as the box fit finds them), the voxel size in metres at the preset's final
-grids, as JSON.
+grids, as JSON; and the box that the run's own fit rules (`grid_schedule.box_for_surface`) give the true surfaces of
+every view (what a perfect field would be fitted), with its share of the held-out surfaces and its voxel.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from agrinerf_ns.count.oracle import oracle_renders
 from agrinerf_ns.count.render import WorldFrame
 from agrinerf_ns.detect.render import load_run
 from agrinerf_ns.model.grid_mapping import box_voxel, smallest_box
+from agrinerf_ns.model.grid_schedule import box_for_surface
 
 
 @dataclass
@@ -47,7 +49,8 @@ def main(args: Args) -> Dict[str, float]:
     run = load_run(args.config)
     model = run.pipeline.model
     frame = WorldFrame.read(args.config.parent / "dataparser_transforms.json")
-    views = [v for v in oracle_renders(args.raw, args.data).views if v.split == "eval"]
+    every = oracle_renders(args.raw, args.data).views
+    views = [v for v in every if v.split == "eval"]
     hits, inside, surfaces = 0, 0, []
     for view in views:
         hit = view.accumulation > 0.5
@@ -71,6 +74,19 @@ def main(args: Args) -> Dict[str, float]:
         * metres,
         "final_resolution": final,
     }
+    # the box the run's fit rules would give a perfect field: the true surfaces of every view, seen from its camera
+    seen, origins = [], []
+    for view in every:
+        hit = view.accumulation > 0.5
+        seen.append(frame.to_ns((view.origins + view.directions * view.depth[..., None])[hit]))
+        origins.append(frame.to_ns(np.broadcast_to(view.origins, view.directions.shape)[hit]))
+    truth_box = box_for_surface(
+        model, torch.from_numpy(np.concatenate(seen)).float(), None, torch.from_numpy(np.concatenate(origins)).float()
+    )
+    if truth_box is not None:
+        held = ((points >= truth_box[0].numpy()) & (points <= truth_box[1].numpy())).all(axis=1)
+        result["truth_fit_share_of_true_surfaces_in_box"] = float(held.mean())
+        result["truth_fit_voxel_m"] = box_voxel(truth_box, model.config.box_grid_fraction, final) * metres
     print(json.dumps(result, indent=1))
     return result
 

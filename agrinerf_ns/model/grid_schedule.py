@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, Callable, List, Optional, Sequence
 
 import numpy as np
 import torch
+from jaxtyping import Float
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
 from torch import Tensor
@@ -67,17 +68,7 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
             origins.append(part.origins)
     finally:
         model.train(was_training)
-    surface = (torch.cat(points), torch.cat(weights), torch.cat(origins))
-    small_enough = fine_enough(model)
-    box = None
-    if small_enough is not None:
-        box = fit_box_to_points(
-            *surface, model.config.box_depth_cut, model.config.box_min_share, small_enough=small_enough
-        )
-        if box is not None and not small_enough(box):  # the preset's grids cannot resolve fruit here: hold the scene
-            box = None
-    if box is None:
-        box = fit_box_to_points(*surface, model.config.box_depth_cut, model.config.box_surface_share)
+    box = box_for_surface(model, torch.cat(points), torch.cat(weights), torch.cat(origins))
     if box is None:
         return None
     old = model.field.full_resolution_box()
@@ -91,6 +82,25 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
     if occupancy_updated(model, step):
         model.field.update_occupancy(model.config.occupancy_density_threshold)
     return box
+
+
+def box_for_surface(
+    model: AgriNeRFModel,
+    points: Float[Tensor, "n 3"],
+    weights: Optional[Float[Tensor, " n"]],
+    origins: Float[Tensor, "n 3"],
+) -> Optional[Float[Tensor, "2 3"]]:
+    """The box the model's fit rules give surface points seen from `origins`: towards `box_voxel_target_m` keeping
+    at least `box_min_share` where that reaches it, else `box_surface_share` (`fine_enough`); None: too few points."""
+    cfg = model.config
+    small_enough = fine_enough(model)
+    if small_enough is not None:
+        box = fit_box_to_points(
+            points, weights, origins, cfg.box_depth_cut, cfg.box_min_share, small_enough=small_enough
+        )
+        if box is not None and small_enough(box):
+            return box  # else the preset's grids cannot resolve fruit here: hold the scene
+    return fit_box_to_points(points, weights, origins, cfg.box_depth_cut, cfg.box_surface_share)
 
 
 def fine_enough(model: AgriNeRFModel) -> Optional[Callable[[Tensor], bool]]:
