@@ -325,3 +325,12 @@ def test_a_voxel_target_the_grids_cannot_reach_keeps_the_surface_share() -> None
     torch.testing.assert_close(boxes["unreachable"], boxes["no scale"])  # 2 cm cells at 24^3: hold 95%
     volume = {name: float((box[1] - box[0]).prod()) for name, box in boxes.items()}
     assert volume["reachable"] >= volume["no scale"]  # 5 mm cells at 400^3 without shrinking as far
+
+
+def test_a_large_point_cloud_is_thinned_and_fitted_alike() -> None:
+    gen = torch.Generator().manual_seed(3)
+    points = torch.rand(100_000, 3, generator=gen) * torch.tensor([6.0, 2.0, 1.0])
+    box = fit_box(points)
+    assert box is not None
+    inside = ((points >= box[0]) & (points <= box[1])).all(dim=-1).float().mean()
+    assert float(inside) >= 0.95 and bool((box[1] - box[0] < torch.tensor([6.0, 2.0, 1.0]) * 1.2).all())

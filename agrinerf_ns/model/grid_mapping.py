@@ -25,6 +25,10 @@ START_INNER = 0.5
 L-inf contraction, so that the far scene has a usable resolution until the box is fitted."""
 
 
+MAX_FIT_POINTS = 16384
+"""Points a box fit looks at (more are thinned by a stride): a fit renders 8192 rays; SfM models hold millions."""
+
+
 class BoxContraction(nn.Module):
     """World -> grid coordinates: a box at full resolution, each axis contracted on its own outside it.
 
@@ -141,9 +145,12 @@ def fit_box(
         depth_cut: see `origins`.
         share: the box is the smallest (by volume) that `smallest_box` finds holding this share of the remaining
             weight: the rest is what costs the most volume per unit of weight (stray points, the ends of a row).
-        margin: each side moves out by this fraction of the box's extent along its axis (at least 5% of the largest).
+        margin: each side moves out by this fraction of the box's extent along its axis (an axis under 5% of the
+            largest counts as 5% of it, so a flat scene keeps some depth).
         small_enough: whether a (padded) box is small enough (its voxels fine enough): the fit then stops shrinking
             it, holding more than `share` where it can.
+
+    More than `MAX_FIT_POINTS` points (a large SfM model) are thinned to that many by a fixed stride first.
     """
     weights = torch.ones(points.shape[0], device=points.device) if weights is None else weights
     keep = torch.isfinite(points).all(dim=-1) & torch.isfinite(weights) & (weights > 0)
@@ -155,6 +162,10 @@ def fit_box(
             keep &= dist <= depth_cut * median
     if int(keep.sum()) < 8:
         return None
+    points, weights = points[keep], weights[keep]
+    if points.shape[0] > MAX_FIT_POINTS:
+        stride = -(-points.shape[0] // MAX_FIT_POINTS)
+        points, weights = points[::stride], weights[::stride]
 
     def padded(bounds: Tensor) -> Tensor:
         extent = bounds[1] - bounds[0]
@@ -162,7 +173,7 @@ def fit_box(
         return torch.stack([bounds[0] - pad, bounds[1] + pad])
 
     done = None if small_enough is None else (lambda bounds: small_enough(padded(bounds)))
-    box = padded(smallest_box(points[keep].double(), weights[keep].double(), share, done)).float()
+    box = padded(smallest_box(points.double(), weights.double(), share, done)).float()
     if not bool(torch.isfinite(box).all()):
         return None
     return box
@@ -180,9 +191,10 @@ def smallest_box(
 
     Greedy face peeling: from the points' bounding box, move in one of the six faces at a time past a slice of
     (1 - share) / `steps` of the weight (at least one point), always the face whose move shrinks the box's volume the
-    most per unit of weight it leaves out, until the next move would leave out more than 1 - `share`. Stray points and the far ends of
-    a long scene go first; a dense, compact scene keeps its extent. The voxel size of a grid of fixed budget over the
-    box goes with its volume's cube root (`axis_resolution`), so this trades weight for voxel size directly.
+    most per unit of weight it leaves out, until the next move would leave out more than 1 - `share`. Stray points,
+    the next row and the far ends of a long scene go first; a compact scene loses its least-seen edges. The voxel size
+    of a grid of fixed budget over the box goes with its volume's cube root (`axis_resolution`), so this trades weight
+    for voxel size directly. At most about `steps` moves (each leaves out at least a slice) of O(n log n) each.
     """
     total = float(weights.sum())
     chunk = (1.0 - share) * total / steps
