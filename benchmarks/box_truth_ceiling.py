@@ -50,18 +50,18 @@ def main(args: Args) -> Dict[str, float]:
     model = run.pipeline.model
     frame = WorldFrame.read(args.config.parent / "dataparser_transforms.json")
     every = oracle_renders(args.raw, args.data).views
-    views = [v for v in every if v.split == "eval"]
-    hits, inside, surfaces = 0, 0, []
-    for view in views:
+    seen, origins = [], []  # the true surface of every pixel that has one, in the run's scene frame, and its camera
+    for view in every:
         hit = view.accumulation > 0.5
-        scene = frame.to_ns((view.origins + view.directions * view.depth[..., None])[hit])
-        with torch.no_grad():
-            inside += int(model.field.full_resolution(torch.from_numpy(scene).float()).sum())
-        hits += int(hit.sum())
-        surfaces.append(scene)
+        seen.append(frame.to_ns(view.points()[hit]))
+        origins.append(frame.to_ns(view.origins[hit]))
+    views = [v for v in every if v.split == "eval"]
+    points = np.concatenate([p for v, p in zip(every, seen, strict=True) if v.split == "eval"])
+    with torch.no_grad():
+        inside = int(model.field.full_resolution(torch.from_numpy(points).float()).sum())
+    hits = points.shape[0]
     pixels = sum(v.accumulation.size for v in views)
-    points = np.concatenate(surfaces)
-    final = int(np.max(model.config.final_resolution))
+    final = int(model.config.final_resolution)
     metres = float(model.metres_per_unit) if model.metres_per_unit is not None else float("nan")
     result = {
         "heldout_views": len(views),
@@ -75,11 +75,6 @@ def main(args: Args) -> Dict[str, float]:
         "final_resolution": final,
     }
     # the box the run's fit rules would give a perfect field: the true surfaces of every view, seen from its camera
-    seen, origins = [], []
-    for view in every:
-        hit = view.accumulation > 0.5
-        seen.append(frame.to_ns((view.origins + view.directions * view.depth[..., None])[hit]))
-        origins.append(frame.to_ns(np.broadcast_to(view.origins, view.directions.shape)[hit]))
     truth_box = box_for_surface(
         model, torch.from_numpy(np.concatenate(seen)).float(), None, torch.from_numpy(np.concatenate(origins)).float()
     )

@@ -205,21 +205,22 @@ def smallest_box(
 
     box = bounds(inside)
     while done is None or not done(box):
-        kept = float(weights[inside].sum())
+        w = weights[inside]
+        kept = float(w.sum())
         scale = float((box[1] - box[0]).max().clamp(min=1e-12))
+        before = (box[1] - box[0]).clamp(min=1e-9 * scale).log().sum()
+        q = torch.tensor([chunk / kept, 1.0 - chunk / kept])
         best: Optional[Tuple[float, Tensor]] = None
         for axis in range(3):
-            values, w = points[inside, axis], weights[inside]
+            faces = _weighted_quantile(points[inside, axis], w, q)  # the low and the high face's next position
             for side in (0, 1):
-                q = chunk / kept if side == 0 else 1.0 - chunk / kept
-                face = _weighted_quantile(values, w, torch.tensor([q]))[0]
+                face = faces[side]
                 cut = points[:, axis] > face if side == 0 else points[:, axis] < face  # at least one point goes
                 candidate = inside & cut
                 lost = kept - float(weights[candidate].sum())
                 if lost <= 0.0 or kept - lost < share * total or int(candidate.sum()) < 8:
                     continue
                 new_box = bounds(candidate)
-                before = (box[1] - box[0]).clamp(min=1e-9 * scale).log().sum()
                 after = (new_box[1] - new_box[0]).clamp(min=1e-9 * scale).log().sum()
                 score = float(before - after) / (lost / kept)
                 if best is None or score > best[0]:
