@@ -191,8 +191,6 @@ def test_the_learnt_kernel_starts_as_the_sharp_ray_and_its_parameters_learn(tmp_
     assert "blur_kernel" in model.get_param_groups()
 
 
-@pytest.mark.xfail(strict=True, reason="the field's lookup detaches the sample positions (vm_encoding.vm_corners), so "
-                   "a moved ray's origin sends no gradient: the kernel's translations cannot learn yet")  # fmt: skip
 def test_the_kernels_translations_learn_through_the_sample_positions(tmp_path: Path) -> None:
     model = _model(_camera(tmp_path, _hand_stream()), event_rays_per_batch=0, edi_prior=False)
     assert model.blur_kernel is not None

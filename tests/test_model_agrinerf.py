@@ -245,3 +245,19 @@ def test_heads_on_every_sample_equal_heads_on_the_selected_ones(monkeypatch: pyt
         torch.testing.assert_close(grad_b[name], grad_a[name], rtol=1e-4, atol=1e-6)
     # the threshold really left samples out (else this would not test the masking): the gathered run got fewer
     assert 0 < seen["gathered"] < seen["dense"] == 64 * SMALL["num_fine_samples"]
+
+
+def test_pose_refinement_moves_the_cameras_positions_through_the_field() -> None:
+    # Nerfstudio's camera optimizer shifts ray origins; only the samples' positions carry that to the loss, so a lookup
+    # that detaches them would leave the translations untrained (the CPU's row lookup did, before it had a gradient
+    # in the coordinates)
+    from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
+
+    model = _model(modalities=("rgb",), dataset=("rgb",), camera_optimizer=CameraOptimizerConfig(mode="SO3xR3"))
+    model.train()
+    outputs = model(_rays())
+    model.get_loss_dict(outputs, _batch(), model.get_metrics_dict(outputs, _batch()))["rgb_loss"].backward()
+    grad = model.camera_optimizer.pose_adjustment.grad
+    assert grad is not None
+    translation, rotation = grad[0, :3], grad[0, 3:]
+    assert float(translation.abs().sum()) > 0 and float(rotation.abs().sum()) > 0

@@ -7,7 +7,8 @@ import pytest
 import torch
 from nerfstudio.field_components.encodings import TensorVMEncoding
 
-from agrinerf_ns.model.vm_encoding import VMVolume, _PlaneTV, plane_tv, scatter_matrix, vm_corners, vm_product
+from agrinerf_ns.model.plane_tv import _PlaneTV, plane_tv
+from agrinerf_ns.model.vm_encoding import VMVolume, scatter_matrix, vm_corners, vm_product
 
 
 def _pair(resolution: int, components: int, lookup: str = "rows"):
@@ -194,6 +195,28 @@ def test_vm_product_gradient_is_exact() -> None:
     plane = torch.randn(5 * 4 + 5 * 3 + 4 * 3, comps, dtype=torch.float64, generator=gen, requires_grad=True)
     line = torch.randn(3 + 4 + 5, comps, dtype=torch.float64, generator=gen, requires_grad=True)
     assert torch.autograd.gradcheck(lambda p, q: vm_product(p, q, corners), (plane, line))
+
+
+def test_the_row_lookup_is_differentiable_in_the_coordinates_as_grid_sample_is() -> None:
+    # a moved ray (a learnt blur kernel, pose refinement) learns through its samples' positions; interior points, away
+    # from cell borders, where both lookups are differentiable
+    gen = torch.Generator().manual_seed(4)
+    res, comps = (6, 5, 4), 3
+    coords = (torch.rand(40, 3, dtype=torch.float64, generator=gen) * 1.8 - 0.9).requires_grad_(True)
+    plane = torch.randn(6 * 5 + 6 * 4 + 5 * 4, comps, dtype=torch.float64, generator=gen, requires_grad=True)
+    line = torch.randn(4 + 5 + 6, comps, dtype=torch.float64, generator=gen, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda c, p, q: vm_product(p, q, vm_corners(c, res)), (coords, plane, line))
+    rows = VMVolume(res, comps, lookup="rows").double()
+    grid = VMVolume(res, comps, lookup="grid_sample").double()
+    grid.load_state_dict(rows.state_dict())
+    weights = torch.randn(40, 3 * comps, dtype=torch.float64, generator=gen)
+    (g_rows,) = torch.autograd.grad((rows(coords) * weights).sum(), coords)
+    (g_grid,) = torch.autograd.grad((grid(coords) * weights).sum(), coords)
+    torch.testing.assert_close(g_rows, g_grid, rtol=1e-9, atol=1e-10)
+    # positions without a graph keep the cheaper lookup: no coordinate gradient is computed or linked
+    assert vm_corners(coords.detach(), res).source is None
+    with torch.no_grad():
+        assert vm_corners(coords, res).source is None
 
 
 def test_no_points_give_zero_gradients() -> None:

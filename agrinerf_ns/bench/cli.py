@@ -44,7 +44,7 @@ class BenchConfig:
     (tests)."""
     methods: Tuple[str, ...] = tuple(m for m in METHODS if m not in SAMPLE_BUDGETS)
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf; sample-budget variants such as
-    agrinerf-fine32 only when named)."""
+    agrinerf-fine32, trained for about the preset's wall time, only when named)."""
     scenes: Optional[Tuple[str, ...]] = None
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
     seed: int = 0
@@ -139,7 +139,8 @@ def run_method(
     ``runs``: the output folder's ``runs/`` (:mod:`agrinerf_ns.bench.layout`)."""
     from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
 
-    steps = profile.steps.get(method_key, profile.steps[method.ns_method])  # an ablation: its method's budget
+    # an ablation or a sample budget: its method's budget (scaled to about equal wall time)
+    steps = profile.steps.get(method_key, round(profile.steps[method.ns_method] * method.step_scale))
     save_every = max(1, steps // profile.evaluations)
     record = train_record(runs, scene, method_key)
     experiment = experiment_folder(runs, scene, method_key)

@@ -24,6 +24,9 @@ class BenchMethod:
     """Dataparser subcommand and options after the method options (e.g. Nerfstudio's for ``tensorf``)."""
     train_args: Tuple[str, ...] = ()
     """Method options for ``ns-train`` (e.g. the modalities of a Table IV ablation)."""
+    step_scale: float = 1.0
+    """Its step budget is its ``ns-train`` method's in the profile times this (a cheaper step trained for about the
+    same wall time: `SAMPLE_BUDGETS`)."""
 
 
 METHODS: Dict[str, BenchMethod] = {
@@ -58,21 +61,45 @@ METHODS.update(
     }
 )
 
-SAMPLE_BUDGETS: Dict[str, Tuple[str, int]] = {
-    "agrinerf-fine32": ("agrinerf", 32),
-    "agrinerf-lite-fine16": ("agrinerf-lite", 16),
+
+@dataclass(frozen=True)
+class SampleBudget:
+    """A preset with fewer samples, trained for about the preset's wall time."""
+
+    preset: str
+    fine_samples: int
+    """Fine samples per ray (``--pipeline.model.num-fine-samples``)."""
+    step_scale: float
+    """Steps per step of the preset: the inverse of the variant's step time over the preset's (at the start grids,
+    one thread, `benchmarks/bench_step_interleaved.py`; docs/benchmark.md), so both run about equally long."""
+    event_rays: int = 0
+    """Event samples per batch (``--pipeline.model.event-rays-per-batch``); 0: the preset's."""
+
+
+SAMPLE_BUDGETS: Dict[str, SampleBudget] = {
+    "agrinerf-fine32": SampleBudget("agrinerf", 32, 1.9),
+    "agrinerf-fine32-events512": SampleBudget("agrinerf", 32, 2.6, event_rays=512),
+    "agrinerf-lite-fine16": SampleBudget("agrinerf-lite", 16, 1.65),
 }
-"""Bench key -> (preset, fine samples per ray): a preset with half its fine samples, at its own step budget, to weigh
-the sample budget against wall time (docs/benchmark.md)."""
+"""Bench key -> a preset's sample budget, weighed against the preset at about equal wall time (docs/benchmark.md)."""
+
+
+def _budget_label(budget: SampleBudget) -> str:
+    events = f", {budget.event_rays} event samples" if budget.event_rays else ""
+    return f"{METHODS[budget.preset].label} ({budget.fine_samples} fine samples{events})"
+
+
 METHODS.update(
     {
         key: BenchMethod(
-            f"{METHODS[preset].label} ({fine} fine samples)",
-            preset,
+            _budget_label(budget),
+            budget.preset,
             "transforms.json",
             "rgb",
-            train_args=("--pipeline.model.num-fine-samples", str(fine)),
+            train_args=("--pipeline.model.num-fine-samples", str(budget.fine_samples))
+            + (("--pipeline.model.event-rays-per-batch", str(budget.event_rays)) if budget.event_rays else ()),
+            step_scale=budget.step_scale,
         )
-        for key, (preset, fine) in SAMPLE_BUDGETS.items()
+        for key, budget in SAMPLE_BUDGETS.items()
     }
 )

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from agrinerf_ns import colour
 from agrinerf_ns.model import event_supervision, losses
-from agrinerf_ns.model.vm_encoding import plane_tv
+from agrinerf_ns.model.plane_tv import plane_tv
 
 if TYPE_CHECKING:
     from agrinerf_ns.model.model import AgriNeRFModel

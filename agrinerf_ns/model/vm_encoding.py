@@ -86,16 +86,25 @@ class VMCorners:
     corners share too.
 
     Args:
-        coords: the points, already clamped to [-1, 1] (build with `vm_corners`).
+        coords: the points, already clamped to [-1, 1] (build with `vm_corners`), without a graph.
         resolution: grid resolution per axis the indices refer to.
         rows: their `CornerRows`, when already known (else computed on first use).
+        source: the same clamped points with their graph, where they need a gradient (a moved ray's positions: a
+            learnt blur kernel, camera pose refinement); None: the lookup is differentiable in the tables only.
     """
 
-    def __init__(self, coords: Float[Tensor, "n 3"], resolution: Resolution, rows: Optional[CornerRows] = None) -> None:
+    def __init__(
+        self,
+        coords: Float[Tensor, "n 3"],
+        resolution: Resolution,
+        rows: Optional[CornerRows] = None,
+        source: Optional[Float[Tensor, "n 3"]] = None,
+    ) -> None:
         self.coords = coords
         self.resolution = resolution
         self.layout = VMLayout.of(resolution)
         self._rows = rows
+        self.source = source
 
     @property
     def num_points(self) -> int:
@@ -123,23 +132,27 @@ class VMCorners:
         """The corners of the points where `mask` is True (these corners themselves when it selects every point)."""
         if bool(mask.all()):
             return self
+        source = None if self.source is None else self.source[mask]
         if self._rows is None:
-            return VMCorners(self.coords[mask], self.resolution)
+            return VMCorners(self.coords[mask], self.resolution, source=source)
 
         def pick(t: Tensor) -> Tensor:  # computed already: select them rather than recompute
             return t.view(-1, 3, t.shape[-1])[mask].reshape(-1, t.shape[-1])
 
-        return VMCorners(self.coords[mask], self.resolution, CornerRows(*(pick(t) for t in self._rows)))
+        return VMCorners(self.coords[mask], self.resolution, CornerRows(*(pick(t) for t in self._rows)), source)
 
 
 def vm_corners(coords: Float[Tensor, "n 3"], resolution: Union[int, Sequence[int]]) -> VMCorners:
     """Corners of `coords` (in [-1, 1], `align_corners=True` convention) in a VM volume of `resolution`.
 
-    Coordinates outside [-1, 1] are clamped to the border and NaN is read as 0, so indices are always valid.
+    Coordinates outside [-1, 1] are clamped to the border and NaN is read as 0, so indices are always valid. Where
+    `coords` need a gradient (and autograd records), the lookups are differentiable in them too (`VMCorners.source`).
     """
     res = as_resolution(resolution)
     dtype = torch.promote_types(coords.dtype, torch.float32)  # float16 -> float32, float64 stays
-    return VMCorners(torch.nan_to_num(coords.detach().to(dtype)).clamp(-1.0, 1.0), res)
+    clamped = torch.nan_to_num(coords.to(dtype)).clamp(-1.0, 1.0)
+    source = clamped if clamped.requires_grad else None
+    return VMCorners(clamped.detach(), res, source=source)
 
 
 def _corner_rows(clamped: Float[Tensor, "n 3"], res: Resolution, layout: VMLayout) -> CornerRows:
@@ -218,32 +231,76 @@ def scatter_matrix(
 
 
 class _VMProduct(torch.autograd.Function):
-    """`plane_rows * line_rows` of a VM volume at precomputed corners, differentiable in both tables.
+    """`plane_rows * line_rows` of a VM volume at precomputed corners, differentiable in both tables and, where given,
+    in the points' coordinates.
 
     Forward: two `embedding_bag` weighted row sums. Backward: one sparse matrix product per table with the corners'
     `scatter_matrix` (built once per `VMCorners` and shared by every volume that reads them), which gathers the gradient
-    rows of each table row where an `index_add_` per corner would scatter them element by element.
+    rows of each table row where an `index_add_` per corner would scatter them element by element. The coordinate
+    gradient (`_coordinate_gradient`) is computed only when the coordinates need one.
     """
 
     @staticmethod
-    def forward(ctx, plane_table: Tensor, line_table: Tensor, corners: "VMCorners") -> Tensor:  # type: ignore[override]
+    def forward(ctx, plane_table: Tensor, line_table: Tensor, coords: Optional[Tensor], corners: "VMCorners") -> Tensor:  # type: ignore[override]
+        del coords  # the corners hold their values; the argument only links the graph
         rows = corners.rows
         plane = F.embedding_bag(rows.plane_index, plane_table, per_sample_weights=rows.plane_weight, mode="sum")
         line = F.embedding_bag(rows.line_index, line_table, per_sample_weights=rows.line_weight, mode="sum")
-        ctx.save_for_backward(plane, line)
+        if ctx.needs_input_grad[2]:
+            ctx.save_for_backward(plane, line, plane_table, line_table)
+        else:
+            ctx.save_for_backward(plane, line)
         ctx.corners = corners
         return plane * line
 
     @staticmethod
-    def backward(ctx, grad_out: Tensor) -> Tuple[Optional[Tensor], Optional[Tensor], None]:  # type: ignore[override]
-        plane, line = ctx.saved_tensors
+    def backward(ctx, grad_out: Tensor) -> Tuple[Optional[Tensor], Optional[Tensor], Optional[Tensor], None]:  # type: ignore[override]
+        plane, line = ctx.saved_tensors[:2]
         corners: VMCorners = ctx.corners
-        grad_plane = grad_line = None
+        grad_plane = grad_line = grad_coords = None
         if ctx.needs_input_grad[0]:
             grad_plane = _sparse_times(corners.plane_scatter, grad_out * line)
         if ctx.needs_input_grad[1]:
             grad_line = _sparse_times(corners.line_scatter, grad_out * plane)
-        return grad_plane, grad_line, None
+        if ctx.needs_input_grad[2]:
+            plane_table, line_table = ctx.saved_tensors[2:]
+            grad_coords = _coordinate_gradient(grad_out, plane, line, plane_table, line_table, corners)
+        return grad_plane, grad_line, grad_coords, None
+
+
+def _coordinate_gradient(
+    grad_out: Float[Tensor, "n3 c"],
+    plane: Float[Tensor, "n3 c"],
+    line: Float[Tensor, "n3 c"],
+    plane_table: Float[Tensor, "plane_rows c"],
+    line_table: Float[Tensor, "line_rows c"],
+    corners: "VMCorners",
+) -> Float[Tensor, "n 3"]:
+    """d(loss)/d(coords) of `plane * line`: the bilinear (linear) weights' derivatives in each plane's (line's) cell
+    fractions, times d(fraction)/d(coordinate) = (resolution - 1) / 2 along each axis (a sample's cell is fixed)."""
+    rows = corners.rows
+    n = corners.num_points
+    fw = rows.plane_weight[:, 1] + rows.plane_weight[:, 3]  # the fractions: the weights of the corners at w + 1
+    fh = rows.plane_weight[:, 2] + rows.plane_weight[:, 3]  # and at h + 1
+    one = torch.ones_like(fw)
+    d_w = torch.stack((fh - one, one - fh, -fh, fh), dim=-1)  # d(weights)/d(fw)
+    d_h = torch.stack((fw - one, -fw, one - fw, fw), dim=-1)  # d(weights)/d(fh)
+    g_plane = grad_out * line  # [n3, c]
+    g_line = grad_out * plane
+    dp_w = F.embedding_bag(rows.plane_index, plane_table, per_sample_weights=d_w, mode="sum")
+    dp_h = F.embedding_bag(rows.plane_index, plane_table, per_sample_weights=d_h, mode="sum")
+    d_l = torch.stack((-one, one), dim=-1)
+    dl = F.embedding_bag(rows.line_index, line_table, per_sample_weights=d_l, mode="sum")
+    per_w = (g_plane * dp_w).sum(-1).view(n, 3)  # [point, plane]
+    per_h = (g_plane * dp_h).sum(-1).view(n, 3)
+    per_l = (g_line * dl).sum(-1).view(n, 3)
+    grad = per_w.new_zeros(n, 3)
+    for p in range(3):
+        grad[:, PLANE_AXES_W[p]] += per_w[:, p]
+        grad[:, PLANE_AXES_H[p]] += per_h[:, p]
+        grad[:, LINE_AXES[p]] += per_l[:, p]
+    scale = torch.tensor([(r - 1) / 2.0 for r in corners.resolution], dtype=grad.dtype, device=grad.device)
+    return grad * scale
 
 
 def _sparse_times(matrix: Tensor, dense: Float[Tensor, "m c"]) -> Float[Tensor, "rows c"]:
@@ -258,8 +315,9 @@ def _sparse_times(matrix: Tensor, dense: Float[Tensor, "m c"]) -> Float[Tensor, 
 def vm_product(
     plane_table: Float[Tensor, "plane_rows c"], line_table: Float[Tensor, "line_rows c"], corners: "VMCorners"
 ) -> Float[Tensor, "n3 c"]:
-    """Plane feature times line feature at every (point, plane) row of `corners` (differentiable in the tables)."""
-    return _VMProduct.apply(plane_table, line_table, corners)
+    """Plane feature times line feature at every (point, plane) row of `corners` (differentiable in the tables, and in
+    the points where `corners.source` holds them with a graph)."""
+    return _VMProduct.apply(plane_table, line_table, corners.source, corners)
 
 
 VMLookup = Literal["auto", "rows", "grid_sample"]
@@ -325,7 +383,7 @@ class VMVolume(nn.Module):
 
     def planes(self, table: Optional[Tensor] = None) -> List[Float[Tensor, "h w c"]]:
         """Views of the three planes (height, width, components) of `table` (default: this volume's plane table)."""
-        return _plane_views(self.plane_table if table is None else table, self.layout)
+        return plane_views(self.plane_table if table is None else table, self.layout)
 
     def lines(self) -> List[Float[Tensor, "r c"]]:
         """Views of the three lines (length, components)."""
@@ -342,7 +400,7 @@ class VMVolume(nn.Module):
         if corners.resolution != self.resolution:
             raise ValueError(f"Corners for resolution {corners.resolution} used on a volume of {self.resolution}")
         if not self.uses_rows():
-            return self._grid_sample_features(corners.coords)
+            return self._grid_sample_features(corners.coords if corners.source is None else corners.source)
         return vm_product(self.plane_table, self.line_table, corners).view(corners.num_points, self.get_out_dim())
 
     def _grid_sample_features(self, coords: Float[Tensor, "n 3"]) -> Float[Tensor, "n out_dim"]:
@@ -425,59 +483,9 @@ class VMVolume(nn.Module):
             self.res.copy_(torch.tensor(res, dtype=torch.int64))
 
 
-def plane_tv(volume: VMVolume) -> Float[Tensor, ""]:
-    """Total variation of a volume's planes: the mean squared difference of neighbours along the height plus that
-    along the width, each averaged over every difference of the three planes and all components (for a cube, half of
-    Nerfstudio's `tv_loss` on the stacked planes; TensoRF's `TV_loss_density` sums a TV per plane with its own scale:
-    the loss weights absorb the constant). The gradient is written by hand (`_PlaneTV`): autograd's dense chain of
-    slices, differences and powers over every plane was most of a step at 300^3."""
-    return _PlaneTV.apply(volume.plane_table, volume.layout)
-
-
-class _PlaneTV(torch.autograd.Function):
-    """`plane_tv` with a hand-written backward: d/dP of sum(d^2) / N is 2 d / N added at the later neighbour and
-    subtracted at the earlier one, per plane, written into one gradient table."""
-
-    @staticmethod
-    def forward(ctx, table: Tensor, layout: VMLayout) -> Tensor:  # type: ignore[override]
-        n_h, n_w = _tv_counts(layout, table.shape[-1])
-        total_h = table.new_zeros(())
-        total_w = table.new_zeros(())
-        for plane in _plane_views(table, layout):
-            total_h = total_h + (plane[1:] - plane[:-1]).pow(2).sum()
-            total_w = total_w + (plane[:, 1:] - plane[:, :-1]).pow(2).sum()
-        ctx.save_for_backward(table)
-        ctx.layout = layout
-        return total_h / max(n_h, 1) + total_w / max(n_w, 1)
-
-    @staticmethod
-    def backward(ctx, grad_out: Tensor) -> Tuple[Optional[Tensor], None]:  # type: ignore[override]
-        (table,) = ctx.saved_tensors
-        layout: VMLayout = ctx.layout
-        n_h, n_w = _tv_counts(layout, table.shape[-1])
-        grad = torch.zeros_like(table)
-        scale_h = 2.0 * grad_out / max(n_h, 1)
-        scale_w = 2.0 * grad_out / max(n_w, 1)
-        for plane, g in zip(_plane_views(table, layout), _plane_views(grad, layout), strict=True):
-            dh = (plane[1:] - plane[:-1]).mul_(scale_h)
-            g[1:] += dh
-            g[:-1] -= dh
-            dw = (plane[:, 1:] - plane[:, :-1]).mul_(scale_w)
-            g[:, 1:] += dw
-            g[:, :-1] -= dw
-        return grad, None
-
-
-def _plane_views(table: Float[Tensor, "rows c"], layout: VMLayout) -> List[Float[Tensor, "h w c"]]:
+def plane_views(table: Float[Tensor, "rows c"], layout: VMLayout) -> List[Float[Tensor, "h w c"]]:
     """The (height, width, components) views of the planes in a plane table."""
     return [
         table[layout.plane_offsets[p] : layout.plane_offsets[p + 1]].view(h, w, -1)
         for p, (h, w) in enumerate(layout.plane_shapes)
     ]
-
-
-def _tv_counts(layout: VMLayout, comps: int) -> Tuple[int, int]:
-    """Differences along the height and along the width over all planes and components."""
-    n_h = sum((h - 1) * w for h, w in layout.plane_shapes) * comps
-    n_w = sum(h * (w - 1) for h, w in layout.plane_shapes) * comps
-    return n_h, n_w
