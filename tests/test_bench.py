@@ -103,3 +103,21 @@ def test_bench_trains_a_table_iv_ablation(tmp_path: Path) -> None:
     (config,) = (tmp_path / "bench" / "runs").glob("*/lite-ablation-thermal/agrinerf-lite/run/config.yml")
     loaded = yaml.load(config.read_text(), Loader=yaml.Loader)
     assert tuple(loaded.pipeline.model.modalities) == ("thermal",)
+
+
+def test_a_sample_budget_row_trains_the_papers_samples_for_the_presets_wall_time(tmp_path: Path) -> None:
+    """`agrinerf-paper-samples`: the preset with the paper's 64 + 64 samples and 1024 event pixels, for fewer steps."""
+    from agrinerf_ns.bench.methods import SAMPLE_BUDGETS
+    from agrinerf_ns.bench.profiles import PROFILES
+    from agrinerf_ns.method_configs.agrinerf_methods import agrinerf
+
+    preset = agrinerf.config.pipeline.model
+    assert (preset.num_coarse_samples, preset.num_fine_samples, preset.event_rays_per_batch) == (64, 32, 512)
+    main(BenchConfig(out=tmp_path / "bench", profile="tiny", methods=("agrinerf-paper-samples",)))
+    (config,) = (tmp_path / "bench" / "runs").glob("*/agrinerf-paper-samples/agrinerf/run/config.yml")
+    loaded = yaml.load(config.read_text(), Loader=yaml.Loader)
+    model = loaded.pipeline.model
+    assert (model.num_coarse_samples, model.num_fine_samples, model.event_rays_per_batch) == (64, 64, 1024)
+    budget = SAMPLE_BUDGETS["agrinerf-paper-samples"]
+    assert loaded.max_num_iterations == round(PROFILES["tiny"].steps["agrinerf"] * budget.step_scale)
+    assert budget.step_scale < 1, "the paper's samples make a slower step: fewer steps for the same wall time"

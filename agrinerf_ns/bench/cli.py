@@ -44,7 +44,7 @@ class BenchConfig:
     (tests)."""
     methods: Tuple[str, ...] = tuple(m for m in METHODS if m not in SAMPLE_BUDGETS)
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf; sample-budget variants such as
-    agrinerf-fine32, trained for about the preset's wall time, only when named)."""
+    agrinerf-paper-samples, trained for about the preset's wall time, only when named)."""
     scenes: Optional[Tuple[str, ...]] = None
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
     seed: int = 0

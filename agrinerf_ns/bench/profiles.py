@@ -43,7 +43,7 @@ PROFILES: Dict[str, BenchProfile] = {
     # (measurements: docs/bench_profiles.md).
     "quick": BenchProfile(
         views=16, width=96, height=72,
-        steps={"agrinerf-lite": 500, "evdeblurnerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
+        steps={"agrinerf-lite": 825, "evdeblurnerf-lite": 500, "agrinerf": 390, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
         evaluations=3, rays_per_batch=1024,
     ),
     # A GPU at the paper's settings: 30k steps of every method on the default scene size.
@@ -66,7 +66,7 @@ PROFILES: Dict[str, BenchProfile] = {
     # held-out views per run for paired per-view intervals.
     "ablation": BenchProfile(
         views=32, width=96, height=72,
-        steps={"agrinerf-lite": 500, "evdeblurnerf-lite": 500, "agrinerf": 150, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
+        steps={"agrinerf-lite": 825, "evdeblurnerf-lite": 500, "agrinerf": 390, "nerfacto": 40, "nerfacto-thermal": 40, "tensorf": 160},
         evaluations=1, eval_every=4,
         scenes=tuple(f"{s}-{light}" for s in ("orchard", "garden") for light in ("bright", "shadowed", "dusk", "dark")),
     ),
