@@ -122,6 +122,16 @@ BASELINES: Dict[str, str] = {
 ``evdeblurnerf-lite`` is EvDeblurNeRF's recipe (event-to-event samples, learnt event response and rigid blur kernel
 from step 1200, EDI prior, its learning-rate schedule) on AgriNeRF-lite's field: its budget must pass step 1200."""
 
+PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
+    "learnt-kernel": (
+        "RGB + learnt rigid kernel (frames only: EvDeblurNeRF's recipe without events)",
+        (*RGB, f"{MODEL}edi-prior", "False", f"{MODEL}event-crf", "False"),
+    ),
+    "evdeblurnerf-lite-no-edi": ("EvDeblurNeRF as published, without the EDI prior", (f"{MODEL}edi-prior", "False")),
+}
+"""Rows that switch parts of ``evdeblurnerf-lite`` off (its steps, schedule and kernel), to attribute its gap:
+``learnt-kernel`` is the frame-only deblurring its paper compares against (DP-NeRF's learnt kernel, no events)."""
+
 TABLE_I: Tuple[Tuple[str, str], ...] = (
     ("nerfacto", "Nerfacto (RGB)"),
     ("nerfacto-thermal", "Nerfacto (Thermal)"),
@@ -152,7 +162,7 @@ class Args:
 
 def row_profile(profile: BenchProfile, key: str) -> BenchProfile:
     """The profile with this row's step budget."""
-    if key in BASELINES:
+    if key in BASELINES or key in PUBLISHED_VARIANTS:
         return profile
     steps = profile.steps["agrinerf-lite"] * STEP_FACTORS.get(key, 1)
     return replace(profile, steps={**profile.steps, key: steps})
@@ -161,6 +171,9 @@ def row_profile(profile: BenchProfile, key: str) -> BenchProfile:
 def method(key: str) -> BenchMethod:
     if key in BASELINES:
         return METHODS[key]
+    if key in PUBLISHED_VARIANTS:
+        label, options = PUBLISHED_VARIANTS[key]
+        return BenchMethod(label, "evdeblurnerf-lite", "transforms.json", "rgb", train_args=options)
     label, options = ROWS[key]
     return BenchMethod(label, "agrinerf-lite", "transforms.json", "rgb", train_args=options)
 
@@ -186,9 +199,10 @@ def tables_i_ii(rows, scenes) -> str:
 
 
 def main(args: Args) -> None:
-    unknown = [r for r in args.rows if r not in ROWS and r not in BASELINES]
+    known = {**ROWS, **PUBLISHED_VARIANTS, **{k: (label, ()) for k, label in BASELINES.items()}}
+    unknown = [r for r in args.rows if r not in known]
     if unknown:
-        raise SystemExit(f"unknown rows {unknown}: {[*ROWS, *BASELINES]}")
+        raise SystemExit(f"unknown rows {unknown}: {list(known)}")
     keys = ["rgb"] + [r for r in args.rows if r != "rgb"]
     profile = PROFILES[args.profile]
     csv_path = args.out / "results.csv"
@@ -205,7 +219,7 @@ def main(args: Args) -> None:
             rows = run_method(scene, key, method(key), raw, data, row_profile(profile, key), args.out / "runs", device)
             results.append_rows(csv_path, rows)
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in args.scenes]
-    labels = {k: ROWS[k][0] if k in ROWS else BASELINES[k] for k in keys}
+    labels = {k: known[k][0] for k in keys}
     text = (
         "# RGB PSNR of the RGB module's parts on motion-blurred scenes\n\n"
         f"Command: `python benchmarks/bench_event_deblur.py {' '.join(sys.argv[1:])}`\n\n"
