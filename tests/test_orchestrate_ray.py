@@ -22,7 +22,17 @@ from agrinerf_ns.bench import results
 from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, train_record
 from agrinerf_ns.bench.profiles import BenchProfile
 from agrinerf_ns.orchestrate import bench_grid
-from agrinerf_ns.orchestrate.jobs import Job, LocalExecutor, Resources, attempts, failures_markdown, run_jobs
+from agrinerf_ns.orchestrate.jobs import (
+    DRIVER_LOCK,
+    FolderInUse,
+    Job,
+    LocalExecutor,
+    Resources,
+    attempts,
+    driver_lock,
+    failures_markdown,
+    run_jobs,
+)
 
 SCENE = "orchard-dark"
 PROFILE = BenchProfile(views=8, width=64, height=48, steps={"agrinerf-lite": 24}, evaluations=2, rays_per_batch=128,
@@ -86,6 +96,37 @@ def test_grid_plan_keys_streams_and_skips_finished_runs() -> None:
     assert (
         bench_grid.run_resources("full", None, None).gpus == 1 and bench_grid.run_resources("quick", 2, None).gpus == 0
     )
+
+
+HOLD_LOCK = """
+import sys, time
+from pathlib import Path
+from agrinerf_ns.orchestrate.jobs import driver_lock
+with driver_lock(Path(sys.argv[1])):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_second_driver_on_the_same_folder_stops_and_a_killed_holder_frees_it(tmp_path: Path) -> None:
+    out = tmp_path / "bench"
+    with driver_lock(out):
+        with pytest.raises(FolderInUse, match=f"{os.getpid()}"):  # names the holder
+            with driver_lock(out):
+                pass
+        with driver_lock(tmp_path / "other"):  # another folder is another lock
+            pass
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_LOCK, str(out)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(FolderInUse, match=f"{holder.pid}"):
+            bench_grid.run_grid([], PROFILE, BenchLayout(out), out / "results.csv", 0, LocalExecutor())
+        assert not (out / "results.csv").exists(), "the second driver wrote nothing"
+    finally:
+        holder.kill()  # as SIGKILL ends a driver: no clean-up runs, the kernel drops its lock
+        holder.wait()
+    report = bench_grid.run_grid([], PROFILE, BenchLayout(out), out / "results.csv", 0, LocalExecutor())
+    assert not report.done and (out / DRIVER_LOCK).exists()
 
 
 def test_survey_and_bench_command_lines_and_bad_survey_folders(tmp_path: Path) -> None:

@@ -24,7 +24,7 @@ from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, BenchMethod
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
 from agrinerf_ns.orchestrate import bench_grid
-from agrinerf_ns.orchestrate.jobs import executor_for
+from agrinerf_ns.orchestrate.jobs import FolderInUse, executor_for
 
 if TYPE_CHECKING:
     from agrinerf_ns.synth import SynthConfig
@@ -255,7 +255,7 @@ def entrypoint() -> None:
     """Console script ``agrinerf-bench``."""
     try:
         main(tyro.cli(BenchConfig))
-    except bench_grid.RunsFailed as err:
+    except (bench_grid.RunsFailed, FolderInUse) as err:
         CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
         sys.exit(1)
 

@@ -21,7 +21,15 @@ from agrinerf_ns.bench import results
 from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, train_record
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.profiles import BenchProfile
-from agrinerf_ns.orchestrate.jobs import Executor, Job, JobsReport, Resources, failures_markdown, run_jobs
+from agrinerf_ns.orchestrate.jobs import (
+    Executor,
+    Job,
+    JobsReport,
+    Resources,
+    driver_lock,
+    failures_markdown,
+    run_jobs,
+)
 
 GPU_PROFILES = ("full",)
 """Profiles meant for a GPU: each of their runs asks for one."""
@@ -118,20 +126,23 @@ def run_grid(
     console: Optional[Console] = None,
 ) -> JobsReport:
     """Run ``runs`` on ``executor``, appending each run's rows to ``csv_path`` as it finishes (on the driver, once per
-    run); writes ``OUT/failures.md`` when runs failed (removes a stale one when none did)."""
-    written = results.done_runs(results.read_rows(csv_path))
+    run); writes ``OUT/failures.md`` when runs failed (removes a stale one when none did). Holds ``OUT``'s driver lock
+    throughout (:func:`~agrinerf_ns.orchestrate.jobs.driver_lock`: a second driver on ``OUT`` stops at once); runs
+    that already have rows in ``csv_path`` are not appended again."""
+    with driver_lock(layout.out):
+        written = results.done_runs(results.read_rows(csv_path))
 
-    def on_result(job: Job, rows: Any) -> None:
-        if job.fn is not train_and_evaluate:
-            return
-        run: GridRun = job.args[0]
-        if (run.scene, run.key) not in written:
-            results.append_rows(csv_path, rows)
-            written.add((run.scene, run.key))
+        def on_result(job: Job, rows: Any) -> None:
+            if job.fn is not train_and_evaluate:
+                return
+            run: GridRun = job.args[0]
+            if (run.scene, run.key) not in written:
+                results.append_rows(csv_path, rows)
+                written.add((run.scene, run.key))
 
-    report = run_jobs(grid_jobs(runs, profile, layout, scene_seed, resources, retries), executor, on_result,
-                      "benchmark runs", console)  # fmt: skip
-    write_failures(layout.out / FAILURES_MD, failures_markdown(report, "Benchmark runs that failed"))
+        report = run_jobs(grid_jobs(runs, profile, layout, scene_seed, resources, retries), executor, on_result,
+                          "benchmark runs", console)  # fmt: skip
+        write_failures(layout.out / FAILURES_MD, failures_markdown(report, "Benchmark runs that failed"))
     return report
 
 

@@ -97,6 +97,44 @@ class JobsReport:
     """Key -> the failed job it waited for."""
 
 
+DRIVER_LOCK = ".driver.lock"
+"""The file a driver holds while it writes an output folder's tables (:func:`driver_lock`)."""
+
+
+class FolderInUse(RuntimeError):
+    """Another driver is writing the same output folder."""
+
+
+@contextmanager
+def driver_lock(folder: Path) -> Iterator[None]:
+    """Hold ``folder/.driver.lock`` while this driver writes the folder's tables.
+
+    A second driver on the same folder (the same command started twice, or a resume started while an interrupted
+    driver still shuts down) stops at once with :class:`FolderInUse`, naming the holder, instead of both appending the
+    same runs. The lock is the kernel's (``flock``, which Linux also takes on NFS): it ends with the process that holds
+    it, however that process ends, so a killed driver never leaves a stale lock.
+    """
+    import fcntl
+
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / DRIVER_LOCK
+    with open(path, "a+") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "a process that has not written its id yet"
+            raise FolderInUse(
+                f"{folder} is being written by another driver ({holder}; lock {path}): wait for it to end, or stop "
+                "it, then run this command again (finished runs are kept and not run again)"
+            ) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "since": time.time()}))
+        handle.flush()
+        yield  # closing the file releases the lock
+
+
 def limit_threads(cpus: Optional[int]) -> None:
     """Make this process and the commands it starts use ``cpus`` threads (no change when None)."""
     if cpus is None:

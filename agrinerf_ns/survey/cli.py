@@ -22,7 +22,15 @@ from rich.console import Console
 
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.orchestrate.bench_grid import write_failures
-from agrinerf_ns.orchestrate.jobs import Job, Resources, executor_for, failures_markdown, run_jobs
+from agrinerf_ns.orchestrate.jobs import (
+    FolderInUse,
+    Job,
+    Resources,
+    driver_lock,
+    executor_for,
+    failures_markdown,
+    run_jobs,
+)
 from agrinerf_ns.process.pipeline import ProcessConfig
 from agrinerf_ns.survey import stages, table
 
@@ -116,7 +124,10 @@ def main(args: SurveyArgs) -> List[Dict[str, Any]]:
     jobs = survey_jobs(args, names, settings)
     errors: Dict[str, str] = {}
     if jobs:
-        with executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as executor:
+        with (
+            driver_lock(args.out),
+            executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as executor,
+        ):
             report = run_jobs(jobs, executor, lambda job, result: None, "survey steps", CONSOLE)
         errors = {key.rsplit(":", 1)[0]: failure.error for key, failure in report.failed.items()}
         write_failures(args.out / "failures.md", failures_markdown(report, "Survey steps that failed"))
@@ -147,6 +158,9 @@ def entrypoint() -> None:
     except SurveyInputError as err:
         CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
         sys.exit(2)
+    except FolderInUse as err:
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
+        sys.exit(1)
     if any(r["status"] != "done" for r in rows):
         sys.exit(1)
 
