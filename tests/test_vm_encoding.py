@@ -3,6 +3,8 @@ exact resampling, checkpoints that restore their shapes, and the hand-written TV
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 import torch
 from nerfstudio.field_components.encodings import TensorVMEncoding
@@ -235,3 +237,21 @@ def test_unknown_lookup_and_tiny_resolution_are_refused() -> None:
         vm_corners(torch.zeros(1, 3), 1)
     with pytest.raises(ValueError, match="at least 2"):
         VMVolume((4, 1, 4), 2)
+
+
+def _warn_here() -> None:
+    warnings.warn("a notice from one place", UserWarning, stacklevel=1)
+
+
+def test_a_training_lookup_leaves_other_warnings_said_once() -> None:
+    """Python shows a warning once per code location; a lookup's backward (which builds the sparse transposes) must not
+    reset that, or every library's warning is printed again at every training step (seen: 6 lines a step in ns-train
+    logs)."""
+    volume = VMVolume(resolution=(8, 6, 5), num_components=4)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("default")
+        for _ in range(3):
+            _warn_here()
+            corners = vm_corners(torch.rand(64, 3) * 2 - 1, volume.resolution)
+            volume.features(corners).sum().backward()
+    assert [str(w.message) for w in seen] == ["a notice from one place"]

@@ -31,6 +31,11 @@ PLANE_AXES_H = (1, 2, 2)
 LINE_AXES = (2, 1, 0)
 """Coordinate axis along each line (paired with the plane that lacks it)."""
 
+# torch says "Sparse CSR tensor support is in beta state" once per process: not news to a user. Filtered once, here:
+# a `warnings.catch_warnings()` around each lookup would reset Python's once-per-location registry every step, so that
+# every other library's warning (Nerfstudio's indexing notices among them) was printed again at every training step.
+warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta", category=UserWarning)
+
 Resolution = Tuple[int, int, int]
 """Grid points along x, y and z."""
 
@@ -225,9 +230,7 @@ def scatter_matrix(
         pos = crow[row] + before[j, row] + rank
         col[pos] = order
         val[pos] = sorted_weight[:, j]
-    with warnings.catch_warnings():  # "Sparse CSR tensor support is in beta state": said once per process, not news
-        warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta", category=UserWarning)
-        return torch.sparse_csr_tensor(crow, col, val, (rows, m), check_invariants=False)
+    return torch.sparse_csr_tensor(crow, col, val, (rows, m), check_invariants=False)
 
 
 class _VMProduct(torch.autograd.Function):
