@@ -127,10 +127,15 @@ PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
         "RGB + learnt rigid kernel (frames only: EvDeblurNeRF's recipe without events)",
         (*RGB, f"{MODEL}edi-prior", "False", f"{MODEL}event-crf", "False"),
     ),
+    "recipe-rgb": (
+        "RGB TensoRF on EvDeblurNeRF's recipe (its schedule and steps; no kernel, no events)",
+        (*RGB, f"{MODEL}blur-samples", "1", f"{MODEL}edi-prior", "False", f"{MODEL}event-crf", "False"),
+    ),
     "evdeblurnerf-lite-no-edi": ("EvDeblurNeRF as published, without the EDI prior", (f"{MODEL}edi-prior", "False")),
 }
 """Rows that switch parts of ``evdeblurnerf-lite`` off (its steps, schedule and kernel), to attribute its gap:
-``learnt-kernel`` is the frame-only deblurring its paper compares against (DP-NeRF's learnt kernel, no events)."""
+``learnt-kernel`` is the frame-only deblurring its paper compares against (DP-NeRF's learnt kernel, no events);
+``recipe-rgb`` the same recipe without the kernel, so that the kernel's part and the schedule's part separate."""
 
 TABLE_I: Tuple[Tuple[str, str], ...] = (
     ("nerfacto", "Nerfacto (RGB)"),
