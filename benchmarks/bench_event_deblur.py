@@ -85,6 +85,10 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
         "blur + noise-balanced events, counts as lower bounds",
         (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, f"{MODEL}event-loss-bound", "True"),
     ),
+    "blur-pairs-noise": (
+        "blur + noise-balanced event-to-event loss (EvDeblurNeRF's event samples)",
+        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, f"{MODEL}event-supervision", "pairs"),
+    ),
     "thermal-geometry": (
         "All, the thermal-camera term moves the density",
         (f"{MODEL}density-gradient-scales.thermal-camera-loss", "1.0"),
