@@ -1,0 +1,44 @@
+"""The deblur benchmark's rows: each row's options parse into the config it names (a misspelt flag would only fail
+an hour into a campaign), and the rows that switch parts of EvDeblurNeRF's recipe off change only those parts."""
+
+from __future__ import annotations
+
+import pytest
+import tyro
+from helpers.bench_script import load_bench_script
+
+from agrinerf_ns.method_configs.agrinerf_methods import agrinerf_lite, evdeblurnerf_lite
+
+BENCH = load_bench_script("bench_event_deblur")
+PRESETS = {"agrinerf-lite": agrinerf_lite.config, "evdeblurnerf-lite": evdeblurnerf_lite.config}
+
+
+def _parsed(key: str):
+    method = BENCH.method(key)
+    preset = PRESETS[method.ns_method]
+    # as ns-train parses them (booleans take a value: --flag False)
+    return tyro.cli(tyro.conf.FlagConversionOff[type(preset)], default=preset, args=list(method.train_args))
+
+
+def test_the_published_recipe_rows_switch_off_only_their_part() -> None:
+    published = evdeblurnerf_lite.config
+    recipe_rgb, kernel = _parsed("recipe-rgb"), _parsed("learnt-kernel")
+    grid_lr, fine32 = _parsed("evdeblurnerf-lite-grid-lr"), _parsed("evdeblurnerf-lite-fine32")
+    for config in (recipe_rgb, kernel):
+        assert config.pipeline.model.modalities == ("rgb",) and not config.pipeline.model.edi_prior
+    assert recipe_rgb.pipeline.model.blur_samples == 1  # no kernel
+    assert kernel.pipeline.model.blur_kernel == "learnt"
+    assert kernel.pipeline.model.blur_samples == published.pipeline.model.blur_samples == 10
+    encodings = grid_lr.optimizers["encodings"]
+    assert encodings["optimizer"].lr == pytest.approx(0.02)
+    assert encodings["scheduler"].lr_final == pytest.approx(0.02 * 0.1 ** (2000 / 10_000), rel=1e-5)
+    assert grid_lr.optimizers["fields"]["optimizer"].lr == published.optimizers["fields"]["optimizer"].lr
+    assert grid_lr.pipeline.model == published.pipeline.model
+    assert fine32.pipeline.model.num_fine_samples == 32 != published.pipeline.model.num_fine_samples
+    for key in ("recipe-rgb", "learnt-kernel", "evdeblurnerf-lite-grid-lr", "evdeblurnerf-lite-fine32"):
+        assert BENCH.row_profile(BENCH.PROFILES["deblur"], key).steps == BENCH.PROFILES["deblur"].steps  # 1600 steps
+
+
+@pytest.mark.parametrize("key", sorted([*BENCH.ROWS, *BENCH.PUBLISHED_VARIANTS]))
+def test_every_row_parses(key: str) -> None:
+    assert _parsed(key).method_name == BENCH.method(key).ns_method
