@@ -15,7 +15,7 @@ import os
 import shutil
 import sys
 from pathlib import Path
-from typing import Dict, Optional, Sequence
+from typing import Dict, Iterable, Optional
 
 try:
     import tomllib
@@ -49,7 +49,7 @@ class _CheckoutSubpackages(importlib.abc.MetaPathFinder):
         self.mapped = mapped
 
     def find_spec(
-        self, fullname: str, path: Optional[Sequence[str]] = None, target: object = None
+        self, fullname: str, path: Optional[Iterable[str]] = None, target: object = None
     ) -> Optional[importlib.machinery.ModuleSpec]:
         folder = self.mapped.get(fullname)
         if folder is None:

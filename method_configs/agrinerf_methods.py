@@ -46,6 +46,8 @@ class FusedAdamOptimizerConfig(AdamOptimizerConfig):
 
     fused: bool = True
     """torch.optim.Adam(fused=...)."""
+    weight_decay: float = 0.0
+    """Nerfstudio's default, as a float: its ``0`` breaks the annotation when a parser passes it back."""
 
 
 def _optimizers(lr_fields: float, lr_encodings: float, max_steps: int) -> Dict[str, Dict[str, Any]]:
