@@ -145,7 +145,7 @@ PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     ),
     "evdeblurnerf-lite-grid-lr": ("EvDeblurNeRF as published, grids at TensoRF's learning rate (2e-2)", _GRID_LR),
     "evdeblurnerf-lite-fine32": (
-        "EvDeblurNeRF as published, 32 + 32 samples (the lite preset's before it took 16 fine)",
+        "EvDeblurNeRF as published, 32 + 32 samples (the preset's since these rows; 16 fine before)",
         (f"{MODEL}num-fine-samples", "32"),
     ),
     "evdeblurnerf-lite-no-edi": ("EvDeblurNeRF as published, without the EDI prior", (f"{MODEL}edi-prior", "False")),

@@ -34,7 +34,7 @@ def test_the_published_recipe_rows_switch_off_only_their_part() -> None:
     assert encodings["scheduler"].lr_final == pytest.approx(0.02 * 0.1 ** (2000 / 10_000), rel=1e-5)
     assert grid_lr.optimizers["fields"]["optimizer"].lr == published.optimizers["fields"]["optimizer"].lr
     assert grid_lr.pipeline.model == published.pipeline.model
-    assert fine32.pipeline.model.num_fine_samples == 32 != published.pipeline.model.num_fine_samples
+    assert fine32.pipeline.model.num_fine_samples == 32 == published.pipeline.model.num_fine_samples  # the preset's
     for key in ("recipe-rgb", "learnt-kernel", "evdeblurnerf-lite-grid-lr", "evdeblurnerf-lite-fine32"):
         assert BENCH.row_profile(BENCH.PROFILES["deblur"], key).steps == BENCH.PROFILES["deblur"].steps  # 1600 steps
 
