@@ -267,6 +267,12 @@ def difference_interval(
     return math.hypot(view_half, run_half) if math.isfinite(view_half) else run_half
 
 
+def difference_text(mean: float, half: float) -> str:
+    """A paired difference and its interval's half-width as ``+0.12 ± 0.34``, marked * where the interval excludes 0."""
+    mark = "*" if math.isfinite(half) and abs(mean) > half else ""
+    return f"{mean:+.2f} ± {half:.2f}{mark}"
+
+
 def ablation_table(
     rows: Sequence[Row],
     methods: Sequence[str],
@@ -299,8 +305,7 @@ def ablation_table(
                 else:
                     mean, half = paired_difference(mine, theirs)
                     half = difference_interval(half, *run_sd, runs_factor=runs_factor)
-                    mark = "*" if math.isfinite(half) and abs(mean) > half else ""
-                    cell += f" ({mean:+.2f} ± {half:.2f}{mark})"
+                    cell += f" ({difference_text(mean, half)})"
             cells.append(cell)
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
