@@ -105,10 +105,13 @@ class AgriNeRFDataParser(Nerfstudio):
 
         if "thermal_filenames" in metadata:
             metadata.update(_temperature(frames, kept, block, meta, data_dir, transforms_path))
+            camera = _warped_camera(block, outputs, meta, "thermal")
+            if camera is not None:
+                metadata["thermal_camera"] = camera
 
         if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
             metadata.update(_event_sums(data_dir, kept))
-            camera = _event_camera(block, outputs, meta)
+            camera = _warped_camera(block, outputs, meta, "event")
             if camera is not None:
                 metadata["event_camera"] = camera
             stream = _event_stream(block, outputs, meta, data_dir, transforms_path)
@@ -244,15 +247,18 @@ def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
     return {"event_sums_filenames": paths, "event_windows": torch.from_numpy(windows)}
 
 
-def _event_camera(block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any]) -> Optional[Dict[str, Any]]:
-    """Where the event frames' rays start: ``camera_centre``, the event camera's centre in the RGB camera's frame
-    (OpenGL axes, this parser's scale, float64 [3]), and ``plane_depth``, the depth (same scale) of the plane the frames were
-    warped into the RGB camera at (inf: at infinity). None when the calibration has no event camera."""
+def _warped_camera(
+    block: Dict[str, Any], outputs: DataparserOutputs, meta: Dict[str, Any], name: str
+) -> Optional[Dict[str, Any]]:
+    """Where the rays of the rig camera `name` ("thermal", "event"), whose frames were warped into the RGB camera,
+    start: ``camera_centre``, its centre in the RGB camera's frame (OpenGL axes, this parser's scale, float64 [3]),
+    and ``plane_depth``, the depth (same scale) of the plane the frames were warped at (inf: at infinity). None when
+    the calibration has no such camera."""
     import numpy as np
 
     from agrinerf_ns.dataparsers.event_stream import rig_offset
 
-    calib = (block.get("calibration") or {}).get("event")
+    calib = (block.get("calibration") or {}).get(name)
     if not calib or "T_cam_rgb" not in calib:
         return None
     scale = float(outputs.dataparser_scale) / float(meta.get("applied_scale", 1.0))

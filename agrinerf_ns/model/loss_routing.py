@@ -10,7 +10,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from agrinerf_ns import colour
-from agrinerf_ns.model import event_supervision, losses
+from agrinerf_ns.model import event_supervision, losses, thermal_view
 from agrinerf_ns.model.plane_tv import plane_tv
 
 if TYPE_CHECKING:
@@ -100,18 +100,36 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
         )
     if not model.has_thermal_head:
         return terms
+    # the thermal frames' terms: on the first rays of the batch seen from the thermal camera, where training rendered
+    # them so (thermal_view.py), else on the RGB rays
+    view = thermal_view.PREFIX if thermal_view.PREFIX + "thermal" in outputs else ""
+    rows = outputs[view + "thermal"].shape[0] if view else None
+
+    def thermal_pred(term: str) -> Tensor:
+        return (
+            pred(term)
+            if not view
+            else outputs.get(f"{view}{TERM_OUTPUTS[term]}/{term}", outputs[view + TERM_OUTPUTS[term]])
+        )
+
+    def thermal_target(key: str) -> Any:
+        value = optional(key)
+        return None if value is None else value[:rows]
+
     if model.use_thermal and "thermal" in batch:
-        thermal, thermal_mask = batch["thermal"].to(model.device), optional("thermal_mask")
-        terms["thermal_loss"] = losses.thermal_loss(pred("thermal_loss"), thermal, thermal_mask)
+        thermal, thermal_mask = thermal_target("thermal"), thermal_target("thermal_mask")
+        terms["thermal_loss"] = losses.thermal_loss(thermal_pred("thermal_loss"), thermal, thermal_mask)
         if model.has_thermal_camera:
-            terms["thermal_camera_loss"] = losses.thermal_loss(pred("thermal_camera_loss"), thermal, thermal_mask)
+            terms["thermal_camera_loss"] = losses.thermal_loss(
+                thermal_pred("thermal_camera_loss"), thermal, thermal_mask
+            )
     if model.has_temperature and "temperature" in batch:
         head = model.field.temperature_head
         assert head is not None
         terms["temperature_loss"] = losses.thermal_loss(
-            head.normalise(pred("temperature_loss")),
-            head.normalise(batch["temperature"].to(model.device)),
-            optional("temperature_mask"),
+            head.normalise(thermal_pred("temperature_loss")),
+            head.normalise(thermal_target("temperature")),
+            thermal_target("temperature_mask"),
         )
     if model.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
         terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)

@@ -38,6 +38,7 @@ from agrinerf_ns.model import (
     grid_schedule,
     loss_routing,
     losses,
+    thermal_view,
 )
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
 from agrinerf_ns.model.event_crf import EventCRF
@@ -108,6 +109,8 @@ class AgriNeRFModel(Model):
         # the event camera's `camera_centre` and `plane_depth` (timed_rays.reposed_rays), where the dataset records them
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
         self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
+        # the thermal camera's `camera_centre` and `plane_depth`: where the thermal terms' rays start (thermal_view.py)
+        self.thermal_camera: Dict[str, Any] = metadata.get("thermal_camera") or {}
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = (
             self.use_rgb
@@ -311,6 +314,8 @@ class AgriNeRFModel(Model):
                     sharp = outputs.get("rgb/rgb_loss", outputs["rgb"])  # the frame ray's render for the RGB loss
                     blur = blur_renders.kernel_rgb if self.blur_kernel is not None else blur_renders.blurred_rgb
                     outputs["rgb_blurred"] = blur(self, ray_bundle, sharp)
+                if thermal_view.uses_thermal_view(self):
+                    outputs.update(thermal_view.thermal_view_outputs(self, ray_bundle))
                 if self.edi_stream is not None:
                     outputs.update(event_supervision.edi_outputs(self, ray_bundle))
                 if self.use_event_loss and self.event_pairs is not None:

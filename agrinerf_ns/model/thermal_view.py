@@ -1,0 +1,53 @@
+"""The thermal terms rendered from the thermal camera: a thermal frame warped into the RGB camera holds, at an RGB
+pixel, what the thermal camera saw along its own ray through the point of the RGB ray on the alignment plane
+(`agrinerf-process --plane-depth`, at infinity by default). That ray starts at the thermal camera's centre, a few
+centimetres beside the RGB camera: at the trees' depth it meets another surface than the RGB ray does (7 cm of
+baseline at 1.5 m is 7 RGB pixels at 200 px width, more than a fruit is wide). Supervising the thermal outputs on
+the RGB ray paints the leaves' temperature over the fruit; on the thermal camera's ray each temperature lands on the
+surface the thermal camera measured (docs/model.md, Thermal rays)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Dict
+
+import torch
+from nerfstudio.cameras.rays import RayBundle
+from torch import Tensor
+
+if TYPE_CHECKING:
+    from agrinerf_ns.model.model import AgriNeRFModel
+
+PREFIX = "thermal_view/"
+"""Outputs rendered along the thermal camera's rays carry this prefix (`thermal_view/temperature`, and the routed
+copies `thermal_view/thermal/thermal_loss`)."""
+
+THERMAL_TERMS = ("thermal_loss", "thermal_camera_loss", "temperature_loss")
+"""The data terms whose targets are the thermal camera's frames (the cross-spectral L_reg terms stay on the RGB
+ray: their targets are RGB luma and event frames)."""
+
+
+def uses_thermal_view(model: AgriNeRFModel) -> bool:
+    """Whether training renders the thermal terms from the thermal camera: the dataset records where that camera sits
+    (`thermal_camera`), the rig's trajectory gives each frame's orientation, and `thermal_rays_per_batch` > 0."""
+    return (
+        model.use_thermal
+        and model.config.thermal_rays_per_batch > 0
+        and "camera_centre" in model.thermal_camera
+        and model.trajectory is not None
+        and model.frame_times is not None
+    )
+
+
+def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, Tensor]:
+    """The thermal outputs of the first `thermal_rays_per_batch` rays of `bundle` rendered from the thermal camera's
+    centre through their points on the alignment plane, with their routed copies, keys prefixed with `PREFIX`."""
+    from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
+
+    assert model.trajectory is not None and model.frame_times is not None
+    m = min(model.config.thermal_rays_per_batch, bundle.origins.shape[0])
+    head = bundle[:m]
+    frame_times = model.frame_times[camera_rows(head)].double()
+    moved = reposed_rays(head, model.trajectory, frame_times, frame_times[:, None], **model.thermal_camera)
+    rendered = model.render(model.collider(moved), heads=("thermal",))
+    keep = ("thermal", "thermal_camera", "temperature")
+    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in keep and torch.is_tensor(v)}

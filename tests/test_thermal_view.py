@@ -1,0 +1,164 @@
+"""The thermal terms rendered from the thermal camera (`model/thermal_view.py`): where the dataset puts that camera,
+against the synthesiser's truth rig, and which rays and targets the model's thermal terms read."""
+
+from __future__ import annotations
+
+import math
+from typing import Dict
+
+import numpy as np
+import pytest
+import torch
+from helpers.small_model import SMALL_MODEL
+from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.data.scene_box import SceneBox
+
+from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
+from agrinerf_ns.model import losses
+from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
+from agrinerf_ns.model.thermal_view import PREFIX
+from agrinerf_ns.process import ProcessConfig, process_capture
+from agrinerf_ns.synth import SynthConfig, generate_capture
+from agrinerf_ns.synth.capture import make_scene
+from agrinerf_ns.trajectory import CameraTrajectory
+
+CENTRE = (0.07, -0.012, 0.004)
+"""The thermal camera's centre in the RGB camera's frame (OpenGL axes), in scene units."""
+
+
+@pytest.mark.parametrize("plane_depth", [math.inf, 1.8])
+def test_the_thermal_camera_sits_where_the_synthetic_rig_put_it(tmp_path, plane_depth: float) -> None:
+    """The dataset's thermal camera, placed on the dataset's trajectory at a frame's time, is the truth rig's thermal
+    camera centre (in the truth RGB camera's frame, carried onto the dataset's poses, as the event test does)."""
+    config = SynthConfig.tiny(seed=2, lighting="bright")
+    raw = generate_capture(config, tmp_path / "raw")
+    data = process_capture(raw, tmp_path / "data", ProcessConfig(poses="given", show_progress=False,
+                                                                 plane_depth=plane_depth))  # fmt: skip
+    outputs = AgriNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
+    camera = outputs.metadata["thermal_camera"]
+    scale = float(outputs.dataparser_scale)
+    assert camera["plane_depth"] == pytest.approx(plane_depth * scale)
+    _, rig = make_scene(config)
+    trajectory, times = outputs.metadata["trajectory"], outputs.metadata["times"].numpy()
+    poses = trajectory.poses_at_tensor(torch.from_numpy(times), dtype=torch.float64).numpy()
+    centre = camera["camera_centre"].numpy()
+    for i, t in enumerate(times):
+        T_th, T_rgb = rig.pose(float(t), "thermal"), rig.pose(float(t), "rgb")
+        local = np.diag([1.0, -1.0, -1.0]) @ (T_rgb[:3, :3].T @ (T_th[:3, 3] - T_rgb[:3, 3])) * scale
+        truth = poses[i, :, :3] @ local + poses[i, :, 3]
+        placed = poses[i, :, :3] @ centre + poses[i, :, 3]
+        assert np.linalg.norm(placed - truth) < 1e-4 * scale  # a tenth of a millimetre
+        assert np.linalg.norm(local) > 0.05 * scale  # the rig's 7 cm baseline: the test could tell
+
+
+def _trajectory() -> CameraTrajectory:
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    c2w = np.zeros((4, 3, 4))
+    for i, t in enumerate(times):
+        yaw = 0.3 * t
+        c2w[i, :3, :3] = [[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]]
+        c2w[i, :3, 3] = [t, 0.0, 3.0]
+    return CameraTrajectory(times, c2w)
+
+
+def _metadata(**camera: object) -> Dict[str, object]:
+    traj = _trajectory()
+    meta: Dict[str, object] = {
+        "modalities": ("rgb", "thermal"),
+        "times": torch.from_numpy(traj.times),
+        "trajectory": traj,
+        "temperature_stats": {"mean_c": 20.0, "std_c": 4.0, "min_c": 5.0, "max_c": 35.0},
+    }
+    if camera:
+        meta["thermal_camera"] = camera
+    return meta
+
+
+def _model(metadata: Dict[str, object], **kw) -> AgriNeRFModel:
+    torch.manual_seed(0)
+    cfg = AgriNeRFModelConfig(modalities=("rgb", "thermal"), **{**SMALL_MODEL, "density_shift": 0.0, **kw})
+    box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    model = cfg.setup(scene_box=box, num_train_data=4, metadata=metadata)
+    model.train()
+    return model
+
+
+def _rays(n: int = 48) -> RayBundle:
+    gen = torch.Generator().manual_seed(1)
+    traj = _trajectory()
+    index = torch.arange(n) % 4
+    poses = torch.from_numpy(traj.poses_at(traj.times[index.numpy()])).float()
+    local = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), -1)
+    return RayBundle(origins=poses[:, :3, 3].clone(), directions=(poses[:, :3, :3] @ local[..., None])[..., 0],
+                     pixel_area=torch.full((n, 1), 1e-4), camera_indices=index[:, None])  # fmt: skip
+
+
+def _batch(n: int = 48) -> Dict[str, torch.Tensor]:
+    gen = torch.Generator().manual_seed(2)
+    return {"image": torch.rand(n, 3, generator=gen), "thermal": torch.rand(n, 1, generator=gen),
+            "thermal_mask": torch.ones(n, 1), "temperature": 20.0 + 4.0 * torch.randn(n, 1, generator=gen),
+            "temperature_mask": (torch.arange(n) % 5 != 0).float()[:, None]}  # fmt: skip
+
+
+def test_the_thermal_terms_read_the_thermal_cameras_rays_and_their_own_targets() -> None:
+    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
+    model = _model(_metadata(**camera), thermal_rays_per_batch=32)
+    rays, batch = _rays(), _batch()
+    seen = []
+    render = model.render
+    model.render = lambda bundle, **kw: seen.append((bundle, kw)) or render(bundle, **kw)  # type: ignore[method-assign]
+    torch.manual_seed(3)
+    outputs = model(rays)
+    terms = model.get_metrics_dict(outputs, batch)
+    # the second render: the first 32 rays, from the thermal camera's centre, in their own directions (plane at inf)
+    moved, kw = seen[1]
+    assert kw == {"heads": ("thermal",)} and moved.origins.shape[0] == 32
+    frame = torch.from_numpy(_trajectory().poses_at(_trajectory().times[rays.camera_indices[:32, 0].numpy()]))
+    centre = (frame[:, :3, :3] @ torch.tensor(CENTRE, dtype=torch.float64)[:, None])[..., 0] + frame[:, :3, 3]
+    assert torch.allclose(moved.origins.double(), centre, atol=1e-5)
+    assert torch.allclose(moved.directions, rays.directions[:32], atol=1e-6)
+    # every thermal-frame term is that render against the batch's first 32 targets
+    head = model.field.temperature_head
+    assert head is not None
+    expected = {
+        "thermal_loss": losses.thermal_loss(
+            outputs[PREFIX + "thermal"], batch["thermal"][:32], batch["thermal_mask"][:32]
+        ),
+        "thermal_camera_loss": losses.thermal_loss(
+            outputs[PREFIX + "thermal_camera"], batch["thermal"][:32], batch["thermal_mask"][:32]
+        ),
+        "temperature_loss": losses.thermal_loss(
+            head.normalise(outputs[PREFIX + "temperature"]),
+            head.normalise(batch["temperature"][:32]),
+            batch["temperature_mask"][:32],
+        ),
+    }
+    for term, value in expected.items():
+        assert torch.allclose(terms[term], value), term
+    # ... and the temperature term trains the temperature head through it
+    loss = model.get_loss_dict(outputs, batch, terms)["temperature_loss"]
+    loss.backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
+
+
+@pytest.mark.parametrize("case", ["rays off", "no thermal camera", "no trajectory"])
+def test_without_the_thermal_camera_the_thermal_terms_stay_on_the_rgb_rays(case: str) -> None:
+    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
+    metadata = _metadata() if case == "no thermal camera" else _metadata(**camera)
+    if case == "no trajectory":
+        del metadata["trajectory"]
+    model = _model(metadata, thermal_rays_per_batch=0 if case == "rays off" else 32)
+    torch.manual_seed(3)
+    outputs = model(_rays())
+    assert not any(k.startswith(PREFIX) for k in outputs)
+    batch = _batch()
+    terms = model.get_metrics_dict(outputs, batch)
+    assert torch.allclose(terms["thermal_loss"], losses.thermal_loss(outputs["thermal"], batch["thermal"]))
+
+
+def test_evaluation_renders_no_thermal_view() -> None:
+    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
+    model = _model(_metadata(**camera), thermal_rays_per_batch=32)
+    model.eval()
+    with torch.no_grad():
+        assert not any(k.startswith(PREFIX) for k in model(_rays()))
