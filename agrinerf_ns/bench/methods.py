@@ -104,3 +104,13 @@ METHODS.update(
         for key, budget in SAMPLE_BUDGETS.items()
     }
 )
+
+METHODS["agrinerf-lite-rgb-rays"] = BenchMethod(
+    "AgriNeRF-lite (thermal terms on the RGB rays)",
+    "agrinerf-lite",
+    "transforms.json",
+    "rgb",
+    train_args=("--pipeline.model.thermal-rays-per-batch", "0"),
+)
+"""The lite preset with its thermal terms on the RGB camera's rays, as the paper writes L_th, instead of the thermal
+camera's (`model/thermal_view.py`): what rendering them from the thermal camera changes, at equal steps."""
