@@ -162,3 +162,39 @@ def test_evaluation_renders_no_thermal_view() -> None:
     model.eval()
     with torch.no_grad():
         assert not any(k.startswith(PREFIX) for k in model(_rays()))
+
+
+def test_the_held_out_thermal_metrics_render_the_thermal_cameras_view() -> None:
+    """At a plane at infinity the thermal camera's view of a held-out camera is that camera moved to the thermal
+    camera's centre: the thermal outputs the metrics read are that camera's render; the RGB stays the camera's own."""
+    from nerfstudio.cameras.cameras import Cameras
+
+    from agrinerf_ns.model.eval_metrics import image_metrics_and_images
+    from agrinerf_ns.model.thermal_view import eval_outputs
+
+    camera_centre = torch.tensor(CENTRE, dtype=torch.float64)
+    model = _model(_metadata(camera_centre=camera_centre, plane_depth=math.inf), thermal_rays_per_batch=32)
+    model.eval()
+    torch.manual_seed(4)
+    for volume in model.field.volumes().values():  # a field that varies within a few cm, as trained ones do
+        volume.plane_table.data.normal_(0.0, 2.0)
+        volume.line_table.data.normal_(0.0, 2.0)
+    c2w = torch.from_numpy(_trajectory().poses_at(np.array([0.1]))).float()
+
+    def camera(pose: torch.Tensor) -> Cameras:
+        return Cameras(camera_to_worlds=pose, fx=12.0, fy=12.0, cx=8.0, cy=6.0, width=16, height=12)
+
+    moved = c2w.clone()
+    moved[0, :3, 3] += c2w[0, :3, :3] @ camera_centre.float()
+    with torch.no_grad():
+        from_thermal = model.get_outputs_for_camera(camera(moved))
+        own = model.get_outputs_for_camera(camera(c2w))
+        seen = eval_outputs(model, own)
+    assert torch.allclose(seen["thermal_camera"], from_thermal["thermal_camera"], atol=1e-5)
+    assert torch.allclose(seen["temperature"], from_thermal["temperature"], atol=1e-4)
+    assert not torch.allclose(own["thermal_camera"], from_thermal["thermal_camera"], atol=1e-3)  # the test can tell
+    assert torch.equal(seen["rgb"], own["rgb"])
+    batch = {"image": torch.rand(12, 16, 3), "thermal": from_thermal["thermal_camera"].clone(),
+             "temperature": from_thermal["temperature"].clone()}  # fmt: skip
+    metrics, _ = image_metrics_and_images(model, own, batch)
+    assert metrics["thermal_camera_psnr"] > 60.0 and metrics["temperature_mae"] < 1e-3

@@ -10,7 +10,7 @@ from jaxtyping import Float
 from nerfstudio.utils import colormaps
 from torch import Tensor
 
-from agrinerf_ns.model import losses
+from agrinerf_ns.model import losses, thermal_view
 
 if TYPE_CHECKING:
     from agrinerf_ns.model.model import AgriNeRFModel
@@ -34,7 +34,8 @@ def image_metrics_and_images(
         gt_c, pred_c = gt.permute(2, 0, 1)[None], pred.permute(2, 0, 1)[None]
         metrics["psnr"] = float(model.psnr(pred_c, gt_c).item())
         metrics["ssim"] = float(model.ssim(pred_c, gt_c).item())  # type: ignore[union-attr]
-        metrics["lpips"] = float(model.lpips(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
+        metrics["lpips"] = float(lpips(model)(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
+    outputs = thermal_view.eval_outputs(model, outputs)  # thermal outputs as the thermal camera saw them
     if model.has_thermal_head:
         pred_th = outputs["thermal"]
         images["thermal"] = pred_th.expand(*pred_th.shape[:-1], 3)
@@ -57,6 +58,16 @@ def image_metrics_and_images(
         )
     model.camera_optimizer.get_metrics_dict(metrics)  # type: ignore[arg-type]
     return metrics, images
+
+
+def lpips(model: AgriNeRFModel) -> torch.nn.Module:
+    """LPIPS (torchmetrics), built on first use: construction loads (or tries to fetch) AlexNet weights, which
+    training never needs. Kept out of the module tree, so checkpoints do not carry its weights."""
+    if "lpips" not in model._lazy_metrics:
+        from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+        model._lazy_metrics["lpips"] = LearnedPerceptualImagePatchSimilarity(normalize=True).to(model.device)
+    return model._lazy_metrics["lpips"]
 
 
 def grid_diagnostics(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, float]:

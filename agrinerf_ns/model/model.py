@@ -14,7 +14,9 @@ from typing import Any, Dict, List, Optional, Tuple
 import torch
 from jaxtyping import Float
 from nerfstudio.cameras.camera_optimizers import CameraOptimizer
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.data.scene_box import OrientedBox
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes
 from nerfstudio.engine.optimizers import Optimizers
 from nerfstudio.field_components.field_heads import FieldHeadNames
@@ -106,11 +108,10 @@ class AgriNeRFModel(Model):
         self.exposure: Optional[Tensor] = metadata.get("exposure")
         self.trajectory = metadata.get("trajectory")
         self.event_windows: Optional[Tensor] = metadata.get("event_windows")
-        # the event camera's `camera_centre` and `plane_depth` (timed_rays.reposed_rays), where the dataset records them
-        self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}
+        self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}  # its centre (timed_rays.py)
         self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
-        # the thermal camera's `camera_centre` and `plane_depth`: where the thermal terms' rays start (thermal_view.py)
-        self.thermal_camera: Dict[str, Any] = metadata.get("thermal_camera") or {}
+        self.thermal_camera: Dict[str, Any] = metadata.get("thermal_camera") or {}  # its centre (thermal_view.py)
+        self.eval_camera: Optional[Cameras] = None
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = (
             self.use_rgb
@@ -459,15 +460,11 @@ class AgriNeRFModel(Model):
         return loss_dict
 
     # ----------------------------------------------------------- evaluation (eval_metrics.py)
-    @property
-    def lpips(self) -> torch.nn.Module:
-        """LPIPS (torchmetrics), built on first use: construction loads (or tries to fetch) AlexNet weights, which
-        training never needs. Kept out of the module tree, so checkpoints do not carry its weights."""
-        if "lpips" not in self._lazy_metrics:
-            from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
-
-            self._lazy_metrics["lpips"] = LearnedPerceptualImagePatchSimilarity(normalize=True).to(self.device)
-        return self._lazy_metrics["lpips"]
+    def get_outputs_for_camera(self, camera: Cameras, obb_box: Optional[OrientedBox] = None) -> Dict[str, Tensor]:
+        """Nerfstudio's render of `camera`, which is kept: the thermal metrics that follow read the thermal camera's
+        view of it (`thermal_view.eval_outputs`)."""
+        self.eval_camera = camera
+        return super().get_outputs_for_camera(camera, obb_box)
 
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Any]

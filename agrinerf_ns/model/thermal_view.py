@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Dict
 
+import numpy as np
 import torch
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
@@ -51,3 +52,28 @@ def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, T
     rendered = model.render(model.collider(moved), heads=("thermal",))
     keep = ("thermal", "thermal_camera", "temperature")
     return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in keep and torch.is_tensor(v)}
+
+
+def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
+    """For the held-out thermal metrics: `outputs` of the camera last rendered (`model.eval_camera`) with its thermal
+    outputs rendered again from the thermal camera, what the warped frames hold, where training used that camera
+    (`thermal_rays_per_batch` > 0 and its place known); otherwise `outputs` as they are."""
+    from agrinerf_ns.model.timed_rays import reposed_rays
+    from agrinerf_ns.trajectory import CameraTrajectory
+
+    camera = model.eval_camera
+    if camera is None or not model.use_thermal or model.config.thermal_rays_per_batch <= 0:
+        return outputs
+    if "camera_centre" not in model.thermal_camera or "thermal" not in outputs:
+        return outputs
+    bundle = camera.generate_rays(camera_indices=0, keep_shape=True)
+    if tuple(bundle.shape) != tuple(outputs["thermal"].shape[:2]):  # not the camera of these outputs
+        return outputs
+    height, width = bundle.shape
+    flat = bundle.flatten()
+    c2w = camera.camera_to_worlds[0].detach().double().cpu().numpy()
+    at = torch.zeros(flat.shape[0], dtype=torch.float64)  # one pose: the held-out camera's
+    moved = reposed_rays(flat, CameraTrajectory(np.zeros(1), c2w[None]), at, at[:, None], **model.thermal_camera)
+    rendered = model.get_outputs_for_camera_ray_bundle(moved.reshape((height, width)))
+    keep = ("thermal", "thermal_camera", "temperature")
+    return {**outputs, **{k: v for k, v in rendered.items() if k in keep}}
