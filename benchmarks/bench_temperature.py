@@ -29,6 +29,8 @@ from jaxtyping import Float, Int
 from PIL import Image
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from agrinerf_ns.count.render import dataset_folder
+
 
 @dataclass
 class Args:
@@ -107,7 +109,7 @@ def main(args: Args) -> Dict:
     if not getattr(model, "has_temperature", False):
         sys.exit(f"{args.config}: the model has no temperature output (its dataset has no radiometric calibration)")
     dataset = run.pipeline.datamanager.eval_dataset
-    data_dir = Path(run.pipeline.datamanager.config.dataparser.data)
+    data_dir = dataset_folder(Path(run.pipeline.datamanager.config.dataparser.data))
     meta = json.loads((data_dir / "transforms.json").read_text())
     raw_of = {Path(f["file_path"]).name: f["raw_rgb"] for f in meta["frames"]}
     truth = TruthTemperature(args.raw)

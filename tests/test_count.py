@@ -142,6 +142,12 @@ def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
     warm = detect_blobs(view, "thermal", 1.0, BlobConfig(polarity="warm"))
     red = detect_blobs(view, "rgb", 1.0, BlobConfig())
     assert (len(both), len(warm), len(red)) == (4, 3, 2)
+    # the same scene as a temperature render in degrees C (leaves 20 C, fruit +-3 C): the same fruit
+    view.temperature = (20.0 + 30.0 * (thermal - 0.4)).astype(np.float32)
+    assert len(detect_blobs(view, "temperature", 1.0, BlobConfig())) == 4
+    view.temperature = None
+    with pytest.raises(ValueError, match="no 'temperature' output"):
+        detect_blobs(view, "temperature", 1.0, BlobConfig())
     frame_points = [lift_detection(view, d.mask, IDENTITY) for d in warm]
     assert all(p is not None and p.diameter == pytest.approx(0.06, rel=0.3) for p in frame_points)
 

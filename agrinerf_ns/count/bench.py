@@ -28,7 +28,7 @@ from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
 from agrinerf_ns.count.score import read_frames
 from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
-VIEW_SOURCES: Tuple[Source, ...] = ("thermal", "rgb")
+VIEW_SOURCES: Tuple[Source, ...] = ("temperature", "thermal", "rgb")
 ORACLE_METHOD = "oracle"
 
 
@@ -92,8 +92,8 @@ def oracle_field_count(raw: Path, data: Path, config: CountConfig) -> CountResul
 
 
 def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, out: Path) -> List[Dict[str, Any]]:
-    """Count one run by the field path on each source it has and by the view path on thermal and RGB; score each
-    against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``."""
+    """Count one run by the field path on each source it has and by the view path on temperature, thermal and RGB
+    (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``."""
     from agrinerf_ns.count.components import find_fruit
     from agrinerf_ns.count.detectors import DetectorConfig
     from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
@@ -139,7 +139,7 @@ def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, 
     renders = render_run(config, None)
     rendered = time.perf_counter() - start
     for source in VIEW_SOURCES:
-        if source == "thermal" and renders.views[0].thermal is None:
+        if getattr(renders.views[0], source) is None:  # a run without that output (rgb is always rendered)
             continue
         begin = time.perf_counter()
         view_config = CountConfig(detect=DetectorConfig(source=source))

@@ -16,7 +16,7 @@ from agrinerf_ns.count.render import RenderedView
 from agrinerf_ns.images import to_uint8
 
 DetectorName = Literal["blobs", "yolo"]
-Source = Literal["thermal", "rgb"]
+Source = Literal["temperature", "thermal", "rgb"]
 
 
 @dataclass(frozen=True)
@@ -27,7 +27,8 @@ class DetectorConfig:
     """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
     e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
     source: Source = "thermal"
-    """The output fruit are found in: the cross-spectral ``thermal`` or ``rgb``."""
+    """The output fruit are found in: ``temperature`` (degrees C, where the run has one: fruit differ from leaves in
+    temperature), the cross-spectral ``thermal`` or ``rgb``."""
     weights: Optional[Path] = None
     """YOLO weights (``.pt``), for ``--detector yolo``."""
     confidence: float = 0.25
@@ -71,6 +72,8 @@ def yolo_detector(config: DetectorConfig) -> Detector:
 
 def _detector_image(view: RenderedView, source: str) -> np.ndarray:
     """The 8-bit BGR image a YOLO detector trained by agrinerf-detect sees (its renders are 8-bit PNGs)."""
+    if source == "temperature":
+        raise ValueError("the YOLO detector reads 8-bit rgb or thermal renders; use --detector blobs on temperature")
     if source == "thermal":
         if view.thermal is None:
             raise ValueError(f"view {view.name}: the run renders no cross-spectral 'thermal' output")
