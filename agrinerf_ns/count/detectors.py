@@ -4,7 +4,7 @@ inside :func:`yolo_detections`, when it is asked for)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Callable, List, Literal, Optional
 
@@ -16,7 +16,7 @@ from agrinerf_ns.count.render import RenderedView
 from agrinerf_ns.images import to_uint8
 
 DetectorName = Literal["blobs", "yolo"]
-Source = Literal["temperature", "thermal", "rgb"]
+Source = Literal["auto", "temperature", "thermal", "rgb"]
 
 
 @dataclass(frozen=True)
@@ -26,9 +26,10 @@ class DetectorConfig:
     detector: DetectorName = "blobs"
     """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
     e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
-    source: Source = "thermal"
+    source: Source = "auto"
     """The output fruit are found in: ``temperature`` (degrees C, where the run has one: fruit differ from leaves in
-    temperature), the cross-spectral ``thermal`` or ``rgb``."""
+    temperature), the cross-spectral ``thermal`` or ``rgb``; ``auto``: the first of these the renders have (YOLO:
+    thermal, else rgb)."""
     weights: Optional[Path] = None
     """YOLO weights (``.pt``), for ``--detector yolo``."""
     confidence: float = 0.25
@@ -37,15 +38,25 @@ class DetectorConfig:
     """Settings of ``--detector blobs``."""
 
 
+def resolve_source(config: DetectorConfig, view: RenderedView) -> DetectorConfig:
+    """``config`` with ``source`` ``auto`` replaced by the first output of ``view`` (a rendered view of the run) the
+    detector can read: temperature (blobs only), thermal, rgb."""
+    if config.source != "auto":
+        return config
+    names = ("thermal",) if config.detector == "yolo" else ("temperature", "thermal")
+    source = next((name for name in names if getattr(view, name) is not None), "rgb")
+    return replace(config, source=source)
+
+
 Detector = Callable[[RenderedView, float], List[Detection]]
 """(view, dataparser scale: Nerfstudio units per dataset unit) -> the view's fruit."""
 
 
 def make_detector(config: DetectorConfig) -> Detector:
-    """The detector ``config`` asks for (YOLO weights are loaded once, here)."""
+    """The detector ``config`` asks for (YOLO weights are loaded once, here); ``auto`` is resolved per view."""
     if config.detector == "yolo":
         return yolo_detector(config)
-    return lambda view, scale: detect_blobs(view, config.source, scale, config.blobs)
+    return lambda view, scale: detect_blobs(view, resolve_source(config, view).source, scale, config.blobs)
 
 
 def yolo_detector(config: DetectorConfig) -> Detector:
@@ -61,7 +72,7 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     imgsz = int(model.overrides.get("imgsz", 640))
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
-        image = _detector_image(view, config.source)
+        image = _detector_image(view, resolve_source(config, view).source)
         result = model.predict(image, imgsz=imgsz, conf=config.confidence, device="cpu", verbose=False)[0]
         boxes = result.boxes.xyxy.cpu().numpy().reshape(-1, 4)
         scores = result.boxes.conf.cpu().numpy().reshape(-1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Any, Dict, List, Optional, Sequence
 
@@ -17,7 +17,7 @@ from rich.progress import Progress
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
-from agrinerf_ns.count.detectors import DetectorConfig, make_detector
+from agrinerf_ns.count.detectors import DetectorConfig, make_detector, resolve_source
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.render import CountInputError, RenderSet, WorldFrame, load_renders, render_run
 from agrinerf_ns.count.score import (
@@ -195,6 +195,8 @@ def run_count(
                 shutil.copytree(renders_dir, tmp / "renders")
         if not renders.views:
             raise CountInputError(f"{run_config or renders_dir}: no views to count fruit in")
+        config = replace(config, detect=resolve_source(config.detect, renders.views[0]))
+        CONSOLE.print(f"Detecting fruit on '{config.detect.source}' ({config.detect.detector})")
         spread = depth_spread(renders)
         if spread < FLAT_DEPTH:
             CONSOLE.print(
