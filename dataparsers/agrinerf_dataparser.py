@@ -108,9 +108,6 @@ class AgriNeRFDataParser(Nerfstudio):
             camera = _warped_camera(block, outputs, meta, "thermal")
             if camera is not None:
                 metadata["thermal_camera"] = camera
-            intrinsics = ((block.get("calibration") or {}).get("thermal") or {}).get("intrinsics")
-            if intrinsics:  # radians per thermal pixel at the image centre: the footprint its pixels integrate over
-                metadata["thermal_pixel_angle"] = 2.0 / (float(intrinsics[0]) + float(intrinsics[1]))
 
         if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
             metadata.update(_event_sums(data_dir, kept))

@@ -88,9 +88,7 @@ def _rays(n: int = 48) -> RayBundle:
     traj = _trajectory()
     index = torch.arange(n) % 4
     poses = torch.from_numpy(traj.poses_at(traj.times[index.numpy()])).float()
-    local = torch.nn.functional.normalize(
-        torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), dim=-1
-    )
+    local = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), -1)
     return RayBundle(origins=poses[:, :3, 3].clone(), directions=(poses[:, :3, :3] @ local[..., None])[..., 0],
                      pixel_area=torch.full((n, 1), 1e-4), camera_indices=index[:, None])  # fmt: skip
 
@@ -200,47 +198,3 @@ def test_the_held_out_thermal_metrics_render_the_thermal_cameras_view() -> None:
              "temperature": from_thermal["temperature"].clone()}  # fmt: skip
     metrics, _ = image_metrics_and_images(model, own, batch)
     assert metrics["thermal_camera_psnr"] > 60.0 and metrics["temperature_mae"] < 1e-3
-
-
-def test_footprint_sub_rays_cover_one_pixel_around_their_ray() -> None:
-    from agrinerf_ns.model.thermal_view import footprint_rays
-
-    rays = _rays(8)
-    traj = _trajectory()
-    poses = torch.from_numpy(traj.poses_at(traj.times[rays.camera_indices[:, 0].numpy()]))
-    angle = 0.01
-    torch.manual_seed(0)
-    sub = footprint_rays(rays, poses, 3, angle)
-    assert sub.origins.shape == (72, 3) and torch.equal(sub.origins[:9], rays.origins[:1].expand(9, 3))
-    d = sub.directions.double().reshape(8, 9, 3)
-    assert torch.allclose(d.norm(dim=-1), torch.ones(8, 9, dtype=torch.float64), atol=1e-6)
-    # the angle of each sub-ray from its ray, about the camera's x and y axes: within half a pixel, spread over it
-    local = (poses[:, None, :3, :3].transpose(-1, -2) @ (d - rays.directions.double()[:, None])[..., None])[..., 0]
-    assert local[..., :2].abs().max() <= angle / 2 * 1.01 and local[..., :2].abs().max() > angle / 3
-    assert torch.allclose(d.mean(dim=1), rays.directions.double(), atol=angle / 5)
-
-
-def test_the_footprint_averages_its_sub_rays_and_takes_a_square_number() -> None:
-    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
-    metadata = {**_metadata(**camera), "thermal_pixel_angle": 0.02}
-    model = _model(metadata, thermal_rays_per_batch=16, thermal_footprint_samples=4)
-    seen = []
-    render = model.render
-
-    def recording(bundle, **kw):
-        out = render(bundle, **kw)
-        seen.append((bundle, out))
-        return out
-
-    model.render = recording  # type: ignore[method-assign]
-    torch.manual_seed(3)
-    outputs = model(_rays())
-    bundle, rendered = seen[1]
-    assert bundle.origins.shape[0] == 64
-    for name in ("thermal", "thermal_camera", "temperature"):
-        expected = rendered[name].reshape(16, 4, -1).mean(dim=1)
-        assert torch.allclose(outputs[PREFIX + name], expected), name
-    without_angle = _model(_metadata(**camera), thermal_rays_per_batch=16, thermal_footprint_samples=4)
-    assert without_angle(_rays())[PREFIX + "temperature"].shape == (16, 1)  # one ray per pixel
-    with pytest.raises(ValueError, match="square number"):
-        _model(metadata, thermal_rays_per_batch=16, thermal_footprint_samples=3)(_rays())

@@ -111,7 +111,6 @@ class AgriNeRFModel(Model):
         self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}  # its centre (timed_rays.py)
         self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
         self.thermal_camera: Dict[str, Any] = metadata.get("thermal_camera") or {}  # its centre (thermal_view.py)
-        self.thermal_pixel_angle: Optional[float] = metadata.get("thermal_pixel_angle")
         self.eval_camera: Optional[Cameras] = None
         timed = self.trajectory is not None and self.frame_times is not None
         self.use_blur = (
@@ -183,6 +182,7 @@ class AgriNeRFModel(Model):
             if self.event_pairs is not None and cfg.event_crf:
                 self.event_crf = EventCRF()
 
+        # fields
         self.field = AgriNeRFField(
             self.scene_box.aabb,
             contraction=cfg.scene_contraction,

@@ -112,11 +112,6 @@ class AgriNeRFModelConfig(ModelConfig):
     pixel-aligned ray, which smears the temperatures by the cameras' parallax. 256 of 1024 sample the thermal frames
     (a quarter of the RGB pixels at half the width) about as densely as the batch samples the RGB frames; 1024 gave a
     little more per fruit at a higher step cost (results/thermal-rays)."""
-    thermal_footprint_samples: int = 1
-    """Sub-rays per thermal ray (a square number: a jittered k x k grid) spread over one thermal pixel, whose mean
-    is compared with the pixel's value: a thermal pixel integrates what it sees over its footprint (a fruit covers 4-5
-    of them on the count profile), a single ray assumes a point. 1: one ray per pixel. Needs the thermal camera's
-    intrinsics in the dataset (`thermal_pixel_angle`)."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB (TensoRF's)."""
     thermal_mlp_width: int = 64

@@ -8,12 +8,10 @@ surface the thermal camera measured (docs/model.md, Thermal rays)."""
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Dict
 
 import numpy as np
 import torch
-from jaxtyping import Float
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
@@ -43,8 +41,7 @@ def uses_thermal_view(model: AgriNeRFModel) -> bool:
 
 def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, Tensor]:
     """The thermal outputs of the first `thermal_rays_per_batch` rays of `bundle` rendered from the thermal camera's
-    centre through their points on the alignment plane (averaged over `thermal_footprint_samples` sub-rays across
-    one thermal pixel), with their routed copies, keys prefixed with `PREFIX`."""
+    centre through their points on the alignment plane, with their routed copies, keys prefixed with `PREFIX`."""
     from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
 
     assert model.trajectory is not None and model.frame_times is not None
@@ -52,46 +49,9 @@ def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, T
     head = bundle[:m]
     frame_times = model.frame_times[camera_rows(head)].double()
     moved = reposed_rays(head, model.trajectory, frame_times, frame_times[:, None], **model.thermal_camera)
-    k = footprint_side(model)
-    if k > 1:
-        moved = footprint_rays(moved, model.trajectory.poses_at_tensor(frame_times, dtype=torch.float64), k,
-                               float(model.thermal_pixel_angle))  # fmt: skip
     rendered = model.render(model.collider(moved), heads=("thermal",))
     keep = ("thermal", "thermal_camera", "temperature")
-    return {
-        PREFIX + name: value.reshape(m, k * k, -1).mean(dim=1)
-        for name, value in rendered.items()
-        if name.split("/")[0] in keep and torch.is_tensor(value)
-    }
-
-
-def footprint_side(model: AgriNeRFModel) -> int:
-    """Sub-rays per side of a thermal pixel's footprint (1: one ray), from `thermal_footprint_samples`."""
-    side = int(round(math.sqrt(max(model.config.thermal_footprint_samples, 1))))
-    if side * side != max(model.config.thermal_footprint_samples, 1):
-        raise ValueError(
-            f"thermal_footprint_samples must be a square number, got {model.config.thermal_footprint_samples}"
-        )
-    return side if model.thermal_pixel_angle is not None else 1
-
-
-def footprint_rays(bundle: RayBundle, poses: Float[Tensor, "n 3 4"], side: int, pixel_angle: float) -> RayBundle:
-    """`side` x `side` sub-rays of each ray, ray-major, on a jittered grid over one pixel of `pixel_angle` radians,
-    turned about the camera's x and y axes (`poses`: camera to world, OpenGL) from the ray's origin."""
-    n = bundle.origins.shape[0]
-    cells = (torch.arange(side, dtype=torch.float64) + 0.5) / side - 0.5
-    grid = torch.stack(torch.meshgrid(cells, cells, indexing="ij"), -1).reshape(1, side * side, 2)
-    offsets = (grid + (torch.rand(n, side * side, 2, dtype=torch.float64) - 0.5) / side) * pixel_angle
-    axes = poses[:, :3, :2].to(bundle.directions.device)  # [n, 3, 2]: the camera's x and y axes in the world
-    turn = (axes[:, None] @ offsets.to(axes.device)[..., None])[..., 0]  # [n, s, 3]
-    directions = torch.nn.functional.normalize(bundle.directions.double()[:, None] + turn, dim=-1)
-    s = side * side
-    return RayBundle(
-        origins=bundle.origins.repeat_interleave(s, dim=0),
-        directions=directions.reshape(n * s, 3).to(bundle.directions.dtype),
-        pixel_area=bundle.pixel_area.repeat_interleave(s, dim=0),
-        camera_indices=None if bundle.camera_indices is None else bundle.camera_indices.repeat_interleave(s, dim=0),
-    )
+    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in keep and torch.is_tensor(v)}
 
 
 def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
