@@ -88,7 +88,9 @@ def _rays(n: int = 48) -> RayBundle:
     traj = _trajectory()
     index = torch.arange(n) % 4
     poses = torch.from_numpy(traj.poses_at(traj.times[index.numpy()])).float()
-    local = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), -1)
+    local = torch.nn.functional.normalize(
+        torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), dim=-1
+    )
     return RayBundle(origins=poses[:, :3, 3].clone(), directions=(poses[:, :3, :3] @ local[..., None])[..., 0],
                      pixel_area=torch.full((n, 1), 1e-4), camera_indices=index[:, None])  # fmt: skip
 
