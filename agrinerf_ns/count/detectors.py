@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Callable, List, Literal, Optional
+from typing import Annotated, Callable, List, Literal, Optional, Tuple
 
 import numpy as np
 import tyro
@@ -43,8 +43,8 @@ def resolve_source(config: DetectorConfig, view: RenderedView) -> DetectorConfig
     detector can read: temperature (blobs only), thermal, rgb."""
     if config.source != "auto":
         return config
-    names = ("thermal",) if config.detector == "yolo" else ("temperature", "thermal")
-    source = next((name for name in names if getattr(view, name) is not None), "rgb")
+    names: Tuple[Source, ...] = ("thermal",) if config.detector == "yolo" else ("temperature", "thermal")
+    source: Source = next((name for name in names if getattr(view, name) is not None), "rgb")
     return replace(config, source=source)
 
 
