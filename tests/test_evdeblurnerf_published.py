@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Dict, List
 
@@ -12,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 from helpers.small_model import SMALL_MODEL
+from helpers.trajectory_rays import trajectory_rays, yawing_trajectory
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 from scipy.spatial.transform import Rotation
@@ -73,13 +73,7 @@ def test_one_samples_target_and_loss_are_evdeblurnerfs() -> None:
 
 # ------------------------------------------------------------------------------------ a tiny scene, the model
 def _trajectory() -> CameraTrajectory:
-    times = np.array([0.0, 0.001, 0.002, 0.003])
-    c2w = np.zeros((4, 3, 4))
-    for i, t in enumerate(times):
-        yaw = 30.0 * t
-        c2w[i, :3, :3] = [[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]]
-        c2w[i, :3, 3] = [100.0 * t, 0.0, 3.0]
-    return CameraTrajectory(times, c2w)
+    return yawing_trajectory(dt=0.001, yaw_rate=30.0, speed=100.0)
 
 
 def _camera(tmp_path: Path, stream: Dict[str, np.ndarray]) -> EventCamera:
@@ -120,15 +114,7 @@ def _model(camera: EventCamera, **kw) -> AgriNeRFModel:
 
 
 def _rays(n: int = 32) -> RayBundle:
-    gen = torch.Generator().manual_seed(1)
-    traj = _trajectory()
-    index = torch.arange(n) % 4
-    poses = torch.from_numpy(traj.poses_at(traj.times[index.numpy()])).float()
-    local = torch.nn.functional.normalize(
-        torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), dim=-1
-    )
-    return RayBundle(origins=poses[:, :3, 3].clone(), directions=(poses[:, :3, :3] @ local[..., None])[..., 0],
-                     pixel_area=torch.full((n, 1), 1e-4), camera_indices=index[:, None])  # fmt: skip
+    return trajectory_rays(_trajectory(), n)
 
 
 def _step(model: AgriNeRFModel, n: int = 32, black: bool = False):

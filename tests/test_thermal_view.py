@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from helpers.small_model import SMALL_MODEL
+from helpers.trajectory_rays import trajectory_rays, yawing_trajectory
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
@@ -52,13 +53,7 @@ def test_the_thermal_camera_sits_where_the_synthetic_rig_put_it(tmp_path, plane_
 
 
 def _trajectory() -> CameraTrajectory:
-    times = np.array([0.0, 0.1, 0.2, 0.3])
-    c2w = np.zeros((4, 3, 4))
-    for i, t in enumerate(times):
-        yaw = 0.3 * t
-        c2w[i, :3, :3] = [[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]]
-        c2w[i, :3, 3] = [t, 0.0, 3.0]
-    return CameraTrajectory(times, c2w)
+    return yawing_trajectory()
 
 
 def _metadata(**camera: object) -> Dict[str, object]:
@@ -84,15 +79,7 @@ def _model(metadata: Dict[str, object], **kw) -> AgriNeRFModel:
 
 
 def _rays(n: int = 48) -> RayBundle:
-    gen = torch.Generator().manual_seed(1)
-    traj = _trajectory()
-    index = torch.arange(n) % 4
-    poses = torch.from_numpy(traj.poses_at(traj.times[index.numpy()])).float()
-    local = torch.nn.functional.normalize(
-        torch.randn(n, 3, generator=gen) * 0.2 + torch.tensor([0.0, 0.0, -1.0]), dim=-1
-    )
-    return RayBundle(origins=poses[:, :3, 3].clone(), directions=(poses[:, :3, :3] @ local[..., None])[..., 0],
-                     pixel_area=torch.full((n, 1), 1e-4), camera_indices=index[:, None])  # fmt: skip
+    return trajectory_rays(_trajectory(), n)
 
 
 def _batch(n: int = 48) -> Dict[str, torch.Tensor]:
