@@ -134,9 +134,9 @@ def pixel_directions(
 
 
 def rig_offset(T_cam_rgb: Float[np.ndarray, "4 4"], scale: float) -> Tuple[Float[Tensor, "3 3"], Float[Tensor, "3"]]:
-    """A rig camera (events, thermal) in the RGB camera's frame, OpenGL axes: the rotation taking its OpenCV ray directions into
-    the RGB camera's OpenGL frame, and its centre (times `scale`, the dataparser's). `T_cam_rgb` maps points of the
-    RGB camera's OpenCV frame into that camera's."""
+    """A rig camera (events, thermal) in the RGB camera's frame, OpenGL axes: the rotation taking its OpenCV ray
+    directions into the RGB camera's OpenGL frame, and its centre (times `scale`, the dataparser's). `T_cam_rgb` maps
+    points of the RGB camera's OpenCV frame into that camera's."""
     T = np.asarray(T_cam_rgb, dtype=np.float64)
     rotation = GL_FLIP @ T[:3, :3].T
     centre = GL_FLIP @ (-T[:3, :3].T @ T[:3, 3]) * scale

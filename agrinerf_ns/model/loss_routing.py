@@ -58,8 +58,8 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
     its routed output ("<output>/<term>", training) where there is one."""
     coef = model.config.loss_coefficients
 
-    def pred(term: str) -> Tensor:
-        name = TERM_OUTPUTS[term]
+    def pred(term: str, prefix: str = "") -> Tensor:
+        name = prefix + TERM_OUTPUTS[term]
         return outputs.get(f"{name}/{term}", outputs[name])
 
     def optional(key: str) -> Any:
@@ -106,11 +106,7 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
     rows = outputs[view + "thermal"].shape[0] if view else None
 
     def thermal_pred(term: str) -> Tensor:
-        return (
-            pred(term)
-            if not view
-            else outputs.get(f"{view}{TERM_OUTPUTS[term]}/{term}", outputs[view + TERM_OUTPUTS[term]])
-        )
+        return pred(term, view)
 
     def thermal_target(key: str) -> Any:
         value = optional(key)

@@ -22,21 +22,21 @@ PREFIX = "thermal_view/"
 """Outputs rendered along the thermal camera's rays carry this prefix (`thermal_view/temperature`, and the routed
 copies `thermal_view/thermal/thermal_loss`)."""
 
-THERMAL_TERMS = ("thermal_loss", "thermal_camera_loss", "temperature_loss")
-"""The data terms whose targets are the thermal camera's frames (the cross-spectral L_reg terms stay on the RGB
-ray: their targets are RGB luma and event frames)."""
+OUTPUTS = ("thermal", "thermal_camera", "temperature")
+"""The outputs the thermal frames' terms read (L_th, the thermal-camera and temperature terms; the cross-spectral
+L_reg terms stay on the RGB ray: their targets are RGB luma and event frames)."""
+
+
+def thermal_camera_used(model: AgriNeRFModel) -> bool:
+    """Whether the thermal terms are seen from the thermal camera: the model uses thermal frames, the dataset records
+    where that camera sits (`thermal_camera`) and `thermal_rays_per_batch` > 0."""
+    return model.use_thermal and model.config.thermal_rays_per_batch > 0 and "camera_centre" in model.thermal_camera
 
 
 def uses_thermal_view(model: AgriNeRFModel) -> bool:
-    """Whether training renders the thermal terms from the thermal camera: the dataset records where that camera sits
-    (`thermal_camera`), the rig's trajectory gives each frame's orientation, and `thermal_rays_per_batch` > 0."""
-    return (
-        model.use_thermal
-        and model.config.thermal_rays_per_batch > 0
-        and "camera_centre" in model.thermal_camera
-        and model.trajectory is not None
-        and model.frame_times is not None
-    )
+    """Whether training renders the thermal terms from the thermal camera: `thermal_camera_used`, and the rig's
+    trajectory gives each frame's orientation."""
+    return thermal_camera_used(model) and model.trajectory is not None and model.frame_times is not None
 
 
 def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, Tensor]:
@@ -50,8 +50,7 @@ def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, T
     frame_times = model.frame_times[camera_rows(head)].double()
     moved = reposed_rays(head, model.trajectory, frame_times, frame_times[:, None], **model.thermal_camera)
     rendered = model.render(model.collider(moved), heads=("thermal",))
-    keep = ("thermal", "thermal_camera", "temperature")
-    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in keep and torch.is_tensor(v)}
+    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in OUTPUTS}
 
 
 def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
@@ -62,9 +61,7 @@ def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, 
     from agrinerf_ns.trajectory import CameraTrajectory
 
     camera = model.eval_camera
-    if camera is None or not model.use_thermal or model.config.thermal_rays_per_batch <= 0:
-        return outputs
-    if "camera_centre" not in model.thermal_camera or "thermal" not in outputs:
+    if camera is None or not thermal_camera_used(model) or "thermal" not in outputs:
         return outputs
     bundle = camera.generate_rays(camera_indices=0, keep_shape=True)
     if tuple(bundle.shape) != tuple(outputs["thermal"].shape[:2]):  # not the camera of these outputs
@@ -75,5 +72,4 @@ def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, 
     at = torch.zeros(flat.shape[0], dtype=torch.float64)  # one pose: the held-out camera's
     moved = reposed_rays(flat, CameraTrajectory(np.zeros(1), c2w[None]), at, at[:, None], **model.thermal_camera)
     rendered = model.get_outputs_for_camera_ray_bundle(moved.reshape((height, width)))
-    keep = ("thermal", "thermal_camera", "temperature")
-    return {**outputs, **{k: v for k, v in rendered.items() if k in keep}}
+    return {**outputs, **{k: v for k, v in rendered.items() if k in OUTPUTS}}
