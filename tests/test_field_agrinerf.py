@@ -103,6 +103,21 @@ def test_rgb_only_and_thermal_only_fields() -> None:
         _field(with_rgb=False, with_thermal=False)
 
 
+def test_a_head_subset_evaluates_those_heads_only_with_the_same_values() -> None:
+    field = _field(temperature_stats=(20.0, 4.0))
+    coords = torch.rand(50, 3) * 2 - 1
+    directions = torch.nn.functional.normalize(torch.randn(50, 3), dim=-1)
+    every = field.appearance_at(coords, directions)
+    names = {"rgb": FieldHeadNames.RGB, "thermal": AgriNeRFFieldHeadNames.THERMAL,
+             "temperature": AgriNeRFFieldHeadNames.TEMPERATURE}  # fmt: skip
+    assert set(every) == set(names.values())
+    for heads in (("rgb", "thermal"), ("temperature",), ("thermal", "temperature"), ("rgb",)):
+        some = field.appearance_at(coords, directions, heads=heads)
+        assert set(some) == {names[h] for h in heads}
+        for key, values in some.items():
+            torch.testing.assert_close(values, every[key])
+
+
 def test_points_outside_the_box_have_zero_density() -> None:
     field = _field()
     density, _ = field.get_density(_samples(scale=5.0))

@@ -101,7 +101,9 @@ def test_the_thermal_terms_read_the_thermal_cameras_rays_and_their_own_targets()
     terms = model.get_metrics_dict(outputs, batch)
     # the second render: the first 32 rays, from the thermal camera's centre, in their own directions (plane at inf)
     moved, kw = seen[1]
-    assert kw == {"heads": ("thermal",)} and moved.origins.shape[0] == 32
+    assert kw == {"heads": ("thermal", "temperature")} and moved.origins.shape[0] == 32
+    # the RGB rays' render skips the temperature head: no term reads it there
+    assert seen[0][1] == {"heads": ("rgb", "thermal")} and "temperature" not in outputs and "thermal" in outputs
     frame = torch.from_numpy(_trajectory().poses_at(_trajectory().times[rays.camera_indices[:32, 0].numpy()]))
     centre = (frame[:, :3, :3] @ torch.tensor(CENTRE, dtype=torch.float64)[:, None])[..., 0] + frame[:, :3, 3]
     assert torch.allclose(moved.origins.double(), centre, atol=1e-5)

@@ -332,18 +332,22 @@ class AgriNeRFField(Field):
         heads: Optional[Tuple[str, ...]] = None,
     ) -> Dict[object, Float[Tensor, "n c"]]:
         """Head outputs at flat grid coordinates (used by the model on the samples that matter only); both heads
-        share one set of lookup corners (`corners`, when given, must be those of `coords`). `heads`: "rgb" and/or
-        "thermal" (with its temperature head) to evaluate; None: every head built."""
+        share one set of lookup corners (`corners`, when given, must be those of `coords`). `heads`: any of "rgb",
+        "thermal" and "temperature" to evaluate; None: every head built."""
         directions = torch.nan_to_num(directions.float())  # unit vectors (Nerfstudio's rays are normalised)
         if corners is None:
             corners = self.corners(coords)
         out: Dict[object, Tensor] = {}
         if self.rgb_head is not None and (heads is None or "rgb" in heads):
             out[FieldHeadNames.RGB] = self.rgb_head(coords, directions, corners)
-        if self.thermal_head is not None and (heads is None or "thermal" in heads):
+        thermal = self.thermal_head is not None and (heads is None or "thermal" in heads)
+        temperature = self.temperature_head is not None and (heads is None or "temperature" in heads)
+        if self.thermal_head is not None and (thermal or temperature):  # the temperature head reads the same input
             thermal_input = self.thermal_head.mlp_input(coords, directions, corners)
-            out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head.mlp(thermal_input)
-            if self.temperature_head is not None:
+            if thermal:
+                out[AgriNeRFFieldHeadNames.THERMAL] = self.thermal_head.mlp(thermal_input)
+            if temperature:
+                assert self.temperature_head is not None
                 out[AgriNeRFFieldHeadNames.TEMPERATURE] = self.temperature_head(thermal_input)
         return out
 

@@ -308,7 +308,7 @@ class AgriNeRFModel(Model):
             self.camera_optimizer.apply_to_raybundle(ray_bundle)
             if self.config.keep_freed_memory:
                 cpu_memory.keep_freed_memory(ray_bundle.origins.device)
-        outputs = self.render(ray_bundle)
+        outputs = self.render(ray_bundle, heads=thermal_view.main_render_heads(self))
         if self.training and torch.is_grad_enabled():
             with blur_renders.side_stream(self):
                 if self.use_blur and self.step >= self.config.blur_start_step:
@@ -339,8 +339,8 @@ class AgriNeRFModel(Model):
         """Coarse density pass (no gradient) -> PDF fine samples -> heads on samples with weight > threshold.
         `routed`: add the training-only routed copies of the outputs (`density_gradient_scales`). `density_scale`:
         scale of the gradient every output sends the density (the renders of one loss term: blur, events). `heads`:
-        the heads to evaluate ("rgb", "thermal"; None: all; a side render whose loss reads only "rgb" skips the
-        others)."""
+        the heads to evaluate ("rgb", "thermal", "temperature"; None: all; a side render whose loss reads only "rgb"
+        skips the others)."""
         with torch.no_grad():
             samples_coarse = self.sampler_coarse(ray_bundle)
             density_coarse, _ = self.field.get_density(samples_coarse)

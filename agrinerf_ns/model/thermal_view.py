@@ -8,7 +8,7 @@ surface the thermal camera measured (docs/model.md, Thermal rays)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Dict
+from typing import TYPE_CHECKING, Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -49,8 +49,16 @@ def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, T
     head = bundle[:m]
     frame_times = model.frame_times[camera_rows(head)].double()
     moved = reposed_rays(head, model.trajectory, frame_times, frame_times[:, None], **model.thermal_camera)
-    rendered = model.render(model.collider(moved), heads=("thermal",))
+    rendered = model.render(model.collider(moved), heads=("thermal", "temperature"))
     return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in OUTPUTS}
+
+
+def main_render_heads(model: AgriNeRFModel) -> Optional[Tuple[str, ...]]:
+    """The heads the RGB rays' render needs in a training step: without the temperature head where the thermal
+    camera's rays carry the temperature term (`uses_thermal_view`: no term reads it on the RGB rays); None: all."""
+    if model.training and torch.is_grad_enabled() and uses_thermal_view(model):
+        return ("rgb", "thermal")
+    return None
 
 
 def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
