@@ -14,6 +14,7 @@ import csv
 import importlib.util
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import tyro
 
@@ -32,6 +33,8 @@ class Args:
     """CSV of the re-evaluated rows."""
     last_only: bool = True
     """Only each run's last checkpoint."""
+    max_views: Optional[int] = None
+    """Held-out views rendered per checkpoint, evenly spaced, as the bench profile's ``eval_views`` (None: all)."""
 
 
 def main(args: Args) -> None:
@@ -47,12 +50,12 @@ def main(args: Args) -> None:
         config = run_config(layout.runs, scene, key, method.ns_method)
         steps = checkpoints(config)
         wanted = [steps[-1]] if args.last_only and steps else steps
-        if any(step + 1 != int(row["step"]) for step, _ in wanted):
+        if not any(step + 1 == int(row["step"]) for step, _ in wanted):  # a row of a checkpoint not asked for
             continue
         raw = scene_folders(layout.scenes, scene).raw
         truth = evaluate.TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
         step = int(row["step"]) - 1
-        metrics = evaluate.evaluate_checkpoint(config, step, method, truth)
+        metrics = evaluate.evaluate_checkpoint(config, step, method, truth, max_views=args.max_views)
         rows.append({**row, **metrics})
     args.out.parent.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for row in rows for k in row))  # every key, first seen first (both checkouts')
