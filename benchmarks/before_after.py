@@ -3,11 +3,11 @@
     python benchmarks/before_after.py --before OUT_BEFORE/results.csv --after OUT_AFTER/results.csv --out OUT
 
 Writes ``OUT/before_after.md`` (per scene and method: every checkpoint's step, wall time, PSNR against the clean truth,
-thermal-camera PSNR, temperature error and the grid diagnostics, before and after; then per scene and method the wall
-time after takes to reach before's last PSNR, and after's PSNR against before's at equal wall time) and
+thermal-camera PSNR, temperature error and the grid diagnostics, before and after; then the wall time after takes to
+reach before's last RGB, thermal-camera and fruit-pixel PSNR, and after against before at equal wall time) and
 ``OUT/before_after.png`` (RGB PSNR, top, and thermal-camera PSNR, bottom, against wall time, one column per scene,
-before dashed, after solid). Wall times compare only where both runs shared the
-machine alike (run side by side, or each alone on a quiet machine); the table says how they were run via ``--note``.
+before dashed, after solid). Wall times compare only where both runs shared the machine alike (run side by side, or
+each alone on a quiet machine); the table says how they were run via ``--note``.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def main(args: Args) -> None:
               "|---|---|---|---|---|---|---|"]  # fmt: skip
     for scene, method in keys:
         pair = [[r for r in runs[name] if r["scene"] == scene and r["method"] == method] for name in runs]
-        for key, label in panels:
+        for key, label in (*panels, ("psnr_fruit", "PSNR on the truth's fruit pixels (dB)")):
             lines.append(f"| {scene} | {method} | {label} | {comparison(pair[0], pair[1], key)} |")
     fig.tight_layout()
     fig.savefig(args.out / "before_after.png", dpi=110)

@@ -44,7 +44,8 @@ class BenchConfig:
     (tests)."""
     methods: Tuple[str, ...] = tuple(m for m in METHODS if m not in SAMPLE_BUDGETS)
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf; sample-budget variants such as
-    agrinerf-paper-samples, trained for about the preset's wall time, only when named)."""
+    agrinerf-paper-samples, trained for about the preset's wall time, only when named; BASE%FIELD=VALUE: BASE with a
+    model config field set, e.g. agrinerf-lite%thermal_rays_per_batch=128, JSON values)."""
     scenes: Optional[Tuple[str, ...]] = None
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
     seed: int = 0
@@ -222,7 +223,10 @@ def main(config: BenchConfig) -> List[results.Row]:
         raise ValueError(f"unknown profile {config.profile!r}: choose one of {', '.join(PROFILES)}")
     unknown = [m for m in config.methods if m not in METHODS]
     if unknown:
-        raise ValueError(f"unknown methods {unknown}: choose from {', '.join(METHODS)}")
+        raise ValueError(
+            f"unknown methods {unknown}: choose from {', '.join(METHODS)}, or a variant BASE%FIELD=VALUE that sets a "
+            "model config field (e.g. agrinerf-lite%thermal_rays_per_batch=128)"
+        )
     profile = PROFILES[config.profile]
     scenes = config.scenes or profile.scenes
     layout = BenchLayout(config.out)

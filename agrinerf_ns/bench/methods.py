@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from dataclasses import dataclass
-from typing import Dict, Literal, Tuple
+from typing import Dict, List, Literal, Optional, Set, Tuple
 
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
@@ -29,18 +31,76 @@ class BenchMethod:
     same wall time: `SAMPLE_BUDGETS`)."""
 
 
-METHODS: Dict[str, BenchMethod] = {
-    m.ns_method if m.supervision == "rgb" else f"{m.ns_method}-thermal": m
-    for m in (
-        BenchMethod("AgriNeRF-lite", "agrinerf-lite", "transforms.json", "rgb"),
-        BenchMethod("AgriNeRF", "agrinerf", "transforms.json", "rgb"),
-        BenchMethod("EvDeblurNeRF-lite", "evdeblurnerf-lite", "transforms.json", "rgb"),
-        BenchMethod("Nerfacto (RGB)", "nerfacto", "transforms.json", "rgb"),
-        BenchMethod("Nerfacto (Thermal)", "nerfacto", "transforms_thermal.json", "thermal"),
-        BenchMethod("TensoRF", "tensorf", "transforms.json", "rgb", ("nerfstudio-data",)),
-    )
-}
-"""Keyed by the name used on the ``agrinerf-bench --methods`` command line."""
+VARIANT_SEPARATOR = "%"
+"""Separates a bench key from the model config fields a variant sets: ``BASE%field=value[%field=value...]``."""
+
+
+def variant(key: str) -> BenchMethod:
+    """The bench method of a variant key ``BASE%field=value[%field=value...]``: BASE's, with model config fields set
+    through ``--pipeline.model.<field> <value>`` (values in JSON, as ``bench_step_interleaved.py --runs`` takes them; a
+    list is several values), e.g. ``agrinerf-lite%thermal_rays_per_batch=128``. Built from the key alone, so a worker
+    process (``--ray``) rebuilds the same method. Raises KeyError naming what is wrong."""
+    base_key, *fields = key.split(VARIANT_SEPARATOR)
+    if base_key not in METHODS or not fields:
+        raise KeyError(f"{key!r}: {base_key!r} is not a bench method")
+    base = METHODS[base_key]
+    known = _model_fields(base.ns_method)
+    options: List[str] = []
+    for text in fields:
+        name, equals, value_text = text.partition("=")
+        if not equals or (known is not None and name not in known):
+            raise KeyError(f"{key!r}: {text!r} is not FIELD=VALUE with a model config field of {base.ns_method}")
+        try:
+            value = json.loads(value_text)
+        except json.JSONDecodeError as err:
+            raise KeyError(f"{key!r}: the value of {name} is not JSON ({err})") from None
+        values = value if isinstance(value, list) else [value]
+        options += [f"--pipeline.model.{name.replace('_', '-')}", *(str(v) for v in values)]
+    return dataclasses.replace(base, label=f"{base.label} ({', '.join(fields)})",
+                               train_args=base.train_args + tuple(options))  # fmt: skip
+
+
+def _model_fields(ns_method: str) -> Optional[Set[str]]:
+    """The model config fields of an AgriNeRF preset (None for Nerfstudio's own methods: ns-train checks those)."""
+    if not ns_method.startswith(("agrinerf", "evdeblurnerf")):
+        return None
+    from agrinerf_ns.model.model_config import AgriNeRFModelConfig
+
+    return {f.name for f in dataclasses.fields(AgriNeRFModelConfig)}
+
+
+class MethodTable(Dict[str, BenchMethod]):
+    """The bench methods by key; a variant key (`variant`) is built on lookup, not stored."""
+
+    def __missing__(self, key: str) -> BenchMethod:
+        if isinstance(key, str) and VARIANT_SEPARATOR in key:
+            return variant(key)
+        raise KeyError(key)
+
+    def __contains__(self, key: object) -> bool:
+        if super().__contains__(key):
+            return True
+        try:
+            self[key]  # type: ignore[index]
+        except KeyError:
+            return False
+        return True
+
+
+METHODS: Dict[str, BenchMethod] = MethodTable(
+    {
+        m.ns_method if m.supervision == "rgb" else f"{m.ns_method}-thermal": m
+        for m in (
+            BenchMethod("AgriNeRF-lite", "agrinerf-lite", "transforms.json", "rgb"),
+            BenchMethod("AgriNeRF", "agrinerf", "transforms.json", "rgb"),
+            BenchMethod("EvDeblurNeRF-lite", "evdeblurnerf-lite", "transforms.json", "rgb"),
+            BenchMethod("Nerfacto (RGB)", "nerfacto", "transforms.json", "rgb"),
+            BenchMethod("Nerfacto (Thermal)", "nerfacto", "transforms_thermal.json", "thermal"),
+            BenchMethod("TensoRF", "tensorf", "transforms.json", "rgb", ("nerfstudio-data",)),
+        )
+    }
+)
+"""Keyed by the name used on the ``agrinerf-bench --methods`` command line; variant keys (`variant`) too."""
 
 ABLATION_PREFIX = "lite-ablation-"
 ABLATIONS: Dict[str, str] = {

@@ -1,0 +1,58 @@
+"""`agrinerf-bench --methods BASE%FIELD=VALUE`: a preset with model config fields set, from the key alone."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import tyro
+import yaml
+
+from agrinerf_ns.bench import results
+from agrinerf_ns.bench.cli import BenchConfig, main
+from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.method_configs.agrinerf_methods import agrinerf_lite
+
+
+def test_a_variant_key_sets_the_fields_as_ns_train_parses_them() -> None:
+    key = "agrinerf-lite%thermal_rays_per_batch=128%upsampling_iters=[100,200,300]%thermal_view_dependent=true"
+    assert key in METHODS
+    method = METHODS[key]
+    assert (method.ns_method, method.data_file, method.supervision) == ("agrinerf-lite", "transforms.json", "rgb")
+    assert (
+        method.label
+        == "AgriNeRF-lite (thermal_rays_per_batch=128, upsampling_iters=[100,200,300], thermal_view_dependent=true)"
+    )
+    preset = agrinerf_lite.config
+    parsed = tyro.cli(tyro.conf.FlagConversionOff[type(preset)], default=preset, args=list(method.train_args))
+    model = parsed.pipeline.model
+    assert model.thermal_rays_per_batch == 128 and tuple(model.upsampling_iters) == (100, 200, 300)
+    assert model.thermal_view_dependent and not preset.pipeline.model.thermal_view_dependent
+    assert preset.pipeline.model.thermal_rays_per_batch == 256  # the registry's preset is left as it was
+
+
+@pytest.mark.parametrize(
+    "key, reason",
+    [
+        ("agrinerf-lite%thermal_rays=128", "not FIELD=VALUE with a model config field"),
+        ("agrinerf-lite%thermal_rays_per_batch", "not FIELD=VALUE"),
+        ("agrinerf-lite%thermal_rays_per_batch=12x", "not JSON"),
+        ("no-such-method%thermal_rays_per_batch=1", "is not a bench method"),
+    ],
+)
+def test_a_bad_variant_key_is_refused_with_the_reason(key: str, reason: str) -> None:
+    assert key not in METHODS
+    with pytest.raises(KeyError, match=reason):
+        METHODS[key]
+    with pytest.raises(ValueError, match="unknown methods"):
+        main(BenchConfig(out=Path("/nonexistent"), profile="tiny", methods=(key,)))
+
+
+def test_the_bench_trains_a_variant_under_its_own_key(tmp_path: Path) -> None:
+    key = "agrinerf-lite%thermal_rays_per_batch=0%upsampling_iters=[2,4,6]"
+    rows = main(BenchConfig(out=tmp_path / "bench", profile="tiny", methods=(key,)))
+    assert rows and {r["method"] for r in rows} == {key}
+    assert {r["method"] for r in results.read_rows(tmp_path / "bench" / "results.csv")} == {key}
+    (config,) = (tmp_path / "bench" / "runs").glob("*/*/agrinerf-lite/run/config.yml")
+    model = yaml.load(config.read_text(), Loader=yaml.Loader).pipeline.model
+    assert model.thermal_rays_per_batch == 0 and tuple(model.upsampling_iters) == (2, 4, 6)
