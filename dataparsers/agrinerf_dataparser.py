@@ -305,7 +305,8 @@ def _timing(
     data_dir: Path,
     transforms_path: Path,
 ) -> Dict[str, Any]:
-    """The ``times``, ``exposure`` and ``trajectory`` metadata of the kept frames (empty without timestamps)."""
+    """The ``times``, ``exposure``, ``thermal_times`` and ``trajectory`` metadata of the kept frames (empty without
+    timestamps)."""
     import numpy as np
     import torch
 
@@ -359,6 +360,9 @@ def _timing(
         raise AgriNeRFDataError(f"{transforms_path}: camera trajectory: {error}") from error
 
     out: Dict[str, Any] = {"times": torch.from_numpy(times), "exposure": torch.from_numpy(exposure)}
+    if any("thermal_timestamp" in f for f in kept):  # an unsynchronised thermal camera took its frame at another time
+        thermal = [float(f.get("thermal_timestamp", f["timestamp"])) for f in kept]
+        out["thermal_times"] = torch.from_numpy(np.array(thermal, dtype=np.float64))
     # the trajectory must reproduce the cameras at their own times (it cannot when the saved poses were changed
     # in a way this parser does not know, e.g. Nerfstudio's COLMAP default transform)
     err = np.abs(trajectory.poses_at(times) - outputs.cameras.camera_to_worlds.double().numpy()).max(initial=0.0)

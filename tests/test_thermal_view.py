@@ -21,6 +21,7 @@ from agrinerf_ns.model.thermal_view import PREFIX
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
 from agrinerf_ns.synth.capture import make_scene
+from agrinerf_ns.synth.rig import THERMAL_DELAY
 from agrinerf_ns.trajectory import CameraTrajectory
 
 CENTRE = (0.07, -0.012, 0.004)
@@ -41,15 +42,23 @@ def test_the_thermal_camera_sits_where_the_synthetic_rig_put_it(tmp_path, plane_
     assert camera["plane_depth"] == pytest.approx(plane_depth * scale)
     _, rig = make_scene(config)
     trajectory, times = outputs.metadata["trajectory"], outputs.metadata["times"].numpy()
+    # the synthetic thermal camera is triggered with the RGB one and exposed THERMAL_DELAY later, at its own pose
+    thermal_times = outputs.metadata["thermal_times"].numpy()
+    np.testing.assert_allclose(thermal_times, times + THERMAL_DELAY, atol=1e-9)
     poses = trajectory.poses_at_tensor(torch.from_numpy(times), dtype=torch.float64).numpy()
+    thermal_poses = trajectory.poses_at_tensor(torch.from_numpy(thermal_times), dtype=torch.float64).numpy()
     centre = camera["camera_centre"].numpy()
     for i, t in enumerate(times):
-        T_th, T_rgb = rig.pose(float(t), "thermal"), rig.pose(float(t), "rgb")
+        T_th, T_rgb = rig.pose(float(t) + THERMAL_DELAY, "thermal"), rig.pose(float(t), "rgb")
         local = np.diag([1.0, -1.0, -1.0]) @ (T_rgb[:3, :3].T @ (T_th[:3, 3] - T_rgb[:3, 3])) * scale
         truth = poses[i, :, :3] @ local + poses[i, :, 3]
-        placed = poses[i, :, :3] @ centre + poses[i, :, 3]
-        assert np.linalg.norm(placed - truth) < 1e-4 * scale  # a tenth of a millimetre
+        placed = thermal_poses[i, :, :3] @ centre + thermal_poses[i, :, 3]
+        # between the frames the trajectory interpolates the truth's motion (0.2 mm off here); at the RGB frame's time
+        # the thermal camera would be where the rig was 4 ms earlier (3 mm at the tiny rig's speed)
+        assert np.linalg.norm(placed - truth) < 5e-4 * scale
         assert np.linalg.norm(local) > 0.05 * scale  # the rig's 7 cm baseline: the test could tell
+        at_rgb_time = poses[i, :, :3] @ centre + poses[i, :, 3]
+        assert np.linalg.norm(at_rgb_time - truth) > 2e-3 * scale  # the rig's motion in THERMAL_DELAY: it could tell
 
 
 def _trajectory() -> CameraTrajectory:
@@ -130,6 +139,33 @@ def test_the_thermal_terms_read_the_thermal_cameras_rays_and_their_own_targets()
     loss = model.get_loss_dict(outputs, batch, terms)["temperature_loss"]
     loss.backward()
     assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters())
+
+
+def test_the_thermal_rays_start_where_the_rig_was_when_the_thermal_frame_was_taken() -> None:
+    """An unsynchronised thermal camera (dataset `thermal_timestamp`, metadata `thermal_times`): each thermal ray
+    starts at the thermal camera's centre on the rig's pose at its own frame's time, and keeps its place on the
+    alignment plane (at infinity: its direction in the rig's frame)."""
+    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
+    metadata = _metadata(**camera)
+    delay = 0.05  # half a frame interval of the trajectory
+    metadata["thermal_times"] = metadata["times"] + delay  # type: ignore[operator]
+    model = _model(metadata, thermal_rays_per_batch=32)
+    rays = _rays()
+    seen = []
+    render = model.render
+    model.render = lambda bundle, **kw: seen.append(bundle) or render(bundle, **kw)  # type: ignore[method-assign]
+    model(rays)
+    moved = seen[1]
+    traj = _trajectory()
+    at_rgb = torch.from_numpy(traj.poses_at(traj.times[rays.camera_indices[:32, 0].numpy()]))
+    at_thermal = torch.from_numpy(traj.poses_at(traj.times[rays.camera_indices[:32, 0].numpy()] + delay))
+    centre = torch.tensor(CENTRE, dtype=torch.float64)
+    expected = (at_thermal[:, :3, :3] @ centre[:, None])[..., 0] + at_thermal[:, :3, 3]
+    assert torch.allclose(moved.origins.double(), expected, atol=1e-5)
+    local = (at_rgb[:, :3, :3].transpose(-1, -2) @ rays.directions[:32].double()[..., None])[..., 0]
+    assert torch.allclose(moved.directions.double(), (at_thermal[:, :3, :3] @ local[..., None])[..., 0], atol=1e-5)
+    # the test could tell: at the RGB frames' times the centre is elsewhere (the rig moves 5 cm in 50 ms)
+    assert (expected - ((at_rgb[:, :3, :3] @ centre[:, None])[..., 0] + at_rgb[:, :3, 3])).norm(dim=-1).min() > 0.04
 
 
 @pytest.mark.parametrize("case", ["rays off", "no thermal camera", "no trajectory"])

@@ -39,16 +39,28 @@ def uses_thermal_view(model: AgriNeRFModel) -> bool:
     return thermal_camera_used(model) and model.trajectory is not None and model.frame_times is not None
 
 
+def thermal_frame_times(model: AgriNeRFModel) -> Optional[Tensor]:
+    """When each training frame's thermal frame was taken (dataparser metadata `thermal_times`, float64 [N], from the
+    dataset's `thermal_timestamp`): an unsynchronised thermal camera takes it up to half a frame interval away from
+    the RGB frame, while the rig moves (5 cm at 1 m/s and 9 Hz). None: at the RGB frames' times."""
+    metadata = getattr(model, "kwargs", {}).get("metadata") or {}
+    return metadata.get("thermal_times")
+
+
 def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, Tensor]:
     """The thermal outputs of the first `thermal_rays_per_batch` rays of `bundle` rendered from the thermal camera's
-    centre through their points on the alignment plane, with their routed copies, keys prefixed with `PREFIX`."""
+    centre, where the rig was when it took its frame (`thermal_frame_times`), through their points on the alignment
+    plane, with their routed copies, keys prefixed with `PREFIX`."""
     from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
 
     assert model.trajectory is not None and model.frame_times is not None
     m = min(model.config.thermal_rays_per_batch, bundle.origins.shape[0])
     head = bundle[:m]
-    frame_times = model.frame_times[camera_rows(head)].double()
-    moved = reposed_rays(head, model.trajectory, frame_times, frame_times[:, None], **model.thermal_camera)
+    rows = camera_rows(head)
+    frame_times = model.frame_times[rows].double()
+    thermal_times = thermal_frame_times(model)
+    at = frame_times if thermal_times is None else thermal_times[rows].double()
+    moved = reposed_rays(head, model.trajectory, frame_times, at[:, None], **model.thermal_camera)
     rendered = model.render(model.collider(moved), heads=("thermal", "temperature"))
     return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in OUTPUTS}
 

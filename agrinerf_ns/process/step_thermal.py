@@ -59,6 +59,7 @@ def write_thermal_frames(
             frames[i]["thermal_file_path"] = f"thermal/{names[i]}.png"
             frames[i]["thermal_mask_path"] = f"thermal_masks/{names[i]}.png"
             frames[i]["raw_thermal"] = str(th.paths[j].relative_to(raw))
+            frames[i]["thermal_timestamp"] = float(th.times[j])  # its own time: the rig moves between the two
             write_png(tmp / frames[i]["thermal_file_path"], align.warp_image(img8, maps))
             write_png(tmp / frames[i]["thermal_mask_path"], mask)
             if calibration is not None:
