@@ -281,8 +281,15 @@ def test_a_killed_worker_is_retried_and_each_run_is_kept_once(local_ray: str, tm
 
 
 DRIVER = """
+import signal
 import sys
 from pathlib import Path
+# as an interactive shell starts a command: Ctrl-C handled. A suite started in the background by a non-interactive
+# shell (`pytest &`, `nohup`) runs with SIGINT ignored, and every process it starts inherits that; the masks the
+# driver came with go to its log
+print(*(line.strip() for line in open("/proc/self/status") if line.startswith(("SigBlk", "SigIgn"))), flush=True)
+signal.pthread_sigmask(signal.SIG_UNBLOCK, {{signal.SIGINT}})
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from agrinerf_ns.bench.layout import BenchLayout
 from agrinerf_ns.bench.profiles import BenchProfile
 from agrinerf_ns.orchestrate import bench_grid
@@ -332,7 +339,9 @@ def test_an_interrupted_driver_resumes_without_redoing_finished_runs(local_ray: 
         pytest.fail(f"the driver kept running 3 minutes after Ctrl-C: {(tmp_path / 'driver.log').read_text()[-2000:]}")
     finally:
         log.close()
-    assert driver.returncode is not None and driver.returncode != 0, "the driver was interrupted"
+    assert driver.returncode is not None and driver.returncode != 0, (
+        f"the driver was not interrupted: {(tmp_path / 'driver.log').read_text()[:300]}"
+    )
     finished = {(r["scene"], r["method"]) for r in results.read_rows(layout.results_csv)}
     assert first <= finished and len(finished) < 3, "interrupted with runs still to do"
     records = {key: train_record(layout.runs, SCENE, key).stat().st_mtime for _, key in finished}
