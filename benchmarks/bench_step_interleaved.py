@@ -32,7 +32,7 @@ from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import tyro
 
-from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.bench.methods import METHODS, field_values
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.run_order import rotated
 from agrinerf_ns.source_tree import link_installed_layout
@@ -75,7 +75,10 @@ def parse_runs(runs: Tuple[str, ...], trees: Tuple[str, ...]) -> List[Run]:
         head, *fields = text.split("%")
         tree, _, rest = head.rpartition(":")
         method, _, step = rest.partition("@")
-        overrides = {name: json.loads(value) for name, _, value in (f.partition("=") for f in fields)}
+        try:  # the fields are checked by the run's own checkout, which may have others than this one
+            overrides = field_values(text, fields)
+        except KeyError as err:
+            raise SystemExit(f"run {err.args[0]}") from None
         if method not in METHODS:
             raise SystemExit(f"run {text!r}: unknown method {method!r}; choose from {sorted(METHODS)}")
         if tree and tree not in named:

@@ -52,5 +52,9 @@ def test_unknown_methods_and_trees_are_refused() -> None:
         bench.parse_runs(("agrinerf-huge",), ())
     with pytest.raises(SystemExit, match="not in --trees"):
         bench.parse_runs(("old:agrinerf",), ("new=/tmp",))
+    with pytest.raises(SystemExit, match="is not JSON"):
+        bench.parse_runs(("agrinerf%event_rays_per_batch=x",), ())
+    with pytest.raises(SystemExit, match="is not FIELD=VALUE"):
+        bench.parse_runs(("agrinerf%event_rays_per_batch",), ())
     run = bench.parse_runs(("old:agrinerf@7000%event_rays_per_batch=0",), ("old=/tmp",))[0]
     assert run.at_step == 7000 and run.tree == Path("/tmp").resolve() and run.overrides == {"event_rays_per_batch": 0}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass
-from typing import Dict, List, Literal, Optional, Set, Tuple
+from typing import Any, Dict, List, Literal, Optional, Sequence, Set, Tuple
 
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
@@ -35,25 +35,33 @@ VARIANT_SEPARATOR = "%"
 """Separates a bench key from the model config fields a variant sets: ``BASE%field=value[%field=value...]``."""
 
 
+def field_values(key: str, texts: Sequence[str], known: Optional[Set[str]] = None) -> Dict[str, Any]:
+    """The ``FIELD=VALUE`` parts of a key (VALUE in JSON) as {field: value}: the model config fields a variant key
+    (`variant`) or a ``bench_step_interleaved.py --runs`` entry sets. Raises KeyError naming the part that is not
+    one, or whose field `known` (when given) lacks."""
+    values: Dict[str, Any] = {}
+    for text in texts:
+        name, equals, value_text = text.partition("=")
+        if not name or not equals or (known is not None and name not in known):
+            raise KeyError(f"{key!r}: {text!r} is not FIELD=VALUE with a model config field")
+        try:
+            values[name] = json.loads(value_text)
+        except json.JSONDecodeError as err:
+            raise KeyError(f"{key!r}: the value of {name} is not JSON ({err})") from None
+    return values
+
+
 def variant(key: str) -> BenchMethod:
     """The bench method of a variant key ``BASE%field=value[%field=value...]``: BASE's, with model config fields set
-    through ``--pipeline.model.<field> <value>`` (values in JSON, as ``bench_step_interleaved.py --runs`` takes them; a
-    list is several values), e.g. ``agrinerf-lite%thermal_rays_per_batch=128``. Built from the key alone, so a worker
-    process (``--ray``) rebuilds the same method. Raises KeyError naming what is wrong."""
+    through ``--pipeline.model.<field> <value>`` (`field_values`; a list is several values), e.g.
+    ``agrinerf-lite%thermal_rays_per_batch=128``. Built from the key alone, so a worker process (``--ray``) rebuilds
+    the same method. Raises KeyError naming what is wrong."""
     base_key, *fields = key.split(VARIANT_SEPARATOR)
     if base_key not in METHODS or not fields:
         raise KeyError(f"{key!r}: {base_key!r} is not a bench method")
     base = METHODS[base_key]
-    known = _model_fields(base.ns_method)
     options: List[str] = []
-    for text in fields:
-        name, equals, value_text = text.partition("=")
-        if not equals or (known is not None and name not in known):
-            raise KeyError(f"{key!r}: {text!r} is not FIELD=VALUE with a model config field of {base.ns_method}")
-        try:
-            value = json.loads(value_text)
-        except json.JSONDecodeError as err:
-            raise KeyError(f"{key!r}: the value of {name} is not JSON ({err})") from None
+    for name, value in field_values(key, fields, _model_fields(base.ns_method)).items():
         values = value if isinstance(value, list) else [value]
         options += [f"--pipeline.model.{name.replace('_', '-')}", *(str(v) for v in values)]
     return dataclasses.replace(base, label=f"{base.label} ({', '.join(fields)})",
