@@ -155,6 +155,8 @@ def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
         detect_blobs(view, "temperature", 1.0, BlobConfig())
     view.thermal = None
     assert resolve_source(DetectorConfig(), view).source == "rgb"
+    with pytest.raises(ValueError, match="no cross-spectral 'thermal' output"):
+        detect_blobs(view, "thermal", 1.0, BlobConfig())
     view.thermal = thermal.astype(np.float32)
     frame_points = [lift_detection(view, d.mask, IDENTITY) for d in warm]
     assert all(p is not None and p.diameter == pytest.approx(0.06, rel=0.3) for p in frame_points)

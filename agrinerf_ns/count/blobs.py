@@ -61,16 +61,8 @@ class BlobConfig:
 def feature_image(view: RenderedView, source: str) -> Float[np.ndarray, "h w"]:
     """The image a view's fruit stand out in: ``temperature`` (degrees C), ``thermal`` (cross-spectral output) or
     ``rgb`` (fruit-colour score)."""
-    if source == "temperature":
-        if view.temperature is None:
-            raise ValueError(
-                f"view {view.name}: the run renders no 'temperature' output (no radiometric thermal camera)"
-            )
-        return view.temperature.astype(np.float32)
-    if source == "thermal":
-        if view.thermal is None:
-            raise ValueError(f"view {view.name}: the run renders no cross-spectral 'thermal' output")
-        return view.thermal.astype(np.float32)
+    if source in ("temperature", "thermal"):
+        return view.optional_output(source).astype(np.float32)
     if source != "rgb":
         raise ValueError(f"unknown detection source {source!r} (temperature, thermal or rgb)")
     return fruit_colour(view.rgb, view.accumulation >= MIN_ACCUMULATION)

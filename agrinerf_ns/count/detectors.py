@@ -86,9 +86,7 @@ def _detector_image(view: RenderedView, source: str) -> np.ndarray:
     if source == "temperature":
         raise ValueError("the YOLO detector reads 8-bit rgb or thermal renders; use --detector blobs on temperature")
     if source == "thermal":
-        if view.thermal is None:
-            raise ValueError(f"view {view.name}: the run renders no cross-spectral 'thermal' output")
-        gray = to_uint8(view.thermal)
+        gray = to_uint8(view.optional_output("thermal"))
         return np.repeat(gray[..., None], 3, axis=-1)
     return np.ascontiguousarray(to_uint8(view.rgb)[..., ::-1])
 

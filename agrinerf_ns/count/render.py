@@ -83,6 +83,15 @@ class RenderedView:
     thermal: Optional[Float[np.ndarray, "h w"]] = None
     temperature: Optional[Float[np.ndarray, "h w"]] = None
 
+    def optional_output(self, name: str) -> Float[np.ndarray, "h w"]:
+        """The ``thermal`` or ``temperature`` image; ValueError naming the view where the run renders none."""
+        image = getattr(self, name)
+        if image is None:
+            what = {"thermal": "cross-spectral 'thermal'", "temperature": "'temperature'"}[name]
+            why = " (no radiometric thermal camera)" if name == "temperature" else ""
+            raise ValueError(f"view {self.name}: the run renders no {what} output{why}")
+        return image
+
     def points(self) -> Float[np.ndarray, "h w 3"]:
         """The surface point of every pixel: origin + direction x depth."""
         return self.origins + self.directions * self.depth[..., None]
