@@ -37,12 +37,13 @@ VARIANT_SEPARATOR = "%"
 
 def field_values(key: str, texts: Sequence[str], known: Optional[Set[str]] = None) -> Dict[str, Any]:
     """The ``FIELD=VALUE`` parts of a key (VALUE in JSON) as {field: value}: the model config fields a variant key
-    (`variant`) or a ``bench_step_interleaved.py --runs`` entry sets. Raises KeyError naming the part that is not
-    one, or whose field `known` (when given) lacks."""
+    (`variant`) or a ``bench_step_interleaved.py --runs`` entry sets (FIELD ``loss_coefficients.sky_loss``: one
+    entry of a dict field). Raises KeyError naming the part that is not one, or whose field `known` (when given)
+    lacks."""
     values: Dict[str, Any] = {}
     for text in texts:
         name, equals, value_text = text.partition("=")
-        if not name or not equals or (known is not None and name not in known):
+        if not name or not equals or (known is not None and name.split(".")[0] not in known):
             raise KeyError(f"{key!r}: {text!r} is not FIELD=VALUE with a model config field")
         try:
             values[name] = json.loads(value_text)
