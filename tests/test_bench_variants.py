@@ -31,10 +31,22 @@ def test_a_variant_key_sets_the_fields_as_ns_train_parses_them() -> None:
     assert preset.pipeline.model.thermal_rays_per_batch == 256  # the registry's preset is left as it was
 
 
+def test_a_variant_key_sets_one_entry_of_a_dict_field() -> None:
+    method = METHODS["agrinerf-lite%loss_coefficients.event_loss=0"]
+    preset = agrinerf_lite.config
+    parsed = tyro.cli(tyro.conf.FlagConversionOff[type(preset)], default=preset, args=list(method.train_args))
+    coefficients = parsed.pipeline.model.loss_coefficients
+    assert coefficients["event_loss"] == 0.0 and preset.pipeline.model.loss_coefficients["event_loss"] > 0
+    assert {k: v for k, v in coefficients.items() if k != "event_loss"} == {
+        k: v for k, v in preset.pipeline.model.loss_coefficients.items() if k != "event_loss"
+    }
+
+
 @pytest.mark.parametrize(
     "key, reason",
     [
         ("agrinerf-lite%thermal_rays=128", "not FIELD=VALUE with a model config field"),
+        ("agrinerf-lite%loss_weights.event_loss=0", "not FIELD=VALUE with a model config field"),
         ("agrinerf-lite%thermal_rays_per_batch", "not FIELD=VALUE"),
         ("agrinerf-lite%thermal_rays_per_batch=12x", "not JSON"),
         ("no-such-method%thermal_rays_per_batch=1", "is not a bench method"),

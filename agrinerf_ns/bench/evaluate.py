@@ -71,10 +71,9 @@ def _load_at_step(step: int) -> Callable:
     return update
 
 
-GRID_METRICS = ("fine_region_weight", "voxel_size_m", "voxel_size_final_m", "sky_accumulation")
+GRID_METRICS = ("fine_region_weight", "voxel_size_m", "voxel_size_final_m")
 """How the grids fit the scene (`AgriNeRFModel.grid_diagnostics`): the share of the held-out rendering weight at full
-resolution, the voxel size at the median rendered depth now and at the preset's final grids (metres); and the mean
-accumulation of the held-out pixels whose temperature is sky (`model/sky.py`; where the dataset has temperatures)."""
+resolution, the voxel size at the median rendered depth now and at the preset's final grids (metres)."""
 
 
 def evaluate_checkpoint(

@@ -12,7 +12,7 @@ COLUMNS = (
     "scene", "method", "label", "step", "wall_s", "s_per_step", "peak_rss_mb", "device",
     "psnr", "ssim", "lpips", "psnr_clean", "ssim_clean", "thermal_psnr", "thermal_ssim", "eval_views",
     "thermal_camera_psnr", "psnr_clean_per_view", "temperature_mae", "fine_region_weight", "voxel_size_m",
-    "voxel_size_final_m", "psnr_fruit", "sky_accumulation",
+    "voxel_size_final_m", "psnr_fruit",
 )  # fmt: skip
 """One row per evaluated checkpoint."""
 

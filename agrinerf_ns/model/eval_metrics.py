@@ -1,6 +1,5 @@
 """Held-out image metrics of an AgriNeRF render: RGB PSNR / SSIM / LPIPS, the thermal outputs' PSNR and SSIM over
-the thermal mask, the temperature error, how opaque the field renders the cold sky, and where the rendering weight
-falls on the grids."""
+the thermal mask, the temperature error, and where the rendering weight falls on the grids."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ from jaxtyping import Float
 from nerfstudio.utils import colormaps
 from torch import Tensor
 
-from agrinerf_ns.model import losses, sky, thermal_view
+from agrinerf_ns.model import losses, thermal_view
 
 if TYPE_CHECKING:
     from agrinerf_ns.model.model import AgriNeRFModel
@@ -54,10 +53,6 @@ def image_metrics_and_images(
         mask_t = torch.ones_like(gt_t) if mask_t is None else (mask_t.to(model.device).float() > 0.5).float()
         error = (outputs["temperature"] - gt_t).abs() * mask_t
         metrics["temperature_mae"] = float((error.sum() / mask_t.sum().clamp(min=1.0)).item())
-        if model.temperature_stats is not None:  # how much of the thermal frames' cold sky the field still holds
-            cold = sky.sky_mask(model, gt_t, mask_t)
-            if bool(cold.any()):
-                metrics["sky_accumulation"] = float(outputs["accumulation"][cold].mean().item())
         images["temperature"] = colormaps.apply_colormap(
             model.temperature_unit(torch.cat([gt_t * mask_t, outputs["temperature"]], dim=1))
         )

@@ -10,7 +10,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from agrinerf_ns import colour
-from agrinerf_ns.model import event_supervision, losses, sky, thermal_view
+from agrinerf_ns.model import event_supervision, losses, thermal_view
 from agrinerf_ns.model.plane_tv import plane_tv
 
 if TYPE_CHECKING:
@@ -33,13 +33,10 @@ PAPER_DENSITY_GRADIENT_SCALES: Dict[str, float] = {term: 1.0 for term in TERM_OU
 
 
 def routed_outputs(
-    model: AgriNeRFModel,
-    weights: Float[Tensor, "rays samples 1"],
-    dense: Dict[str, Tensor],
-    backgrounds: Dict[str, Tensor],
+    model: AgriNeRFModel, weights: Float[Tensor, "rays samples 1"], dense: Dict[str, Tensor]
 ) -> Dict[str, Tensor]:
-    """Training only: for each data term whose density gradient scale is not 1, its output composited (over its
-    background) with weights whose gradient is scaled (same values), under the key "<output>/<term>"."""
+    """Training only: for each data term whose density gradient scale is not 1, its output composited with weights
+    whose gradient is scaled (same values), under the key "<output>/<term>"."""
     routed: Dict[str, Tensor] = {}
     scaled: Dict[float, Tuple[Tensor, Tensor]] = {}  # scale -> (weights, their accumulation)
     composites: Dict[Tuple[str, float], Tensor] = {}
@@ -51,7 +48,7 @@ def routed_outputs(
             w = losses.scale_gradient(weights, scale)
             scaled[scale] = (w, model.renderer_accumulation(w).clamp(0.0, 1.0))
         if (name, scale) not in composites:
-            composites[(name, scale)] = model.composite(*scaled[scale], dense[name], backgrounds[name])
+            composites[(name, scale)] = model.composite(*scaled[scale], dense[name])
         routed[f"{name}/{term}"] = composites[(name, scale)]
     return routed
 
@@ -129,13 +126,6 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
             head.normalise(thermal_pred("temperature_loss")),
             head.normalise(thermal_target("temperature")),
             thermal_target("temperature_mask"),
-        )
-    if sky.uses_thermal_sky(model) and "temperature" in batch:
-        temperature, valid = thermal_target("temperature"), thermal_target("temperature_mask")
-        terms["sky_loss"] = sky.sky_loss(
-            outputs[view + "accumulation"],
-            sky.sky_mask(model, temperature, valid),
-            sky.sky_mask(model, temperature, valid, scene=True),
         )
     if model.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
         terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)

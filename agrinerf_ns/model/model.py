@@ -40,7 +40,6 @@ from agrinerf_ns.model import (
     grid_schedule,
     loss_routing,
     losses,
-    sky,
     thermal_view,
 )
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
@@ -182,7 +181,6 @@ class AgriNeRFModel(Model):
                 self.blur_kernel = RigidBlurKernel(self.num_train_data, num_motions=cfg.blur_samples - 1)
             if self.event_pairs is not None and cfg.event_crf:
                 self.event_crf = EventCRF()
-            self.sky_field = sky.SkyField() if sky.uses_thermal_sky(self) else None  # the sky beyond the field
 
         # fields
         self.field = AgriNeRFField(
@@ -255,9 +253,9 @@ class AgriNeRFModel(Model):
     def get_param_groups(self) -> Dict[str, List[Parameter]]:
         """Groups "fields" (MLPs and bases) and "encodings" (every TensoRF volume), plus camera_opt when enabled."""
         heads = [h for h in (self.field.rgb_head, self.field.thermal_head) if h is not None]
-        others = [m for m in (self.field.temperature_head, self.sky_field) if m is not None]
         groups: Dict[str, List[Parameter]] = {
-            "fields": [p for h in heads for p in h.mlp_parameters()] + [p for m in others for p in m.parameters()],
+            "fields": [p for h in heads for p in h.mlp_parameters()]
+            + (list(self.field.temperature_head.parameters()) if self.field.temperature_head is not None else []),
             "encodings": [p for vol in self.field.volumes().values() for p in vol.parameters()],
         }
         if self.log_event_threshold is not None:
@@ -297,6 +295,12 @@ class AgriNeRFModel(Model):
         return grid_schedule.training_callbacks(self, training_callback_attributes)
 
     # -------------------------------------------------------------- forward
+    def _background(self, values: Float[Tensor, "rays samples c"]) -> Float[Tensor, "rays c"]:
+        if self.config.background_color == "last_sample":
+            return values[:, -1, :]
+        fill = 1.0 if self.config.background_color == "white" else 0.0
+        return torch.full_like(values[:, -1, :], fill)
+
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, Tensor]:
         """Renders the rays; in training also the blur model's and the event loss's renders of the same pixels at other
         times ("rgb_blurred", "event_log_start", "event_log_end") where they are on."""
@@ -351,7 +355,7 @@ class AgriNeRFModel(Model):
         num_rays, num_samples = weights.shape[:2]
 
         selected = weights[..., 0] > self.config.weight_threshold
-        if self.config.background_color == "last_sample" and self.sky_field is None:
+        if self.config.background_color == "last_sample":
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
         every_sample = float(selected.float().mean()) >= DENSE_HEADS_FRACTION
@@ -383,10 +387,9 @@ class AgriNeRFModel(Model):
                     dense["thermal_camera"] = full[..., 1:2]
 
         accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
-        behind = sky.backgrounds(self, ray_bundle.directions, dense)
         # "rgb" first: the viewer shows the first output when it opens
         outputs: Dict[str, Tensor] = {
-            name: self.composite(weights, accumulation, values, behind[name]) for name, values in dense.items()
+            name: self.composite(weights, accumulation, values) for name, values in dense.items()
         }
         outputs["depth"] = self.renderer_depth(weights, samples)
         outputs["accumulation"] = accumulation
@@ -399,7 +402,7 @@ class AgriNeRFModel(Model):
             final = self.field.axis_resolution(self.config.final_resolution)
             outputs["voxel_size_final"] = self.field.voxel_size(surface, final).amax(dim=-1, keepdim=True)
         if routed and self.training and torch.is_grad_enabled():
-            outputs.update(loss_routing.routed_outputs(self, weights, dense, behind))
+            outputs.update(loss_routing.routed_outputs(self, weights, dense))
         if not self.training:
             for name in dense:
                 if name != "temperature":
@@ -411,11 +414,10 @@ class AgriNeRFModel(Model):
         weights: Float[Tensor, "rays samples 1"],
         accumulation: Float[Tensor, "rays 1"],
         values: Float[Tensor, "rays samples c"],
-        background: Float[Tensor, "rays c"],
     ) -> Float[Tensor, "rays c"]:
-        """Alpha compositing of per-sample values (`accumulation`: of these `weights`, clamped to [0, 1]), with
-        `background` (`sky.backgrounds`) behind the last sample."""
-        return (weights * values).sum(dim=-2) + background * (1.0 - accumulation)
+        """Alpha compositing of per-sample values (`accumulation`: of these `weights`, clamped to [0, 1]), with the
+        background behind the last sample."""
+        return (weights * values).sum(dim=-2) + self._background(values) * (1.0 - accumulation)
 
     def density_gradient_scale(self, term: str) -> float:
         """The scale of `term`'s gradient into the density (1 when not configured; `low_light_level` raises the

@@ -130,13 +130,6 @@ class AgriNeRFModelConfig(ModelConfig):
     """Far plane of every ray (scene contraction only)."""
     background_color: Literal["last_sample", "black", "white"] = "last_sample"
     """Colour (and thermal value) behind the last sample; "last_sample" uses the last sample's value."""
-    sky_temperature_margin_c: float = 8.0
-    """The thermal frames show sky where their coldest pixels are at least this much colder than their mean (a clear
-    sky is tens of degrees colder than the canopy; fruit run a few degrees from the leaves): then `sky_loss` makes the
-    sky's rays transparent (`model/sky.py`)."""
-    sky_temperature_fraction: float = 0.25
-    """Sky pixels are those colder than the coldest pixel plus this fraction of the span from it to the mean: the sky
-    itself, not its edges, which the thermal optics blend with the canopy."""
     weight_threshold: float = 1.0e-4
     """Fine samples whose rendering weight is below this skip the appearance heads (TensoRF's app mask)."""
     box_fit_iters: Tuple[int, ...] = (100, 300, 1000)
@@ -190,14 +183,13 @@ class AgriNeRFModelConfig(ModelConfig):
             "event_loss": 0.1,
             "temperature_loss": 1.0,
             "edi_prior_loss": 1.0,
-            "sky_loss": 0.1,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
         }
     )
-    """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus the thermal-camera term, the sky
-    term (the thermal frames' cold sky is transparent, `model/sky.py`) and TensoRF L1/TV; 0 disables a term."""
+    """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus the thermal-camera term and TensoRF
+    L1/TV; 0 disables a term."""
     blur_samples: int = 1
     """Blur model: a training frame's pixel is compared with the mean, in linear radiance, of this many renders at
     poses spread over the frame's exposure (the dataset's exposure intervals and camera trajectory). 1: the frame's

@@ -62,8 +62,7 @@ def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, T
     at = frame_times if thermal_times is None else thermal_times[rows].double()
     moved = reposed_rays(head, model.trajectory, frame_times, at[:, None], **model.thermal_camera)
     rendered = model.render(model.collider(moved), heads=("thermal", "temperature"))
-    kept = (*OUTPUTS, "accumulation")  # the accumulation: for the sky term (`sky.py`)
-    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in kept}
+    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in OUTPUTS}
 
 
 def main_render_heads(model: AgriNeRFModel) -> Optional[Tuple[str, ...]]:
