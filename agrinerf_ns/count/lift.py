@@ -36,6 +36,11 @@ class LiftedDetection:
     score: float
     temperature: Optional[float]
     """Mean rendered temperature (degrees C) over the detection's pixels, where the run renders one."""
+    origin: Optional[Float[np.ndarray, "3"]] = None
+    """Where the view's camera was (dataset frame), for `ray`."""
+    ray: Optional[Float[np.ndarray, "3"]] = None
+    """The unit mean ray of all the detection's pixels (dataset frame): it passes through the fruit's centre whatever
+    the rendered depth (`triangulate.py`)."""
 
 
 def lift_detection(
@@ -62,10 +67,14 @@ def lift_detection(
         values = view.temperature[keep]
         values = values[np.isfinite(values)]
         temperature = float(values.mean()) if values.size else None
+    origin, through = view.origins[mask].mean(0), view.directions[mask].mean(0)
+    origin_ds, through_ds = frame.to_dataset(np.stack([origin, origin + through]))
     return LiftedDetection(
         view=view_index,
         centre=frame.to_dataset(centre_ns[None])[0],
         diameter=2.0 * radius / frame.scale,
         score=score,
         temperature=temperature,
+        origin=origin_ds,
+        ray=(through_ds - origin_ds) / max(float(np.linalg.norm(through_ds - origin_ds)), 1e-12),
     )
