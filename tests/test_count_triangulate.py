@@ -90,3 +90,15 @@ def test_without_rays_or_with_the_option_off_the_depth_places_them() -> None:
         fruit = cluster_fruit(dets, config)
         assert len(fruit) == 1 and fruit[0].views == 5
         assert np.allclose(fruit[0].centre, np.median(np.stack([d.centre for d in dets]), axis=0))
+
+
+def test_a_large_group_tries_a_fixed_sample_of_its_crossings() -> None:
+    """200 rays through one point (19900 pairs): placed as well from the sample, the same on every call."""
+    rng = np.random.default_rng(4)
+    detections = _seen([0.0, 0.0, 0.0], _cameras(200, spacing=0.01), 0.0, rng)
+    origins = np.stack([d.origin for d in detections])
+    rays = np.stack([d.ray for d in detections])
+    first = triangulate(origins, rays, list(range(200)), 0.5 * FRUIT_D, 2)
+    again = triangulate(origins, rays, list(range(200)), 0.5 * FRUIT_D, 2)
+    assert first[0] is not None and again[0] is not None
+    assert np.linalg.norm(first[0]) < 0.01 and np.array_equal(first[0], again[0]) and bool(first[1].all())

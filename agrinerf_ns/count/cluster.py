@@ -1,5 +1,5 @@
-"""Detections in 3D to fruit: complete-linkage clustering with a distance from the fruit size, placing by the
-detections' rays (`triangulate.py`), then a view count.
+"""Detections in 3D to fruit: complete-linkage clustering with a distance from the fruit size (with `triangulate`,
+then placing by the detections' rays: `triangulate.py`), then a view count.
 
 Complete linkage joins two groups only when every pair of their detections is within the merge distance, so a
 cluster never spans more than that distance and fruit do not chain together the way single-linkage or DBSCAN

@@ -19,6 +19,8 @@ from jaxtyping import Bool, Float
 MIN_RAY_ANGLE_DEG = 2.0
 """Rays closer in direction than this (all pairs) meet too far from their true crossing to place a fruit: a group
 seen from one place keeps its depth-lifted centre."""
+MAX_PAIRS = 2000
+"""Crossings tried per group at most (every pair below that): the search costs pairs x rays."""
 
 
 def closest_point(
@@ -63,18 +65,19 @@ def triangulate(
     view_of = np.asarray(views)
     best: Tuple[int, float] = (0, 0.0)
     keep = np.zeros(len(rays), dtype=bool)
-    for i in range(len(rays)):
-        for j in range(i + 1, len(rays)):
-            if view_of[i] == view_of[j]:
-                continue
-            point = closest_point(origins[[i, j]], rays[[i, j]])
-            if point is None:
-                continue
-            miss = miss_distances(point, origins, rays)
-            inside = miss <= radius
-            rank = (len(set(view_of[inside].tolist())), -float(miss[inside].sum()))
-            if rank > best:
-                best, keep = rank, inside
+    pairs = [(i, j) for i in range(len(rays)) for j in range(i + 1, len(rays)) if view_of[i] != view_of[j]]
+    if len(pairs) > MAX_PAIRS:  # a large group (a dense canopy seen from many frames): a fixed sample of its pairs
+        pick = np.random.default_rng(len(pairs)).choice(len(pairs), MAX_PAIRS, replace=False)
+        pairs = [pairs[k] for k in sorted(pick)]
+    for i, j in pairs:
+        point = closest_point(origins[[i, j]], rays[[i, j]])
+        if point is None:
+            continue
+        miss = miss_distances(point, origins, rays)
+        inside = miss <= radius
+        rank = (len(set(view_of[inside].tolist())), -float(miss[inside].sum()))
+        if rank > best:
+            best, keep = rank, inside
     if best[0] < min_views:
         return None, keep
     point = closest_point(origins[keep], rays[keep])
