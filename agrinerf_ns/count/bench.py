@@ -1,18 +1,20 @@
 """Counting in ``agrinerf-bench --profile count``: every finished run of the benchmark folder counted on every source
-it has, by the field path (3D) and the view path (detect and lift), beside the oracle's ceiling per scene (the
-capture's own frames, true depth and true temperature); rows appended to ``OUT/count.csv``, ``OUT/count.md`` rewritten,
-each count's files under ``OUT/count/<scene>/<method>/<path>-<source>/``."""
+it has, by the field path (3D) and the view path (detect and lift; placed by depth and by rays), beside the oracle's
+ceiling per scene (the capture's own frames, true depth and true temperature); rows appended to ``OUT/count.csv``,
+``OUT/count.md`` rewritten, each count's files under ``OUT/count/<scene>/<method>/<path>-<source>/``."""
 
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Dict, List, Sequence, Set, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.bench.layout import BenchLayout, split_scene
+from agrinerf_ns.count.cluster import ClusterConfig
 from agrinerf_ns.count.detectors import Source
 from agrinerf_ns.count.pipeline import (
     CONSOLE,
@@ -29,6 +31,9 @@ from agrinerf_ns.count.score import read_frames
 from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
 VIEW_SOURCES: Tuple[Source, ...] = ("temperature", "thermal", "rgb")
+VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
+"""The view path's rows: fruit placed by the rendered depth (`views`, `agrinerf-count`'s default) and by their
+detections' rays (`views-rays`, `--triangulate`), from the same renders and detections."""
 ORACLE_METHOD = "oracle"
 
 
@@ -91,9 +96,12 @@ def oracle_field_count(raw: Path, data: Path, config: CountConfig) -> CountResul
     return result
 
 
-def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, out: Path) -> List[Dict[str, Any]]:
+def count_run_rows(
+    scene: str, method: str, seed: int, config: Path, raw: Path, out: Path, field_config: Optional[Any] = None
+) -> List[Dict[str, Any]]:
     """Count one run by the field path on each source it has and by the view path on temperature, thermal and RGB
-    (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``."""
+    (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``.
+    ``field_config``: the field path's `FieldCountConfig` (None: its defaults)."""
     from agrinerf_ns.count.components import find_fruit
     from agrinerf_ns.count.detectors import DetectorConfig
     from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
@@ -115,7 +123,7 @@ def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, 
     folder = out / scene / method
 
     start = time.perf_counter()
-    field_config = FieldCountConfig()
+    field_config = FieldCountConfig() if field_config is None else field_config
     result, sampled, info = count_model(model, datamanager.train_dataset.cameras, frame, field_config)
     shared = time.perf_counter() - start - info["seconds"]["components"]
     sampled_first = sampled.source
@@ -138,18 +146,22 @@ def count_run_rows(scene: str, method: str, seed: int, config: Path, raw: Path, 
     start = time.perf_counter()
     renders = render_run(config, None)
     rendered = time.perf_counter() - start
+    view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
     for source in VIEW_SOURCES:
         if getattr(renders.views[0], source) is None:  # a run without that output (rgb is always rendered)
             continue
-        begin = time.perf_counter()
-        view_config = CountConfig(detect=DetectorConfig(source=source))
-        result = count_fruit(renders, view_config)
-        score_against_truth(renders, result, raw, view_config)
-        rows.append(_row(scene, method, seed, loaded.step, "views", source, result,
-                         rendered + time.perf_counter() - begin))  # fmt: skip
-        view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
-        _write(folder / f"views-{source}", result, renders.frame, surface_points(renders), view_cameras,
-               {"path": "views", "source": source, "run": str(config)}, view_config, raw)  # fmt: skip
+        for path, triangulate in VIEW_PLACEMENTS.items():
+            begin = time.perf_counter()
+            view_config = CountConfig(
+                detect=DetectorConfig(source=source), cluster=ClusterConfig(triangulate=triangulate)
+            )
+            result = count_fruit(renders, view_config)
+            score_against_truth(renders, result, raw, view_config)
+            rows.append(_row(scene, method, seed, loaded.step, path, source, result,
+                             rendered + time.perf_counter() - begin))  # fmt: skip
+            _write(folder / f"{path}-{source}", result, renders.frame, surface_points(renders), view_cameras,
+                   {"path": path, "source": source, "run": str(config), "cluster": asdict(view_config.cluster)},
+                   view_config, raw)  # fmt: skip
     return rows
 
 

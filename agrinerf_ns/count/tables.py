@@ -25,7 +25,8 @@ COLUMNS = (
     "precision", "recall", "f1", "mean_match_error", "mean_temperature_error", "seconds",
 )  # fmt: skip
 """One row per (run, path, source); ``path``: ``field`` (3D, the sampled field), ``views`` (detected in the rendered
-views and lifted) or ``oracle`` (the capture's own frames with the true depth and true temperature: the ceiling)."""
+views and lifted), ``views-rays`` (the same detections placed by their rays, ``agrinerf-count --triangulate``) or
+``oracle`` (the capture's own frames with the true depth and true temperature: the ceiling)."""
 Row = Dict[str, str]
 SUMMARY = ("f1", "precision", "recall", "count_error", "mean_temperature_error")
 
@@ -102,7 +103,8 @@ def markdown(rows: Sequence[Row], header: str = "") -> str:
         "count error (counted - visible) / visible; temperature error: mean |counted - true| over the matched fruit "
         f"(degrees C). In brackets: {CONFIDENCE:.0%} bootstrap intervals ({BOOTSTRAP_RESAMPLES} resamples of the runs, "
         "scenes x seeds, of a lighting). path: field (3D, the sampled field), views (detected in rendered views and "
-        "lifted), oracle (the capture's frames with the true depth and temperature: the ceiling).",
+        "lifted), views-rays (the same detections placed by their rays), oracle (the capture's frames with the true "
+        "depth and temperature: the ceiling).",
         "",
         "## Per lighting",
         "",

@@ -1,0 +1,48 @@
+"""The count profile's counting of one trained run (`agrinerf_ns.count.bench.count_run_rows`): a synthetic capture
+processed by `agrinerf-process`, trained through Nerfstudio's Trainer, counted by the field path on each source it has
+and by the view path, its fruit placed by depth and by rays, every row scored against the capture's truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+from helpers.model_scene import tiny_trainer_config
+
+from agrinerf_ns.count.bench import VIEW_PLACEMENTS, count_run_rows
+from agrinerf_ns.count.field_count import FieldCountConfig
+from agrinerf_ns.count.volume import VolumeConfig
+from agrinerf_ns.process import ProcessConfig, process_capture
+from agrinerf_ns.synth import SynthConfig, generate_capture
+
+
+def test_a_run_is_counted_by_every_path_and_placement_and_scored(tmp_path: Path) -> None:
+    raw = generate_capture(SynthConfig.tiny(lighting="bright", scene="garden"), tmp_path / "raw")
+    data = process_capture(raw, tmp_path / "dataset", ProcessConfig(poses="given", show_progress=False))
+    config = tiny_trainer_config(data, tmp_path / "outputs", max_num_iterations=30, rays=512)
+    config.set_timestamp()
+    torch.manual_seed(0)
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    trainer.train()
+    config.save_config()
+    run = config.get_base_dir() / "config.yml"
+
+    small = FieldCountConfig(volume=VolumeConfig(max_voxels=100_000, max_views=3))
+    rows = count_run_rows("garden-bright", "agrinerf-lite", 0, run, raw, tmp_path / "count", small)
+    paths = {(r["path"], r["source"]) for r in rows}
+    assert {("field", "temperature"), ("views", "rgb")} <= paths
+    for source in ("temperature", "thermal", "rgb"):  # the view path's sources this run renders, both placements
+        assert {(path, source) for path in VIEW_PLACEMENTS} <= paths
+    visible = {r["visible"] for r in rows}
+    assert len(visible) == 1 and visible.pop() > 0  # every row scored against the same visible truth
+    for row in rows:
+        assert row["lighting"] == "bright" and row["seed"] == 0 and row["step"] == 29
+        assert 0.0 <= row["f1"] <= 1.0 and np.isfinite(row["count_error"]) and row["seconds"] > 0
+        report = json.loads((tmp_path / "count" / "garden-bright" / "agrinerf-lite" /
+                             f"{row['path']}-{row['source']}" / "count.json").read_text())  # fmt: skip
+        assert report["score"]["f1"] == row["f1"]
+        if row["path"].startswith("views"):
+            assert report["cluster"]["triangulate"] == (row["path"] == "views-rays")
