@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
 from helpers.model_scene import tiny_trainer_config
+from helpers.tiny_run import train_saved_run
 
 from agrinerf_ns.count.bench import VIEW_PLACEMENTS, count_run_rows
 from agrinerf_ns.count.field_count import FieldCountConfig
@@ -21,14 +21,7 @@ from agrinerf_ns.synth import SynthConfig, generate_capture
 def test_a_run_is_counted_by_every_path_and_placement_and_scored(tmp_path: Path) -> None:
     raw = generate_capture(SynthConfig.tiny(lighting="bright", scene="garden"), tmp_path / "raw")
     data = process_capture(raw, tmp_path / "dataset", ProcessConfig(poses="given", show_progress=False))
-    config = tiny_trainer_config(data, tmp_path / "outputs", max_num_iterations=30, rays=512)
-    config.set_timestamp()
-    torch.manual_seed(0)
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
-    trainer.train()
-    config.save_config()
-    run = config.get_base_dir() / "config.yml"
+    run = train_saved_run(tiny_trainer_config(data, tmp_path / "outputs", max_num_iterations=30, rays=512), seed=0)
 
     small = FieldCountConfig(volume=VolumeConfig(max_voxels=100_000, max_views=3))
     rows = count_run_rows("garden-bright", "agrinerf-lite", 0, run, raw, tmp_path / "count", small)

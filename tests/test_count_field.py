@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from helpers.fruit_field import FRUIT_C, FRUIT_CENTRES, FRUIT_RADIUS, fruit_model
 
 from agrinerf_ns.count.cli import CountArgs, main
@@ -65,17 +64,11 @@ def test_a_voxel_behind_the_rendered_surface_is_not_seen() -> None:
 def rgb_run(tmp_path_factory) -> Path:
     """config.yml of a tiny agrinerf-lite run trained on RGB frames alone (no thermal frames in its dataset)."""
     from helpers.model_scene import tiny_trainer_config, write_model_scene
+    from helpers.tiny_run import train_saved_run
 
     root = tmp_path_factory.mktemp("rgb_run")
     data = write_model_scene(root / "scene", modalities=("rgb",))
-    config = tiny_trainer_config(data, root / "outputs", max_num_iterations=10)
-    config.set_timestamp()
-    torch.manual_seed(0)
-    trainer = config.setup(local_rank=0, world_size=1)
-    trainer.setup()
-    trainer.train()
-    config.save_config()
-    return config.get_base_dir() / "config.yml"
+    return train_saved_run(tiny_trainer_config(data, root / "outputs", max_num_iterations=10), seed=0)
 
 
 def test_a_run_without_thermal_frames_counts_from_rgb_and_says_so(rgb_run: Path, tmp_path: Path, capsys) -> None:
