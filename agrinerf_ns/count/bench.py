@@ -147,6 +147,7 @@ def count_run_rows(
     renders = render_run(config, None)
     rendered = time.perf_counter() - start
     view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
+    view_surface = surface_points(renders)  # under every view count's fruit map
     for source in VIEW_SOURCES:
         if getattr(renders.views[0], source) is None:  # a run without that output (rgb is always rendered)
             continue
@@ -159,7 +160,7 @@ def count_run_rows(
             score_against_truth(renders, result, raw, view_config)
             rows.append(_row(scene, method, seed, loaded.step, path, source, result,
                              rendered + time.perf_counter() - begin))  # fmt: skip
-            _write(folder / f"{path}-{source}", result, renders.frame, surface_points(renders), view_cameras,
+            _write(folder / f"{path}-{source}", result, renders.frame, view_surface, view_cameras,
                    {"path": path, "source": source, "run": str(config), "cluster": asdict(view_config.cluster)},
                    view_config, raw)  # fmt: skip
     return rows

@@ -101,14 +101,12 @@ def _placed(members: List[LiftedDetection], distance: float, reach: float, min_v
     origins = np.stack([np.asarray(d.origin) for d in members])
     rays = np.stack([np.asarray(d.ray) for d in members])
     point, keep = triangulate(origins, rays, [d.view for d in members], radius, min_views)
-    if point is not None:  # the rays of two fruit can meet anywhere: the point must lie where the depth put them
-        kept = np.stack([d.centre for d, k in zip(members, keep, strict=True) if k])
-        point = point if np.linalg.norm(point - np.median(kept, axis=0)) <= reach else None
-    if point is None:
+    kept = [d for d, k in zip(members, keep, strict=True) if k]
+    # the rays of two fruit can meet anywhere: the point must lie where the depth put its detections
+    if point is None or np.linalg.norm(point - np.median(np.stack([d.centre for d in kept]), axis=0)) > reach:
         return _median_groups(members, distance)
     rest = [d for d, k in zip(members, keep, strict=True) if not k]
-    placed = [([d for d, k in zip(members, keep, strict=True) if k], point)]
-    return placed + (_placed(rest, distance, reach, min_views) if rest else [])
+    return [(kept, point)] + (_placed(rest, distance, reach, min_views) if rest else [])
 
 
 def _triangulated_groups(detections: Sequence[LiftedDetection], config: ClusterConfig) -> List[Group]:
