@@ -29,6 +29,7 @@ from agrinerf_ns.synth.scene import (
 )
 from agrinerf_ns.synth.sensors import (
     RADIOMETRIC_CALIBRATION,
+    THERMAL_PSF_SIGMA_PX,
     EventSimulator,
     ThermalSensor,
     clean_rgb,
@@ -303,7 +304,9 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         ecam = rig.cams["event"]
         W.write_events(dirs["events"] / "events.h5", ex, ey, et, ep, ecam.width, ecam.height)
 
-        W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION))
+        W.write_yaml(
+            tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION, THERMAL_PSF_SIGMA_PX)
+        )
         W.write_json(tmp / "truth" / "fruits.json", scene.fruits)
         W.write_json(
             tmp / "truth" / "scene.json",
