@@ -138,5 +138,14 @@ def test_the_count_tables_pool_runs_with_bootstrap_intervals(tmp_path: Path) -> 
     assert len(rows) == 2
     text = (tmp_path / "all" / "count.md").read_text()
     assert "| dark | agrinerf-lite | field | temperature | 2 | 0.70 [0.50, 0.90] |" in text
+    assert "## Per scene" not in text  # one scene per lighting: the per-lighting table says it all
+    orchard = {**row, "scene": "orchard-dark", "f1": 0.1}
+    append_rows(tmp_path / "seed1" / "count.csv", [orchard])
+    tables_main(TablesArgs(csvs=(tmp_path / "seed0", tmp_path / "seed1"), out=tmp_path / "all"))
+    text = (tmp_path / "all" / "count.md").read_text()
+    lighting, scene = text.split("## Per scene")
+    assert "| dark | agrinerf-lite | field | temperature | 3 | 0.50 [" in lighting  # pooled over both scenes
+    assert "| garden-dark | agrinerf-lite | field | temperature | 2 | 0.70 [0.50, 0.90] |" in scene
+    assert "| orchard-dark | agrinerf-lite | field | temperature | 1 | 0.10 [0.10, 0.10] |" in scene
     with pytest.raises(FileNotFoundError, match="no count.csv"):
         tables_main(TablesArgs(csvs=(tmp_path / "nothing",), out=tmp_path / "x"))

@@ -78,15 +78,18 @@ def bootstrap_mean(
     return Interval(float(finite.mean()), float(low), float(high))
 
 
-def summary_rows(rows: Sequence[Row]) -> List[Tuple[Tuple[str, str, str, str], int, Dict[str, Interval]]]:
-    """Per (lighting, method, path, source): the number of runs and each :data:`SUMMARY` measure's mean with its
-    interval."""
+def summary_rows(
+    rows: Sequence[Row], by: str = "lighting"
+) -> List[Tuple[Tuple[str, str, str, str], int, Dict[str, Interval]]]:
+    """Per (`by`: ``lighting`` or ``scene``, method, path, source): the number of runs and each :data:`SUMMARY`
+    measure's mean with its interval."""
     groups: Dict[Tuple[str, str, str, str], List[Row]] = defaultdict(list)
     for row in rows:
-        groups[(row["lighting"], row["method"], row["path"], row["source"])].append(row)
+        groups[(row[by], row["method"], row["path"], row["source"])].append(row)
     order = {name: i for i, name in enumerate(("bright", "shadowed", "dusk", "dark"))}
+    lighting = {row[by]: row["lighting"] for row in rows}
     out = []
-    for key in sorted(groups, key=lambda k: (order.get(k[0], 9), k[1], k[2], k[3])):
+    for key in sorted(groups, key=lambda k: (order.get(lighting[k[0]], 9), k[0], k[1], k[2], k[3])):
         members = groups[key]
         out.append((key, len(members), {m: bootstrap_mean([_float(r, m) for r in members]) for m in SUMMARY}))
     return out
@@ -108,12 +111,10 @@ def markdown(rows: Sequence[Row], header: str = "") -> str:
         "",
         "## Per lighting",
         "",
-        "| lighting | method | path | source | runs | F1 | precision | recall | count error | temperature error (C) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for (lighting, method, path, source), n, stats in summary_rows(rows):
-        cells = [_interval(stats[m], percent=m == "count_error") for m in SUMMARY]
-        lines.append(f"| {lighting} | {method} | {path} | {source} | {n} | " + " | ".join(cells) + " |")
+    lines += _summary_lines(rows, "lighting")
+    if len({r["scene"] for r in rows}) > len({r["lighting"] for r in rows}):  # several scenes in a lighting
+        lines += ["", "## Per scene", "", *_summary_lines(rows, "scene")]
     lines += [
         "",
         "## Every run",
@@ -130,6 +131,18 @@ def markdown(rows: Sequence[Row], header: str = "") -> str:
             f"| {_num(r, 'seconds', 0)} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _summary_lines(rows: Sequence[Row], by: str) -> List[str]:
+    """The summary table per `by` (``lighting``: scenes pooled; ``scene``: each scene and lighting on its own)."""
+    lines = [
+        f"| {by} | method | path | source | runs | F1 | precision | recall | count error | temperature error (C) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (group, method, path, source), n, stats in summary_rows(rows, by):
+        cells = [_interval(stats[m], percent=m == "count_error") for m in SUMMARY]
+        lines.append(f"| {group} | {method} | {path} | {source} | {n} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _interval(value: Interval, percent: bool = False) -> str:
