@@ -108,11 +108,6 @@ class AgriNeRFDataParser(Nerfstudio):
             camera = _warped_camera(block, outputs, meta, "thermal")
             if camera is not None:
                 metadata["thermal_camera"] = camera
-            calib = (block.get("calibration") or {}).get("thermal") or {}
-            if calib.get("intrinsics"):  # radians per thermal pixel at the image centre (thermal_view.psf_sigma_rad)
-                metadata["thermal_pixel_angle"] = 2.0 / (float(calib["intrinsics"][0]) + float(calib["intrinsics"][1]))
-            if calib.get("psf_sigma_px") is not None:
-                metadata["thermal_psf_sigma_px"] = float(calib["psf_sigma_px"])
 
         if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
             metadata.update(_event_sums(data_dir, kept))

@@ -80,25 +80,6 @@ def test_calibration_missing_keys(tmp_path: Path):
         readers.read_calibration(bad)
 
 
-@pytest.mark.parametrize("value", [None, 0.0, 0.7, -0.5, "wide", True, 12.0])
-def test_calibration_thermal_psf_is_optional_and_checked(tmp_path: Path, value: object):
-    """The thermal optics' blur (`psf_sigma_px`) is read when given, reaches the dataset's block, and a value that
-    is not a number of pixels in [0, 10) is refused naming the file and the camera."""
-    raw = make_raw_capture(tmp_path / "raw", n=2, with_events=False)
-    doc = yaml.safe_load((raw / "calib.yaml").read_text())
-    if value is not None:
-        doc["cam1"]["psf_sigma_px"] = value
-    path = tmp_path / "calib.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    if value in (-0.5, "wide", True, 12.0):
-        with pytest.raises(RawInputError, match=r"calib.yaml: cam1.psf_sigma_px must be a number of pixels"):
-            readers.read_calibration(path)
-        return
-    thermal = readers.read_calibration(path).thermal
-    assert thermal is not None and thermal.psf_sigma_px == value
-    assert thermal.as_dict().get("psf_sigma_px") == value
-
-
 def test_tum_reader_quaternion_convention(tmp_path: Path):
     # 90 degrees about z: (qx, qy, qz, qw) = (0, 0, sin45, cos45)
     s = np.sqrt(0.5)

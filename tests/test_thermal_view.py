@@ -22,7 +22,6 @@ from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
 from agrinerf_ns.synth.capture import make_scene
 from agrinerf_ns.synth.rig import THERMAL_DELAY
-from agrinerf_ns.synth.sensors import THERMAL_PSF_SIGMA_PX
 from agrinerf_ns.trajectory import CameraTrajectory
 
 CENTRE = (0.07, -0.012, 0.004)
@@ -40,10 +39,6 @@ def test_the_thermal_camera_sits_where_the_synthetic_rig_put_it(tmp_path, plane_
     outputs = AgriNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
     camera = outputs.metadata["thermal_camera"]
     scale = float(outputs.dataparser_scale)
-    # the thermal optics' blur and pixel angle, from calib.yaml through the dataset, for the point-spread sub-rays
-    assert outputs.metadata["thermal_psf_sigma_px"] == pytest.approx(THERMAL_PSF_SIGMA_PX)
-    fx = make_scene(config)[1].cams["thermal"].fx
-    assert outputs.metadata["thermal_pixel_angle"] == pytest.approx(1.0 / fx, rel=0.02)
     assert camera["plane_depth"] == pytest.approx(plane_depth * scale)
     _, rig = make_scene(config)
     trajectory, times = outputs.metadata["trajectory"], outputs.metadata["times"].numpy()
@@ -230,50 +225,3 @@ def test_the_held_out_thermal_metrics_render_the_thermal_cameras_view() -> None:
              "temperature": from_thermal["temperature"].clone()}  # fmt: skip
     metrics, _ = image_metrics_and_images(model, own, batch)
     assert metrics["thermal_camera_psnr"] > 60.0 and metrics["temperature_mae"] < 1e-3
-
-
-def test_point_spread_sub_rays_follow_a_gaussian_about_their_ray() -> None:
-    from agrinerf_ns.model.thermal_view import perpendicular_axes, psf_rays
-
-    rays = _rays(400)
-    traj = _trajectory()
-    poses = torch.from_numpy(traj.poses_at(traj.times[rays.camera_indices[:, 0].numpy()]))
-    sigma = 0.01
-    torch.manual_seed(0)
-    sub = psf_rays(rays, poses, 2, sigma)
-    assert sub.origins.shape == (1600, 3) and torch.equal(sub.origins[:4], rays.origins[:1].expand(4, 3))
-    d = sub.directions.double().reshape(400, 4, 3)
-    assert torch.allclose(d.norm(dim=-1), torch.ones(400, 4, dtype=torch.float64), atol=1e-6)
-    # angles across the ray: centred on it, spread as the Gaussian, one on each side of it per axis and band
-    ray = torch.nn.functional.normalize(rays.directions.double(), dim=-1)
-    axes = perpendicular_axes(ray, poses[:, :3, 0].double())
-    assert ((axes[:, :, 1] * poses[:, :3, 1].double()).sum(-1) > 0.7).all()  # near the camera's y axis
-    xy = torch.atan((d @ axes) / (d * ray[:, None]).sum(-1, keepdim=True))  # [n, 4, 2]
-    assert xy.mean().abs() < sigma / 10 and xy.std() == pytest.approx(sigma, rel=0.1)
-    assert torch.all((xy[:, :2, 0] < 1e-6) & (xy[:, 2:, 0] > -1e-6))
-    assert torch.all((xy[:, ::2, 1] < 1e-6) & (xy[:, 1::2, 1] > -1e-6))
-    assert torch.isfinite(psf_rays(rays, poses, 3, 1e-9).directions).all()  # extreme: a vanishing blur
-
-
-def test_the_point_spread_averages_its_sub_rays_at_the_datasets_blur() -> None:
-    from agrinerf_ns.model.thermal_view import psf_sigma_rad
-
-    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
-    metadata = {**_metadata(**camera), "thermal_pixel_angle": 0.02, "thermal_psf_sigma_px": 0.7}
-    model = _model(metadata, thermal_rays_per_batch=16, thermal_psf_samples=4)
-    # the optics' blur with the pixel's box and the warp's tent, in radians
-    assert psf_sigma_rad(model) == pytest.approx(math.sqrt(0.49 + 1 / 12 + 1 / 6) * 0.02)
-    assert psf_sigma_rad(_model(metadata, thermal_psf_sigma_px=0.0)) == pytest.approx(math.sqrt(0.25) * 0.02)
-    seen = []
-    render = model.render
-    model.render = lambda bundle, **kw: seen.append(render(bundle, **kw)) or seen[-1]  # type: ignore[method-assign]
-    torch.manual_seed(3)
-    outputs = model(_rays())
-    rendered = seen[1]
-    assert rendered["temperature"].shape[0] == 64
-    for name in ("thermal", "temperature"):
-        assert torch.allclose(outputs[PREFIX + name], rendered[name].reshape(16, 4, -1).mean(dim=1)), name
-    without_angle = _model(_metadata(**camera), thermal_rays_per_batch=16, thermal_psf_samples=4)
-    assert without_angle(_rays())[PREFIX + "temperature"].shape == (16, 1)  # no intrinsics: one ray per pixel
-    with pytest.raises(ValueError, match="square number"):
-        _model(metadata, thermal_rays_per_batch=16, thermal_psf_samples=3)(_rays())

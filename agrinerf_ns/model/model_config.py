@@ -4,7 +4,7 @@ them without building one."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Literal, Optional, Tuple, Type
+from typing import Dict, Literal, Tuple, Type
 
 from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.config_utils import to_immutable_dict
@@ -112,15 +112,6 @@ class AgriNeRFModelConfig(ModelConfig):
     pixel-aligned ray, which smears the temperatures by the cameras' parallax. 256 of 1024 sample the thermal frames
     (a quarter of the RGB pixels at half the width) about as densely as the batch samples the RGB frames; 1024 gave a
     little more per fruit at a higher step cost (results/thermal-rays)."""
-    thermal_psf_samples: int = 1
-    """Sub-rays per thermal-camera ray (a square number: a stratified k x k grid) spread by the thermal camera's point
-    spread, whose mean is compared with the frame's value: the frame shows the scene through the optics' blur, the
-    pixel's integration and the warp's bilinear interpolation (a fruit covers 4-5 thermal pixels on the count profile),
-    a single ray assumes a point. 1: one ray. Needs the thermal camera's intrinsics in the dataset."""
-    thermal_psf_sigma_px: Optional[float] = None
-    """The thermal optics' Gaussian blur (sigma, thermal pixels) that `thermal_psf_samples` models, beside the pixel's
-    box and the warp's tent; None: the dataset's calibration (calib.yaml ``psf_sigma_px`` of the thermal camera), or
-    0 without one."""
     mlp_width: int = 128
     """Hidden width of MLP_RGB (TensoRF's)."""
     thermal_mlp_width: int = 64

@@ -8,12 +8,10 @@ surface the thermal camera measured (docs/model.md, Thermal rays)."""
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Dict, Optional, Tuple
 
 import numpy as np
 import torch
-from jaxtyping import Float
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
@@ -63,57 +61,8 @@ def thermal_view_outputs(model: AgriNeRFModel, bundle: RayBundle) -> Dict[str, T
     thermal_times = thermal_frame_times(model)
     at = frame_times if thermal_times is None else thermal_times[rows].double()
     moved = reposed_rays(head, model.trajectory, frame_times, at[:, None], **model.thermal_camera)
-    side, sigma = psf_side(model), psf_sigma_rad(model)
-    if side > 1 and sigma > 0:
-        moved = psf_rays(moved, model.trajectory.poses_at_tensor(at.cpu(), dtype=torch.float64), side, sigma)
     rendered = model.render(model.collider(moved), heads=("thermal", "temperature"))
-    k = moved.origins.shape[0] // m
-    return {PREFIX + n: v.reshape(m, k, -1).mean(dim=1) for n, v in rendered.items() if n.split("/")[0] in OUTPUTS}
-
-
-def psf_side(model: AgriNeRFModel) -> int:
-    """Sub-rays per side of the point-spread grid, from `thermal_psf_samples` (a square number)."""
-    samples = max(int(model.config.thermal_psf_samples), 1)
-    side = int(round(math.sqrt(samples)))
-    if side * side != samples:
-        raise ValueError(f"thermal_psf_samples must be a square number (1, 4, 9...), got {samples}")
-    return side
-
-
-def psf_sigma_rad(model: AgriNeRFModel) -> float:
-    """The thermal frames' blur about a ray (radians, one Gaussian's sigma): the optics' (`thermal_psf_sigma_px`, or
-    the calibration's `thermal_psf_sigma_px` metadata), the pixel's box (variance 1/12 px^2) and the tent of the
-    warp's bilinear interpolation (1/6 px^2), in thermal pixels of the dataset's `thermal_pixel_angle`. 0: unknown
-    (no thermal intrinsics in the dataset)."""
-    metadata = getattr(model, "kwargs", {}).get("metadata") or {}
-    angle = metadata.get("thermal_pixel_angle")
-    if angle is None:
-        return 0.0
-    optics = model.config.thermal_psf_sigma_px
-    optics = float(metadata.get("thermal_psf_sigma_px", 0.0) if optics is None else optics)
-    return math.sqrt(optics**2 + 1.0 / 12.0 + 1.0 / 6.0) * float(angle)
-
-
-def psf_rays(bundle: RayBundle, poses: Float[Tensor, "n 3 4"], side: int, sigma: float) -> RayBundle:
-    """`side` x `side` sub-rays of each ray, ray-major, turned across the ray towards the camera's x and y axes
-    (`poses`: camera to world, OpenGL; `perpendicular_axes`) by angles drawn from a Gaussian of `sigma` radians, stratified: one draw in each of `side` equal-
-    probability bands per axis (the band's quantile jittered), so the sub-rays' mean follows the blurred image."""
-    n, s = bundle.origins.shape[0], side * side
-    bands = torch.arange(side, dtype=torch.float64)
-    grid = torch.stack(torch.meshgrid(bands, bands, indexing="ij"), -1).reshape(1, s, 2)
-    quantiles = ((grid + torch.rand(n, s, 2, dtype=torch.float64)) / side).clamp(1e-6, 1 - 1e-6)
-    offsets = torch.special.ndtri(quantiles) * sigma  # [n, s, 2] radians
-    device, dtype = bundle.directions.device, bundle.directions.dtype
-    ray = torch.nn.functional.normalize(bundle.directions.double().cpu(), dim=-1)
-    axes = perpendicular_axes(ray, poses[:, :3, 0].double().cpu())  # [n, 3, 2]
-    turn = (axes[:, None] @ offsets[..., None])[..., 0]  # [n, s, 3]
-    d = torch.nn.functional.normalize(ray[:, None] + turn, dim=-1)
-    return RayBundle(
-        origins=bundle.origins.repeat_interleave(s, dim=0),
-        directions=d.reshape(n * s, 3).to(device=device, dtype=dtype),
-        pixel_area=bundle.pixel_area.repeat_interleave(s, dim=0),
-        camera_indices=None if bundle.camera_indices is None else bundle.camera_indices.repeat_interleave(s, dim=0),
-    )
+    return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in OUTPUTS}
 
 
 def main_render_heads(model: AgriNeRFModel) -> Optional[Tuple[str, ...]]:
@@ -144,10 +93,3 @@ def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, 
     moved = reposed_rays(flat, CameraTrajectory(np.zeros(1), c2w[None]), at, at[:, None], **model.thermal_camera)
     rendered = model.get_outputs_for_camera_ray_bundle(moved.reshape((height, width)))
     return {**outputs, **{k: v for k, v in rendered.items() if k in OUTPUTS}}
-
-
-def perpendicular_axes(ray: Float[Tensor, "n 3"], x_axis: Float[Tensor, "n 3"]) -> Float[Tensor, "n 3 2"]:
-    """Two unit axes across each unit `ray`: the camera's `x_axis` without its part along the ray, and its cross
-    product with the ray (the camera's y axis, OpenGL, where the ray is the optical axis)."""
-    e1 = torch.nn.functional.normalize(x_axis - (x_axis * ray).sum(-1, keepdim=True) * ray, dim=-1)
-    return torch.stack([e1, torch.cross(e1, ray, dim=-1)], dim=-1)

@@ -29,7 +29,6 @@ from agrinerf_ns.synth.scene import (
 )
 from agrinerf_ns.synth.sensors import (
     RADIOMETRIC_CALIBRATION,
-    THERMAL_PSF_SIGMA_PX,
     EventSimulator,
     ThermalSensor,
     clean_rgb,
@@ -304,9 +303,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
         ecam = rig.cams["event"]
         W.write_events(dirs["events"] / "events.h5", ex, ey, et, ep, ecam.width, ecam.height)
 
-        W.write_yaml(
-            tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION, THERMAL_PSF_SIGMA_PX)
-        )
+        W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION))
         W.write_json(tmp / "truth" / "fruits.json", scene.fruits)
         W.write_json(
             tmp / "truth" / "scene.json",

@@ -24,8 +24,6 @@ THERMAL_OFFSET = 3500.0
 """Thermal counts at 0 degrees Celsius."""
 THERMAL_GAIN = 100.0
 """Thermal counts per kelvin."""
-THERMAL_PSF_SIGMA_PX = 0.7
-"""The thermal optics' Gaussian blur (sigma, in the thermal camera's pixels), as calib.yaml records it."""
 RADIOMETRIC_CALIBRATION: Dict[str, Any] = {
     "model": "linear",
     "counts_at_0c": THERMAL_OFFSET,
@@ -81,7 +79,7 @@ class ThermalSensor:
     ) -> UInt16[np.ndarray, "h w"]:
         """Optics blur, pixel integration, fixed pattern and temporal noise -> raw 16-bit counts."""
         s = supersample
-        blurred = gaussian_filter(temp_c, sigma=THERMAL_PSF_SIGMA_PX * s, mode="nearest")
+        blurred = gaussian_filter(temp_c, sigma=0.7 * s, mode="nearest")
         h, w = self.fpn.shape
         pix = blurred.reshape(h, s, w, s).mean(axis=(1, 3))
         counts = THERMAL_OFFSET + THERMAL_GAIN * pix + self.fpn + rng.normal(0, 6.0, (h, w))

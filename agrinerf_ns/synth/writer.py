@@ -68,13 +68,10 @@ def write_events(
 
 
 def camchain(
-    cams: Dict[str, PinholeRadtan],
-    T_c_c0: Dict[str, np.ndarray],
-    radiometric: Optional[Dict[str, Any]] = None,
-    thermal_psf_sigma_px: Optional[float] = None,
+    cams: Dict[str, PinholeRadtan], T_c_c0: Dict[str, np.ndarray], radiometric: Optional[Dict[str, Any]] = None
 ) -> dict:
     """Kalibr camchain dict: cam0 rgb, cam1 thermal, cam2 event, T_cn_cnm1 chaining them; ``radiometric`` (the
-    thermal camera's counts-to-temperature calibration) and ``psf_sigma_px`` (its optics' blur) go into cam1's entry."""
+    thermal camera's counts-to-temperature calibration) goes into cam1's entry."""
     order = ["rgb", "thermal", "event"]
     out = {}
     for n, key in enumerate(order):
@@ -90,8 +87,6 @@ def camchain(
         }
         if key == "thermal" and radiometric is not None:
             entry["radiometric"] = dict(radiometric)
-        if key == "thermal" and thermal_psf_sigma_px is not None:
-            entry["psf_sigma_px"] = float(thermal_psf_sigma_px)
         if n > 0:
             T = T_c_c0[key] @ np.linalg.inv(T_c_c0[order[n - 1]])
             entry["T_cn_cnm1"] = [[round(float(v), 12) for v in row] for row in T]

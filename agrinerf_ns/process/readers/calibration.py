@@ -27,13 +27,9 @@ class CameraCalib:
     T_cam_rgb: Float[np.ndarray, "4 4"] = field(default_factory=lambda: np.eye(4))
     radiometric: Optional[RadiometricCalibration] = None
     """Counts-to-temperature map (a thermal camera's ``radiometric`` entry in calib.yaml), or None."""
-    psf_sigma_px: Optional[float] = None
-    """The optics' blur (a Gaussian's sigma in pixels; calib.yaml ``psf_sigma_px``), or None: not measured."""
 
     def as_dict(self) -> Dict:
-        extra: Dict = {"radiometric": self.radiometric.as_dict()} if self.radiometric is not None else {}
-        if self.psf_sigma_px is not None:
-            extra["psf_sigma_px"] = self.psf_sigma_px
+        extra = {"radiometric": self.radiometric.as_dict()} if self.radiometric is not None else {}
         return {
             "name": self.name,
             "modality": self.modality,
@@ -121,9 +117,4 @@ def _parse_camera(path: Path, name: str, entry: Dict, T_cam_rgb: np.ndarray) -> 
         if modality != "thermal":
             raise RawInputError(f"{path}: {name}.radiometric is given, but {name} is not the thermal camera")
         radiometric = parse_calibration(entry["radiometric"], path, name)
-    psf = entry.get("psf_sigma_px")
-    if psf is not None and (isinstance(psf, bool) or not isinstance(psf, (int, float)) or not 0 <= psf < 10):
-        raise RawInputError(f"{path}: {name}.psf_sigma_px must be a number of pixels in [0, 10), got {psf!r}")
-    return CameraCalib(
-        name, modality, K, dist, int(res[0]), int(res[1]), T_cam_rgb, radiometric, None if psf is None else float(psf)
-    )
+    return CameraCalib(name, modality, K, dist, int(res[0]), int(res[1]), T_cam_rgb, radiometric)
