@@ -8,7 +8,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Set, Tuple
+from typing import TYPE_CHECKING, Any, Dict, List, Optional, Sequence, Set, Tuple
 
 import numpy as np
 
@@ -21,6 +21,8 @@ from agrinerf_ns.count.pipeline import (
     CountConfig,
     CountResult,
     count_fruit,
+    detect_and_lift,
+    fused_result,
     raw_training_frames,
     score_against_truth,
     score_result,
@@ -29,6 +31,9 @@ from agrinerf_ns.count.pipeline import (
 from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
 from agrinerf_ns.count.score import read_frames
 from agrinerf_ns.count.tables import append_rows, markdown, read_rows
+
+if TYPE_CHECKING:
+    from agrinerf_ns.count.field_count import FieldCountConfig
 
 VIEW_SOURCES: Tuple[Source, ...] = ("temperature", "thermal", "rgb")
 VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
@@ -97,7 +102,13 @@ def oracle_field_count(raw: Path, data: Path, config: CountConfig) -> CountResul
 
 
 def count_run_rows(
-    scene: str, method: str, seed: int, config: Path, raw: Path, out: Path, field_config: Optional[Any] = None
+    scene: str,
+    method: str,
+    seed: int,
+    config: Path,
+    raw: Path,
+    out: Path,
+    field_config: Optional["FieldCountConfig"] = None,
 ) -> List[Dict[str, Any]]:
     """Count one run by the field path on each source it has and by the view path on temperature, thermal and RGB
     (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``.
@@ -151,15 +162,18 @@ def count_run_rows(
     for source in VIEW_SOURCES:
         if getattr(renders.views[0], source) is None:  # a run without that output (rgb is always rendered)
             continue
+        begin = time.perf_counter()
+        lifted, per_view = detect_and_lift(renders, DetectorConfig(source=source))  # once for both placements
+        detected = time.perf_counter() - begin
         for path, triangulate in VIEW_PLACEMENTS.items():
             begin = time.perf_counter()
             view_config = CountConfig(
                 detect=DetectorConfig(source=source), cluster=ClusterConfig(triangulate=triangulate)
             )
-            result = count_fruit(renders, view_config)
+            result = fused_result(lifted, per_view, renders, view_config.cluster)
             score_against_truth(renders, result, raw, view_config)
             rows.append(_row(scene, method, seed, loaded.step, path, source, result,
-                             rendered + time.perf_counter() - begin))  # fmt: skip
+                             rendered + detected + time.perf_counter() - begin))  # fmt: skip
             _write(folder / f"{path}-{source}", result, renders.frame, view_surface, view_cameras,
                    {"path": path, "source": source, "run": str(config), "cluster": asdict(view_config.cluster)},
                    view_config, raw)  # fmt: skip

@@ -6,7 +6,7 @@ import json
 import shutil
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Any, Dict, List, Optional, Sequence
+from typing import Annotated, Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import tyro
@@ -79,7 +79,15 @@ class CountResult:
 
 def count_fruit(renders: RenderSet, config: CountConfig, progress: Optional[Progress] = None) -> CountResult:
     """Detect fruit in every view, lift each detection to 3D and cluster them into fruit."""
-    detector = make_detector(config.detect)
+    lifted, per_view = detect_and_lift(renders, config.detect, progress)
+    return fused_result(lifted, per_view, renders, config.cluster)
+
+
+def detect_and_lift(
+    renders: RenderSet, config: DetectorConfig, progress: Optional[Progress] = None
+) -> Tuple[List[LiftedDetection], List[int]]:
+    """Every view's detections lifted to 3D (those with a rendered depth), and the detections per view."""
+    detector = make_detector(config)
     lifted: List[LiftedDetection] = []
     per_view: List[int] = []
     task = progress.add_task("detecting fruit", total=len(renders.views)) if progress is not None else None
@@ -92,8 +100,14 @@ def count_fruit(renders: RenderSet, config: CountConfig, progress: Optional[Prog
                 lifted.append(point)
         if progress is not None and task is not None:
             progress.advance(task)
-    fruit = fuse(lifted, renders, config.cluster)
-    return CountResult(fruit, lifted, per_view, merge_distance(lifted, config.cluster))
+    return lifted, per_view
+
+
+def fused_result(
+    lifted: List[LiftedDetection], per_view: List[int], renders: RenderSet, config: ClusterConfig
+) -> CountResult:
+    """The count of these lifted detections under one clustering (`fuse`): the same detections can be placed twice."""
+    return CountResult(fuse(lifted, renders, config), lifted, per_view, merge_distance(lifted, config))
 
 
 def fuse(lifted: Sequence[LiftedDetection], renders: RenderSet, config: ClusterConfig) -> List[Fruit]:

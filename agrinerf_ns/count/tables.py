@@ -96,7 +96,8 @@ def summary_rows(
 
 
 def markdown(rows: Sequence[Row], header: str = "") -> str:
-    """``count.md``: the summary per lighting, path and source, then every row."""
+    """``count.md``: the summary per lighting, path and source (and per scene where a lighting holds several), then
+    every row."""
     lines = [
         "# Fruit counted from trained runs",
         "",
