@@ -8,11 +8,15 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from helpers.model_scene import tiny_trainer_config
 from helpers.tiny_run import train_saved_run
 
-from agrinerf_ns.count.bench import VIEW_PLACEMENTS, count_run_rows
+from agrinerf_ns.bench.cli import BenchConfig, main
+from agrinerf_ns.bench.layout import BenchLayout
+from agrinerf_ns.count.bench import ORACLE_METHOD, VIEW_PLACEMENTS, count_bench, count_run_rows
 from agrinerf_ns.count.field_count import FieldCountConfig
+from agrinerf_ns.count.tables import read_rows
 from agrinerf_ns.count.volume import VolumeConfig
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
@@ -39,3 +43,21 @@ def test_a_run_is_counted_by_every_path_and_placement_and_scored(tmp_path: Path)
         assert report["score"]["f1"] == row["f1"]
         if row["path"].startswith("views"):
             assert report["cluster"]["triangulate"] == (row["path"] == "views-rays")
+
+
+@pytest.mark.slow
+def test_the_count_profile_counts_stock_runs_by_their_views_and_skips_thermal_only_runs(tmp_path: Path) -> None:
+    """Nerfacto has no AgriNeRF heads for the field path: its RGB views are counted; Nerfacto (Thermal) renders the
+    thermal camera's views, which the count does not read: it is left out, not scored against the RGB truth."""
+    out = tmp_path / "bench"
+    main(BenchConfig(out=out, profile="tiny", methods=("nerfacto", "nerfacto-thermal")))
+    layout = BenchLayout(out)
+    (scene,) = layout.run_scenes()
+    count_bench(layout, [scene], {"nerfacto": "nerfacto", "nerfacto-thermal": "nerfacto"}, 0, "header")
+    rows = read_rows(out / "count.csv")
+    counted = {(r["method"], r["path"]) for r in rows}
+    assert {("nerfacto", path) for path in VIEW_PLACEMENTS} <= counted
+    assert not {m for m, p in counted if p == "field" and m != ORACLE_METHOD}, "no field path without AgriNeRF heads"
+    assert "nerfacto-thermal" not in {m for m, _ in counted}
+    assert {r["source"] for r in rows if r["method"] == "nerfacto"} == {"rgb"}
+    assert "nerfacto" in (out / "count.md").read_text()

@@ -14,6 +14,8 @@ import numpy as np
 
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.bench.layout import BenchLayout, split_scene
+from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.bench.results import seed_base
 from agrinerf_ns.count.cluster import ClusterConfig
 from agrinerf_ns.count.detectors import Source
 from agrinerf_ns.count.pipeline import (
@@ -53,6 +55,10 @@ def count_bench(layout: BenchLayout, scenes: Sequence[str], methods: Dict[str, s
             append_rows(csv_path, _oracle_rows(scene, seed, raw, data, layout))
         for key, config in layout.finished_runs(scene, methods).items():
             if (scene, key) in done:
+                continue
+            if METHODS[seed_base(key)].supervision != "rgb":
+                CONSOLE.print(f"not counted: {scene} {key} is trained on the thermal frames alone (its views are the "
+                              "thermal camera's, the count reads the RGB camera's)")  # fmt: skip
                 continue
             CONSOLE.print(f"counting fruit: {scene} {key}")
             append_rows(csv_path, count_run_rows(scene, key, seed, config, raw, Path(layout.out) / "count"))
@@ -113,10 +119,7 @@ def count_run_rows(
     """Count one run by the field path on each source it has and by the view path on temperature, thermal and RGB
     (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``.
     ``field_config``: the field path's `FieldCountConfig` (None: its defaults)."""
-    from agrinerf_ns.count.components import find_fruit
-    from agrinerf_ns.count.detectors import DetectorConfig
-    from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
-    from agrinerf_ns.count.render import render_run
+    from agrinerf_ns.count.field_count import FieldCountConfig, trained_run_config
     from agrinerf_ns.count.volume import field_sources
     from agrinerf_ns.detect.render import load_run
 
@@ -129,16 +132,44 @@ def count_run_rows(
     dataset = dataset_folder(Path(datamanager.config.data))
     names = [relative_path(Path(p), dataset) for p in datamanager.train_dataset.image_filenames]
     train = raw_training_frames(dataset, names)
-    score = CountConfig()
     rows: List[Dict[str, Any]] = []
     folder = out / scene / method
+    if any(field_sources(model).values()):
+        field_config = FieldCountConfig() if field_config is None else field_config
+        rows += _field_rows(scene, method, seed, loaded.step, model, datamanager.train_dataset.cameras, frame,
+                            field_config, dataset, train, raw, folder)  # fmt: skip
+    else:  # a stock model (nerfacto, tensorf): no AgriNeRF heads to sample
+        CONSOLE.print(f"{scene} {method}: the model has no field heads the field path reads; view path only")
+    rows += _view_rows(scene, method, seed, loaded.step, config, raw, folder)
+    return rows
 
+
+def _field_rows(
+    scene: str,
+    method: str,
+    seed: int,
+    step: int,
+    model: Any,
+    cameras: Any,
+    frame: WorldFrame,
+    field_config: "FieldCountConfig",
+    dataset: Path,
+    train: List[str],
+    raw: Path,
+    folder: Path,
+) -> List[Dict[str, Any]]:
+    """The field path's rows, one per source the model has (the density sampling shared)."""
+    from agrinerf_ns.count.components import find_fruit
+    from agrinerf_ns.count.field_count import count_model
+    from agrinerf_ns.count.volume import field_sources
+
+    score = CountConfig()
+    rows: List[Dict[str, Any]] = []
     start = time.perf_counter()
-    field_config = FieldCountConfig() if field_config is None else field_config
-    result, sampled, info = count_model(model, datamanager.train_dataset.cameras, frame, field_config)
+    result, sampled, info = count_model(model, cameras, frame, field_config)
     shared = time.perf_counter() - start - info["seconds"]["components"]
     sampled_first = sampled.source
-    cameras = frame.to_dataset(datamanager.train_dataset.cameras.camera_to_worlds[:, :3, 3].cpu().numpy())
+    centres = frame.to_dataset(cameras.camera_to_worlds[:, :3, 3].cpu().numpy())
     surface = frame.to_dataset(sampled.points()[:: max(1, len(sampled.flat) // 200_000)])
     for source in (s for s, have in field_sources(model).items() if have):
         begin = time.perf_counter()
@@ -151,9 +182,17 @@ def count_run_rows(
         # the depth renders and the density sampling are shared; each source adds its features and components
         own = info["seconds"]["components"] if source == sampled_first else time.perf_counter() - begin
         seconds = shared + own
-        rows.append(_row(scene, method, seed, loaded.step, "field", source, result, seconds))
-        _write(folder / f"field-{source}", result, frame, surface, cameras, info, score, raw)
+        rows.append(_row(scene, method, seed, step, "field", source, result, seconds))
+        _write(folder / f"field-{source}", result, frame, surface, centres, info, score, raw)
+    return rows
 
+
+def _view_rows(scene: str, method: str, seed: int, step: int, config: Path, raw: Path, folder: Path):
+    """The view path's rows: every view rendered once, each source detected once and placed both ways."""
+    from agrinerf_ns.count.detectors import DetectorConfig
+    from agrinerf_ns.count.render import render_run
+
+    rows: List[Dict[str, Any]] = []
     start = time.perf_counter()
     renders = render_run(config, None)
     rendered = time.perf_counter() - start
@@ -172,7 +211,7 @@ def count_run_rows(
             )
             result = fused_result(lifted, per_view, renders, view_config.cluster)
             score_against_truth(renders, result, raw, view_config)
-            rows.append(_row(scene, method, seed, loaded.step, path, source, result,
+            rows.append(_row(scene, method, seed, step, path, source, result,
                              rendered + detected + time.perf_counter() - begin))  # fmt: skip
             _write(folder / f"{path}-{source}", result, renders.frame, view_surface, view_cameras,
                    {"path": path, "source": source, "run": str(config), "cluster": asdict(view_config.cluster)},
