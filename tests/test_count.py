@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import List, Tuple
 
@@ -18,7 +19,7 @@ from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
 from agrinerf_ns.count.detectors import DetectorConfig, resolve_source
 from agrinerf_ns.count.diagnose import diagnose
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
-from agrinerf_ns.count.oracle import oracle_renders, reproject_thermal, undistort_maps
+from agrinerf_ns.count.oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import (
     CountInputError,
@@ -411,3 +412,19 @@ def test_reprojected_thermal_and_the_diagnosis_on_the_tiny_capture(tiny_capture:
     assert report["detections"] == sum(report["2d"][k] for k in ("hits", "duplicates", "false_blobs"))
     assert report["denominator"]["visible"] == report["score"]["visible"] > 0
     assert report["2d"]["recall"] > 0.3 and report["lift_error_m"]["median"] < 0.03
+
+
+def test_the_true_depth_under_a_runs_colours_undoes_a_wrong_geometry(tiny_capture: Tuple[Path, Path]) -> None:
+    """A render set whose geometry is 40% too far (a field's wrong depth) lifts its fruit off their centres; with the
+    capture's true depth put under the same views the lift lands on them again, in the run's own units."""
+    raw, data = tiny_capture
+    true = oracle_renders(raw, data, "true")
+    far = replace(true, views=[replace(v, depth=v.depth * 1.4) for v in true.views])
+    wrong, mended = diagnose(far, raw, CountConfig()), diagnose(with_true_depth(far, raw), raw, CountConfig())
+    assert wrong["lift_error_m"]["median"] > 0.1
+    assert mended["lift_error_m"]["median"] < 0.03 and mended["score"]["f1"] > wrong["score"]["f1"]
+    scaled = replace(far, frame=WorldFrame(np.eye(4)[:3], 2.5))  # Nerfstudio units: the dataparser's scale applied
+    for got, want in zip(with_true_depth(scaled, raw).views, true.views, strict=True):
+        np.testing.assert_allclose(got.depth, 2.5 * want.depth, rtol=1e-6)
+    with pytest.raises(CountInputError, match="no frame for the rendered view images/none.png"):
+        with_true_depth(replace(far, views=[replace(far.views[0], file_path="images/none.png")]), raw)

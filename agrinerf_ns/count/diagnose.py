@@ -28,7 +28,7 @@ from jaxtyping import Int
 from agrinerf_ns.count.cluster import cluster_labels, merge_distance
 from agrinerf_ns.count.detectors import make_detector
 from agrinerf_ns.count.lift import lift_detection
-from agrinerf_ns.count.oracle import undistort_maps
+from agrinerf_ns.count.oracle import undistort_maps, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
 from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders
 from agrinerf_ns.count.score import (
@@ -162,12 +162,18 @@ class DiagnoseArgs:
     """The synthetic raw capture."""
     out: Optional[Path] = None
     """Write the report here (JSON) as well."""
+    true_depth: bool = False
+    """Count the renders' colours on the capture's true depth instead of their rendered depth: the difference
+    between the two reports is what the field's geometry costs the count."""
     count: Annotated[CountConfig, tyro.conf.arg(name="")] = field(default_factory=CountConfig)
 
 
 def entrypoint() -> None:
     args = tyro.cli(DiagnoseArgs)
-    report = diagnose(load_renders(args.renders), args.truth, args.count)
+    renders = load_renders(args.renders)
+    if args.true_depth:
+        renders = with_true_depth(renders, args.truth)
+    report = diagnose(renders, args.truth, args.count) | {"depth": "true" if args.true_depth else "rendered"}
     text = json.dumps(report, indent=1)
     print(text)
     if args.out is not None:

@@ -18,7 +18,7 @@ dataparser transform, scale 1). ``thermal`` (and ``temperature``, degrees C) is,
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import List, Literal, Optional, Tuple
 
@@ -138,6 +138,23 @@ def oracle_renders(raw: Path, dataset: Path, thermal_mode: ThermalMode = "reproj
         )
     method = f"oracle (captured frames, true depth, {thermal_mode} thermal)"
     return RenderSet(views, WorldFrame(np.eye(4)[:3], 1.0), dataset, None, method)
+
+
+def with_true_depth(renders: RenderSet, raw: Path) -> RenderSet:
+    """A trained run's ``renders`` with each view's depth replaced by the synthetic capture's true depth along the
+    same pixel rays (in Nerfstudio units: the dataparser's scale applied): the count of the run's colours on a
+    perfect geometry. Against the count on the rendered depth it measures what the field's geometry costs."""
+    if renders.dataset is None:
+        raise CountInputError(f"{raw}: the renders do not name their dataset folder, needed for the true depth")
+    truth = {v.file_path: v for v in oracle_renders(raw, renders.dataset, "true").views}
+    views = []
+    for view in renders.views:
+        true = truth.get(view.file_path)
+        if true is None or true.depth.shape != view.depth.shape:
+            what = "no frame" if true is None else f"a {true.depth.shape} frame for a {view.depth.shape} render"
+            raise CountInputError(f"{renders.dataset}: {what} for the rendered view {view.file_path}")
+        views.append(replace(view, depth=(true.depth * renders.frame.scale).astype(np.float32)))
+    return replace(renders, views=views, method=f"{renders.method or 'the run'} with the true depth")
 
 
 @dataclass
