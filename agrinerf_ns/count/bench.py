@@ -1,7 +1,8 @@
 """Counting in ``agrinerf-bench --profile count``: every finished run of the benchmark folder counted on every source
 it has, by the field path (3D) and the view path (detect and lift; placed by depth and by rays), beside the oracle's
 ceiling per scene (the capture's own frames, true depth and true temperature); rows appended to ``OUT/count.csv``,
-``OUT/count.md`` rewritten, each count's files under ``OUT/count/<scene>/<method>/<path>-<source>/``."""
+``OUT/count.md`` rewritten, each count's files under ``OUT/count/<scene>/<method>/<path>-<source>/``. Stock models
+(no AgriNeRF heads) are counted by the view path alone; runs trained on the thermal frames alone are not counted."""
 
 from __future__ import annotations
 
