@@ -37,6 +37,7 @@ from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.field_count import FieldCountConfig
+    from agrinerf_ns.detect.render import LoadedRun
 
 VIEW_SOURCES: Tuple[Source, ...] = ("temperature", "thermal", "rgb")
 VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
@@ -135,13 +136,14 @@ def count_run_rows(
     train = raw_training_frames(dataset, names)
     rows: List[Dict[str, Any]] = []
     folder = out / scene / method
-    if any(field_sources(model).values()):
+    sources = [source for source, have in field_sources(model).items() if have]
+    if sources:
         field_config = FieldCountConfig() if field_config is None else field_config
-        rows += _field_rows(scene, method, seed, loaded.step, model, datamanager.train_dataset.cameras, frame,
-                            field_config, dataset, train, raw, folder)  # fmt: skip
+        rows += _field_rows(scene, method, seed, loaded.step, model, sources, datamanager.train_dataset.cameras,
+                            frame, field_config, dataset, train, raw, folder)  # fmt: skip
     else:  # a stock model (nerfacto, tensorf): no AgriNeRF heads to sample
         CONSOLE.print(f"{scene} {method}: the model has no field heads the field path reads; view path only")
-    rows += _view_rows(scene, method, seed, loaded.step, config, raw, folder)
+    rows += _view_rows(scene, method, seed, loaded, raw, folder)
     return rows
 
 
@@ -151,6 +153,7 @@ def _field_rows(
     seed: int,
     step: int,
     model: Any,
+    sources: List[str],
     cameras: Any,
     frame: WorldFrame,
     field_config: "FieldCountConfig",
@@ -159,10 +162,9 @@ def _field_rows(
     raw: Path,
     folder: Path,
 ) -> List[Dict[str, Any]]:
-    """The field path's rows, one per source the model has (the density sampling shared)."""
+    """The field path's rows, one per source in ``sources`` (those the model has; the density sampling shared)."""
     from agrinerf_ns.count.components import find_fruit
     from agrinerf_ns.count.field_count import count_model
-    from agrinerf_ns.count.volume import field_sources
 
     score = CountConfig()
     rows: List[Dict[str, Any]] = []
@@ -172,7 +174,7 @@ def _field_rows(
     sampled_first = sampled.source
     centres = frame.to_dataset(cameras.camera_to_worlds[:, :3, 3].cpu().numpy())
     surface = frame.to_dataset(sampled.points()[:: max(1, len(sampled.flat) // 200_000)])
-    for source in (s for s, have in field_sources(model).items() if have):
+    for source in sources:
         begin = time.perf_counter()
         if source != sampled.source:
             sampled = sampled.with_source(model, source)
@@ -188,14 +190,16 @@ def _field_rows(
     return rows
 
 
-def _view_rows(scene: str, method: str, seed: int, step: int, config: Path, raw: Path, folder: Path):
-    """The view path's rows: every view rendered once, each source detected once and placed both ways."""
+def _view_rows(scene: str, method: str, seed: int, loaded: "LoadedRun", raw: Path, folder: Path):
+    """The view path's rows: every view of the loaded run rendered once, each source detected once and placed both
+    ways."""
     from agrinerf_ns.count.detectors import DetectorConfig
-    from agrinerf_ns.count.render import render_run
+    from agrinerf_ns.count.render import render_loaded_run
 
+    config, step = loaded.config_path, loaded.step
     rows: List[Dict[str, Any]] = []
     start = time.perf_counter()
-    renders = render_run(config, None)
+    renders = render_loaded_run(loaded)
     rendered = time.perf_counter() - start
     view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
     view_surface = surface_points(renders)  # under every view count's fruit map

@@ -15,10 +15,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Dict, List, Optional, Sequence
 
 import numpy as np
 from jaxtyping import Float
+
+if TYPE_CHECKING:
+    from agrinerf_ns.detect.render import LoadedRun
 
 RENDERS_JSON = "renders.json"
 OPTIONAL_OUTPUTS = ("thermal", "temperature")
@@ -134,9 +137,6 @@ def render_run(
     Raises :class:`CountInputError` naming the config when the model renders no ``depth`` (checked on the first
     view) or the run folder lacks ``dataparser_transforms.json``.
     """
-    import torch
-    from rich.progress import Progress
-
     from agrinerf_ns.detect.render import load_run
 
     config_path = Path(config_path)
@@ -145,8 +145,19 @@ def render_run(
         raise CountInputError(
             f"{transforms}: missing; the run folder of {config_path} must hold it (ns-train writes it)"
         )
-    frame = WorldFrame.read(transforms)
-    run = load_run(config_path, eval_num_rays_per_chunk)
+    return render_loaded_run(load_run(config_path, eval_num_rays_per_chunk), out_dir, splits)
+
+
+def render_loaded_run(
+    run: "LoadedRun", out_dir: Optional[Path] = None, splits: Sequence[str] = ("train", "eval")
+) -> RenderSet:
+    """:func:`render_run` of a run already loaded (``agrinerf_ns.detect.render.load_run``), e.g. one whose field a
+    count has just sampled: the checkpoint is not read twice."""
+    import torch
+    from rich.progress import Progress
+
+    config_path = run.config_path
+    frame = WorldFrame.read(config_path.parent / "dataparser_transforms.json")
     datamanager = run.pipeline.datamanager
     datasets = {"train": datamanager.train_dataset, "eval": datamanager.eval_dataset}
     data = getattr(datamanager.config, "data", None)
