@@ -4,7 +4,7 @@ true depth (`agrinerf_ns.count.oracle.with_true_depth`) and on the run's colours
 by depth and by rays, with the diagnosis of each (2D recall and precision, lift error). Prints a Markdown table.
 
     python benchmarks/count_depth_split.py --renders COUNT/renders --raw RAW [--renders ... --raw ...] \
-        [--source rgb] [--depth-quantile 0.5] [--out FILE.md]
+        [--source rgb] [--out FILE.md]
 
 ``--renders``: `agrinerf-count` output folders' renders/ (one per run); ``--raw``: each one's synthetic capture.
 """
@@ -36,8 +36,6 @@ class Args:
     """The synthetic capture of each, in the same order."""
     source: Source = "rgb"
     """What fruit are detected in."""
-    depth_quantile: float = 0.5
-    """The quantile of a detection's pixel depths it is lifted from (`agrinerf_ns.count.lift`)."""
     out: Optional[Path] = None
 
 
@@ -45,7 +43,7 @@ def main(args: Args) -> str:
     if len(args.renders) != len(args.raw):
         raise SystemExit("give one --raw per --renders")
     lines = [
-        f"Detections on `{args.source}`, lifted from the {args.depth_quantile} quantile of their depth; F1 and count error at 0.05 m, placed by depth / by rays; 2D recall and "
+        f"Detections on `{args.source}`; F1 and count error at 0.05 m, placed by depth / by rays; 2D recall and "
         "precision of the detections against the true fruit masks; lift error: median distance of a hit's "
         "depth-lifted centre from its fruit's.",
         "",
@@ -59,7 +57,7 @@ def main(args: Args) -> str:
         assert run.dataset is not None, f"{folder}: the renders do not name their dataset"
         sets = (oracle_renders(raw, run.dataset, "true"), with_true_depth(run, raw), run)
         for case, renders in enumerate(sets):
-            config = CountConfig(detect=DetectorConfig(source=args.source), depth_quantile=args.depth_quantile)
+            config = CountConfig(detect=DetectorConfig(source=args.source))
             by_depth = diagnose(renders, raw, config)
             by_rays = diagnose(renders, raw, replace(config, cluster=ClusterConfig(triangulate=True)))
             f1[2 * case].append(by_depth["score"]["f1"])

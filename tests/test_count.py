@@ -100,25 +100,6 @@ def test_lift_from_depth_back_to_the_true_centre() -> None:
     assert len(fruit) == 1 and np.linalg.norm(fruit[0].centre) < 0.05
 
 
-def test_lift_from_a_low_depth_quantile_keeps_the_front_of_a_fruit() -> None:
-    """On the true depth every quantile of the cap model places the centre (within 0.15 radius); where the depth of
-    40% of the fruit's pixels falls on a surface 0.8 radius behind it (a field too coarse for the fruit), the median
-    lifts the fruit more than 0.3 radius off and the 0.1 quantile at least a third less."""
-    view, hit = _sphere_view(2)
-    for q in (0.0, 0.1, 0.25, 0.5):
-        point = lift_detection(view, hit, IDENTITY, depth_quantile=q)
-        assert point is not None and np.linalg.norm(point.centre) < 0.15, q
-    rng = np.random.default_rng(0)
-    behind = hit & (rng.random(hit.shape) < 0.4)
-    view.depth = np.where(behind, view.depth + 0.8, view.depth)
-    median, front = (lift_detection(view, hit, IDENTITY, depth_quantile=q) for q in (0.5, 0.1))
-    assert median is not None and front is not None
-    assert np.linalg.norm(median.centre) > 0.3
-    assert np.linalg.norm(front.centre) < 2 / 3 * np.linalg.norm(median.centre)
-    with pytest.raises(ValueError, match="depth_quantile"):
-        lift_detection(view, hit, IDENTITY, depth_quantile=1.0)
-
-
 def test_lift_goes_through_the_dataparser_frame() -> None:
     """The same sphere in a scaled, rotated, shifted Nerfstudio frame lifts to the same dataset-frame centre."""
     angle = 0.3

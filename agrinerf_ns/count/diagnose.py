@@ -92,7 +92,7 @@ def diagnose(renders: RenderSet, raw: Path, config: CountConfig) -> Dict[str, An
             else:
                 owner = max(new, key=lambda i: int((under == i).sum()))
                 found_here.add(owner)
-            point = lift_detection(view, det.mask, renders.frame, v, det.score, config.depth_quantile)
+            point = lift_detection(view, det.mask, renders.frame, v, det.score)
             if point is None:
                 continue
             lifted.append(point)

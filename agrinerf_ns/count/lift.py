@@ -2,15 +2,11 @@
 
 The pixels' surface points are ``origin + direction x depth`` (unit directions, depth along the ray: see
 :mod:`agrinerf_ns.count.render`); pixels whose depth is far from the detection's median (background seen past the
-fruit's rim) are dropped. A sphere of radius r seen from the front shows its cap: over the image disk the depth
-offset in front of the centre is sqrt(r^2 - rho^2) with rho^2 uniform over [0, r^2], so the q-quantile of the cap's
-depth lies ``r sqrt(1 - q)`` in front of the centre (``r / sqrt(2)`` at the median), and the centre lies on the mean
-ray of the pixels at that quantile of their depth plus ``r sqrt(1 - q)`` (all of it independent of the frame's axes,
-unlike a per-axis median of the points). The radius is that of the disk of the detection's area at the median depth.
-
-A field too coarse for a fruit renders its pixels' depth partly on the leaves behind it (on the count profile's
-trained runs the median lifts a fruit a median 4.6 cm too far along the ray), so a low quantile (``depth_quantile``)
-keeps the front of the fruit: see :data:`DEPTH_QUANTILE`.
+fruit's rim) are dropped. A sphere of radius r seen from the front shows its cap: over the image disk, the median
+depth of the cap lies ``r / sqrt(2)`` in front of the centre (depth offset sqrt(r^2 - rho^2) with rho^2 uniform
+over [0, r^2]), so the centre lies on the mean ray of the pixels at their median depth plus ``r / sqrt(2)`` (all of
+it independent of the frame's axes, unlike a per-axis median of the points). The radius is that of the disk of the
+detection's area at the centre's distance.
 """
 
 from __future__ import annotations
@@ -25,8 +21,6 @@ from agrinerf_ns.count.render import RenderedView, WorldFrame
 
 CAP_MEDIAN_OFFSET = 1.0 / np.sqrt(2.0)
 """Median depth of a sphere's visible cap in front of its centre, in radii."""
-DEPTH_QUANTILE = 0.5
-"""The quantile of a detection's pixel depths its centre is placed from (0.5: the median)."""
 DEPTH_INLIER_MADS = 3.0
 """Pixels farther than this many robust spreads (and a radius) from the median depth are not the fruit's."""
 
@@ -50,17 +44,9 @@ class LiftedDetection:
 
 
 def lift_detection(
-    view: RenderedView,
-    mask: Bool[np.ndarray, "h w"],
-    frame: WorldFrame,
-    view_index: int = 0,
-    score: float = 1.0,
-    depth_quantile: float = DEPTH_QUANTILE,
+    view: RenderedView, mask: Bool[np.ndarray, "h w"], frame: WorldFrame, view_index: int = 0, score: float = 1.0
 ) -> Optional[LiftedDetection]:
-    """The fruit centre and diameter of the pixels ``mask`` of ``view`` (None when no pixel has a depth), placed from
-    the ``depth_quantile`` of their depths (module docstring)."""
-    if not 0.0 <= depth_quantile < 1.0:
-        raise ValueError(f"depth_quantile must be in [0, 1), got {depth_quantile}")
+    """The fruit centre and diameter of the pixels ``mask`` of ``view`` (None when no pixel has a depth)."""
     depth = view.depth
     keep = mask & np.isfinite(depth) & (depth > 0)
     if not keep.any():
@@ -74,7 +60,7 @@ def lift_detection(
     keep[keep] = inlier
     ray = view.directions[keep].mean(0)
     ray = ray / max(float(np.linalg.norm(ray)), 1e-9)
-    distance = float(np.quantile(depth[keep], depth_quantile)) + np.sqrt(1.0 - depth_quantile) * radius
+    distance = float(np.median(depth[keep])) + CAP_MEDIAN_OFFSET * radius
     centre_ns = view.origins[keep].mean(0) + distance * ray
     temperature = None
     if view.temperature is not None:

@@ -18,7 +18,7 @@ from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector, resolve_source
-from agrinerf_ns.count.lift import DEPTH_QUANTILE, LiftedDetection, lift_detection
+from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.render import CountInputError, RenderSet, WorldFrame, load_renders, render_run
 from agrinerf_ns.count.score import (
     Align,
@@ -52,10 +52,6 @@ class CountConfig:
 
     detect: Annotated[DetectorConfig, tyro.conf.arg(name="")] = field(default_factory=DetectorConfig)
     cluster: Annotated[ClusterConfig, tyro.conf.arg(name="")] = field(default_factory=ClusterConfig)
-    depth_quantile: float = DEPTH_QUANTILE
-    """Lift: a detection's centre is placed from this quantile of its pixels' rendered depth, plus the part of the
-    fruit's radius that quantile of a sphere's visible cap lies in front of its centre (0.5: the median;
-    :mod:`agrinerf_ns.count.lift`)."""
     match_distance: float = 0.05
     """Scoring: a counted fruit matches a true one within this 3D distance of its centre (capture units, metres)."""
     align: Align = "poses"
@@ -83,18 +79,14 @@ class CountResult:
 
 def count_fruit(renders: RenderSet, config: CountConfig, progress: Optional[Progress] = None) -> CountResult:
     """Detect fruit in every view, lift each detection to 3D and cluster them into fruit."""
-    lifted, per_view = detect_and_lift(renders, config.detect, progress, config.depth_quantile)
+    lifted, per_view = detect_and_lift(renders, config.detect, progress)
     return fused_result(lifted, per_view, renders, config.cluster)
 
 
 def detect_and_lift(
-    renders: RenderSet,
-    config: DetectorConfig,
-    progress: Optional[Progress] = None,
-    depth_quantile: float = DEPTH_QUANTILE,
+    renders: RenderSet, config: DetectorConfig, progress: Optional[Progress] = None
 ) -> Tuple[List[LiftedDetection], List[int]]:
-    """Every view's detections lifted to 3D (those with a rendered depth, from ``depth_quantile`` of their pixels'
-    depth), and the detections per view."""
+    """Every view's detections lifted to 3D (those with a rendered depth), and the detections per view."""
     detector = make_detector(config)
     lifted: List[LiftedDetection] = []
     per_view: List[int] = []
@@ -103,7 +95,7 @@ def detect_and_lift(
         found = detector(view, renders.frame.scale)
         per_view.append(len(found))
         for detection in found:
-            point = lift_detection(view, detection.mask, renders.frame, index, detection.score, depth_quantile)
+            point = lift_detection(view, detection.mask, renders.frame, index, detection.score)
             if point is not None:
                 lifted.append(point)
         if progress is not None and task is not None:
