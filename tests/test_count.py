@@ -24,6 +24,7 @@ from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import (
     CountInputError,
     RenderedView,
+    RenderSet,
     WorldFrame,
     dataset_folder,
     load_renders,
@@ -161,6 +162,22 @@ def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
     view.thermal = thermal.astype(np.float32)
     frame_points = [lift_detection(view, d.mask, IDENTITY) for d in warm]
     assert all(p is not None and p.diameter == pytest.approx(0.06, rel=0.3) for p in frame_points)
+    view.rgb = None  # a run trained without RGB frames (Table IV "Thermal"): its thermal fruit, no colour ones
+    assert len(detect_blobs(view, "thermal", 1.0, BlobConfig())) == 4
+    assert resolve_source(DetectorConfig(), view).source == "thermal"
+    with pytest.raises(ValueError, match="view 000000: the run renders no 'rgb' output"):
+        detect_blobs(view, "rgb", 1.0, BlobConfig())
+
+
+def test_renders_of_a_run_without_rgb_round_trip(tmp_path: Path) -> None:
+    """A view without an RGB output is saved and read back without one; its other outputs are kept."""
+    thermal = np.full((8, 10), 0.5, np.float32)
+    view = _plane_view(thermal, np.zeros((8, 10, 3), np.float32), 1.5, 20.0)
+    view.rgb = None
+    save_renders(RenderSet([view], IDENTITY, None, None, "agrinerf-lite"), tmp_path / "renders")
+    (loaded,) = load_renders(tmp_path / "renders").views
+    assert loaded.rgb is None and loaded.thermal is not None and np.allclose(loaded.thermal, thermal)
+    assert np.allclose(loaded.depth, view.depth)
 
 
 def _truth(n: int = 4) -> TruthFruit:

@@ -46,18 +46,24 @@ def test_a_run_is_counted_by_every_path_and_placement_and_scored(tmp_path: Path)
 
 
 @pytest.mark.slow
-def test_the_count_profile_counts_stock_runs_by_their_views_and_skips_thermal_only_runs(tmp_path: Path) -> None:
+def test_the_count_profile_counts_stock_runs_by_their_views_and_skips_thermal_camera_runs(tmp_path: Path) -> None:
     """Nerfacto has no AgriNeRF heads for the field path: its RGB views are counted; Nerfacto (Thermal) renders the
-    thermal camera's views, which the count does not read: it is left out, not scored against the RGB truth."""
+    thermal camera's views, which the count does not read: it is left out, not scored against the RGB truth. The
+    Table IV ablation trained on thermal frames alone sees through the RGB camera without an RGB head: it is counted
+    from its thermal outputs, by both paths, and from no RGB."""
     out = tmp_path / "bench"
-    main(BenchConfig(out=out, profile="tiny", methods=("nerfacto", "nerfacto-thermal")))
+    methods = {"nerfacto": "nerfacto", "nerfacto-thermal": "nerfacto", "lite-ablation-thermal": "agrinerf-lite"}
+    main(BenchConfig(out=out, profile="tiny", methods=tuple(methods)))
     layout = BenchLayout(out)
     (scene,) = layout.run_scenes()
-    count_bench(layout, [scene], {"nerfacto": "nerfacto", "nerfacto-thermal": "nerfacto"}, 0, "header")
+    count_bench(layout, [scene], methods, 0, "header")
     rows = read_rows(out / "count.csv")
     counted = {(r["method"], r["path"]) for r in rows}
     assert {("nerfacto", path) for path in VIEW_PLACEMENTS} <= counted
-    assert not {m for m, p in counted if p == "field" and m != ORACLE_METHOD}, "no field path without AgriNeRF heads"
+    assert {m for m, p in counted if p == "field" and m != ORACLE_METHOD} == {"lite-ablation-thermal"}
     assert "nerfacto-thermal" not in {m for m, _ in counted}
     assert {r["source"] for r in rows if r["method"] == "nerfacto"} == {"rgb"}
+    thermal_only = {(r["path"], r["source"]) for r in rows if r["method"] == "lite-ablation-thermal"}
+    assert {("field", "thermal"), ("views", "thermal"), ("views-rays", "thermal")} <= thermal_only
+    assert "rgb" not in {source for _, source in thermal_only}
     assert "nerfacto" in (out / "count.md").read_text()

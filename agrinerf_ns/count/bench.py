@@ -2,7 +2,8 @@
 it has, by the field path (3D) and the view path (detect and lift; placed by depth and by rays), beside the oracle's
 ceiling per scene (the capture's own frames, true depth and true temperature); rows appended to ``OUT/count.csv``,
 ``OUT/count.md`` rewritten, each count's files under ``OUT/count/<scene>/<method>/<path>-<source>/``. Stock models
-(no AgriNeRF heads) are counted by the view path alone; runs trained on the thermal frames alone are not counted."""
+(no AgriNeRF heads) are counted by the view path alone; runs trained on the thermal camera's views (Nerfacto
+(Thermal)) are not counted."""
 
 from __future__ import annotations
 
@@ -44,6 +45,10 @@ VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
 """The view path's rows: fruit placed by the rendered depth (`views`, `agrinerf-count`'s default) and by their
 detections' rays (`views-rays`, `--triangulate`), from the same renders and detections."""
 ORACLE_METHOD = "oracle"
+RGB_CAMERA_DATA = "transforms.json"
+"""The dataset file of the RGB camera's views: runs trained on another (Nerfacto on ``transforms_thermal.json``) see
+the scene from the thermal camera, which the count does not read. A Table IV ablation without RGB frames trains on
+the RGB camera's views and is counted from its thermal outputs."""
 
 
 def count_bench(layout: BenchLayout, scenes: Sequence[str], methods: Dict[str, str], seed: int, header: str) -> None:
@@ -58,9 +63,9 @@ def count_bench(layout: BenchLayout, scenes: Sequence[str], methods: Dict[str, s
         for key, config in layout.finished_runs(scene, methods).items():
             if (scene, key) in done:
                 continue
-            if METHODS[seed_base(key)].supervision != "rgb":
-                CONSOLE.print(f"not counted: {scene} {key} is trained on the thermal frames alone (its views are the "
-                              "thermal camera's, the count reads the RGB camera's)")  # fmt: skip
+            if METHODS[seed_base(key)].data_file != RGB_CAMERA_DATA:
+                CONSOLE.print(f"not counted: {scene} {key} is trained on the thermal camera's views "
+                              f"({METHODS[seed_base(key)].data_file}); the count reads the RGB camera's")  # fmt: skip
                 continue
             CONSOLE.print(f"counting fruit: {scene} {key}")
             append_rows(csv_path, count_run_rows(scene, key, seed, config, raw, Path(layout.out) / "count"))
@@ -204,7 +209,7 @@ def _view_rows(scene: str, method: str, seed: int, loaded: "LoadedRun", raw: Pat
     view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
     view_surface = surface_points(renders)  # under every view count's fruit map
     for source in VIEW_SOURCES:
-        if getattr(renders.views[0], source) is None:  # a run without that output (rgb is always rendered)
+        if getattr(renders.views[0], source) is None:  # a run without that output (rgb: trained on thermal alone)
             continue
         begin = time.perf_counter()
         lifted, per_view = detect_and_lift(renders, DetectorConfig(source=source))  # once for both placements

@@ -65,7 +65,7 @@ def feature_image(view: RenderedView, source: str) -> Float[np.ndarray, "h w"]:
         return view.optional_output(source).astype(np.float32)
     if source != "rgb":
         raise ValueError(f"unknown detection source {source!r} (temperature, thermal or rgb)")
-    return fruit_colour(view.rgb, view.accumulation >= MIN_ACCUMULATION)
+    return fruit_colour(view.optional_output("rgb"), view.accumulation >= MIN_ACCUMULATION)
 
 
 def fruit_colour(

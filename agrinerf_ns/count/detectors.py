@@ -88,7 +88,7 @@ def _detector_image(view: RenderedView, source: str) -> np.ndarray:
     if source == "thermal":
         gray = to_uint8(view.optional_output("thermal"))
         return np.repeat(gray[..., None], 3, axis=-1)
-    return np.ascontiguousarray(to_uint8(view.rgb)[..., ::-1])
+    return np.ascontiguousarray(to_uint8(view.optional_output("rgb"))[..., ::-1])
 
 
 def _ellipse_mask(view: RenderedView, box: np.ndarray) -> np.ndarray:

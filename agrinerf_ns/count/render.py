@@ -75,7 +75,8 @@ class RenderedView:
     """``train`` or ``eval``."""
     file_path: str
     """The frame's RGB image relative to the dataset folder (``images/000003.png``)."""
-    rgb: Float[np.ndarray, "h w 3"]
+    rgb: Optional[Float[np.ndarray, "h w 3"]]
+    """None where the run has no RGB head (a Table IV ablation trained on thermal frames alone)."""
     depth: Float[np.ndarray, "h w"]
     accumulation: Float[np.ndarray, "h w"]
     origins: Float[np.ndarray, "h w 3"]
@@ -86,12 +87,13 @@ class RenderedView:
     thermal: Optional[Float[np.ndarray, "h w"]] = None
     temperature: Optional[Float[np.ndarray, "h w"]] = None
 
-    def optional_output(self, name: str) -> Float[np.ndarray, "h w"]:
-        """The ``thermal`` or ``temperature`` image; ValueError naming the view where the run renders none."""
+    def optional_output(self, name: str) -> Float[np.ndarray, "h w *channels"]:
+        """The ``rgb``, ``thermal`` or ``temperature`` image; ValueError naming the view where the run renders none."""
         image = getattr(self, name)
         if image is None:
-            what = {"thermal": "cross-spectral 'thermal'", "temperature": "'temperature'"}[name]
-            why = " (no radiometric thermal camera)" if name == "temperature" else ""
+            what = {"rgb": "'rgb'", "thermal": "cross-spectral 'thermal'", "temperature": "'temperature'"}[name]
+            whys = {"temperature": " (no radiometric thermal camera)", "rgb": " (trained without RGB frames)"}
+            why = whys.get(name, "")
             raise ValueError(f"view {self.name}: the run renders no {what} output{why}")
         return image
 
@@ -105,7 +107,7 @@ class RenderedView:
 
     def _arrays(self) -> Dict[str, Optional[np.ndarray]]:
         return {
-            "rgb": self.rgb.astype(np.float16),
+            "rgb": None if self.rgb is None else self.rgb.astype(np.float16),
             "depth": self.depth.astype(np.float32),
             "accumulation": self.accumulation.astype(np.float16),
             "origins": self.origins.astype(np.float32),
@@ -220,7 +222,7 @@ def _view_from_outputs(
         name=path.stem,
         split=split,
         file_path=path.name,
-        rgb=array("rgb"),
+        rgb=array("rgb") if "rgb" in outputs else None,
         depth=array("depth")[..., 0],
         accumulation=array("accumulation")[..., 0] if "accumulation" in outputs else np.ones(array("depth").shape[:2]),
         origins=rays.origins.detach().float().cpu().numpy(),
@@ -278,7 +280,7 @@ def load_renders(folder: Path) -> RenderSet:
                     name=entry["name"],
                     split=entry["split"],
                     file_path=entry["file_path"],
-                    rgb=data["rgb"].astype(np.float32),
+                    rgb=data["rgb"].astype(np.float32) if "rgb" in data else None,
                     depth=data["depth"].astype(np.float32),
                     accumulation=data["accumulation"].astype(np.float32),
                     origins=data["origins"].astype(np.float32),
