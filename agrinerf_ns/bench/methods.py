@@ -30,6 +30,12 @@ class BenchMethod:
     """Its step budget is its ``ns-train`` method's in the profile times this (a cheaper step trained for about the
     same wall time: `SAMPLE_BUDGETS`)."""
 
+    @property
+    def views_rgb_camera(self) -> bool:
+        """Whether its cameras are the RGB camera's (``transforms.json``): Nerfacto (Thermal) trains on the thermal
+        camera's (``transforms_thermal.json``); a Table IV ablation without RGB frames still has the RGB camera's."""
+        return self.data_file == "transforms.json"
+
 
 VARIANT_SEPARATOR = "%"
 """Separates a bench key from the model config fields a variant sets: ``BASE%field=value[%field=value...]``."""

@@ -45,10 +45,6 @@ VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
 """The view path's rows: fruit placed by the rendered depth (`views`, `agrinerf-count`'s default) and by their
 detections' rays (`views-rays`, `--triangulate`), from the same renders and detections."""
 ORACLE_METHOD = "oracle"
-RGB_CAMERA_DATA = "transforms.json"
-"""The dataset file of the RGB camera's views: runs trained on another (Nerfacto on ``transforms_thermal.json``) see
-the scene from the thermal camera, which the count does not read. A Table IV ablation without RGB frames trains on
-the RGB camera's views and is counted from its thermal outputs."""
 
 
 def count_bench(layout: BenchLayout, scenes: Sequence[str], methods: Dict[str, str], seed: int, header: str) -> None:
@@ -63,9 +59,10 @@ def count_bench(layout: BenchLayout, scenes: Sequence[str], methods: Dict[str, s
         for key, config in layout.finished_runs(scene, methods).items():
             if (scene, key) in done:
                 continue
-            if METHODS[seed_base(key)].data_file != RGB_CAMERA_DATA:
+            method = METHODS[seed_base(key)]
+            if not method.views_rgb_camera:
                 CONSOLE.print(f"not counted: {scene} {key} is trained on the thermal camera's views "
-                              f"({METHODS[seed_base(key)].data_file}); the count reads the RGB camera's")  # fmt: skip
+                              f"({method.data_file}); the count reads the RGB camera's")  # fmt: skip
                 continue
             CONSOLE.print(f"counting fruit: {scene} {key}")
             append_rows(csv_path, count_run_rows(scene, key, seed, config, raw, Path(layout.out) / "count"))
