@@ -50,6 +50,9 @@ class BenchConfig:
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
     seed: int = 0
     """Seed of the synthetic scenes."""
+    count: Optional[bool] = None
+    """Count the fruit of every finished run (OUT/count.csv, count.md); None: the profile's (count: yes). False trains
+    only, e.g. runs that only the detection tables read (``agrinerf-count`` counts one run later)."""
     target_psnr: Optional[float] = None
     """PSNR whose time-to-reach is reported; None: the lowest final PSNR among the RGB methods (all reach it)."""
     results_csv: Optional[Path] = None
@@ -245,7 +248,8 @@ def main(config: BenchConfig) -> List[results.Row]:
     if rows:  # none when every run failed: failures.md says why (RunsFailed below)
         write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
         CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
-    if profile.count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
+    count = profile.count if config.count is None else config.count
+    if count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
         from agrinerf_ns.count.bench import count_bench, run_note
 
         methods = {results.seed_key(m, s): METHODS[m].ns_method for m in config.methods for s in config.run_seeds}
