@@ -47,6 +47,13 @@ def test_the_field_counter_finds_the_known_fruit() -> None:
         box=box,
     )[0]  # fmt: skip
     assert cool.fruit == []  # these fruit are warm
+    assert "warning" not in info
+    empty_volume = VolumeConfig(voxel_size=0.025, density_threshold=1e9)  # above every density of the field
+    empty, _, empty_info = count_model(model, None, WorldFrame(np.eye(4)[:3], 1.0),
+                                       FieldCountConfig(source="temperature", volume=empty_volume,
+                                                        components=config.components), box=box)  # fmt: skip
+    assert empty.fruit == [] and empty_info["dense_voxels"] == 0
+    assert "no surface to count fruit on" in empty_info["warning"]
 
 
 def test_a_voxel_behind_the_rendered_surface_is_not_seen() -> None:

@@ -98,6 +98,11 @@ def count_model(
         "seconds": {"render_views": rendered - start, "sample_field": sampled_at - rendered,
                     "components": time.perf_counter() - sampled_at},
     }  # fmt: skip
+    if not sampled.dense:  # a field without geometry (e.g. trained on thermal frames alone) counts nothing, and says so
+        info["warning"] = (
+            f"no voxel of the field reaches the density threshold {config.volume.density_threshold:g}: the field has "
+            "no surface to count fruit on (a run trained without RGB frames may have none at this budget)"
+        )
     return CountResult(fruit, [], [], 0.0), sampled, info
 
 
@@ -128,6 +133,8 @@ def run_field_count(
     result, sampled, info = count_model(model, cameras, frame, config)
     if info["source"] == "rgb":
         CONSOLE.print(f"[yellow]Counting from RGB: {info['source_note']}", soft_wrap=True)
+    if "warning" in info:
+        CONSOLE.print(f"[yellow]{config_path}: {info['warning']}", soft_wrap=True)
     data = getattr(datamanager.config, "data", None)
     dataset = dataset_folder(Path(data)) if data else None
     if truth is not None:
