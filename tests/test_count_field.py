@@ -98,6 +98,29 @@ def test_a_run_without_thermal_frames_counts_from_rgb_and_says_so(rgb_run: Path,
     assert "no 'thermal' output" in capsys.readouterr().out
 
 
+def test_the_default_path_counts_a_lit_run_in_its_rgb_views_by_rays(rgb_run: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "count"
+    main(CountArgs(out=out, config=rgb_run.parent, splits=("eval",)))  # --path auto
+    assert "Counting by the views path" in capsys.readouterr().out.replace("\n", " ")
+    report = json.loads((out / "count.json").read_text())
+    assert report["detector"]["source"] == "rgb" and report["cluster"]["triangulate"] is True
+
+
+def test_the_default_path_counts_a_dark_run_in_its_field(tmp_path: Path, capsys) -> None:
+    """RGB frames of 2% of full scale (below the model's low_light_level) beside thermal frames: the field's
+    temperature or thermal output, not the views."""
+    from helpers.model_scene import tiny_trainer_config, write_model_scene
+    from helpers.tiny_run import train_saved_run
+
+    data = write_model_scene(tmp_path / "scene", modalities=("rgb", "thermal"), constant={"rgb": 0.02})
+    run = train_saved_run(tiny_trainer_config(data, tmp_path / "outputs", max_num_iterations=10), seed=0)
+    out = tmp_path / "count"
+    main(CountArgs(out=out, config=run, field=FieldCountConfig(volume=SMALL_GRID)))
+    assert "Counting by the field path" in capsys.readouterr().out.replace("\n", " ")
+    report = json.loads((out / "count.json").read_text())
+    assert report["path"] == "field" and report["source"] != "rgb"
+
+
 def test_the_tri_modal_run_counts_from_its_thermal_camera_channel(tiny_run_config: Path, tmp_path: Path) -> None:
     main(
         CountArgs(

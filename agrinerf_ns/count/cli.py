@@ -1,11 +1,12 @@
 """``agrinerf-count --config RUN/config.yml --out DIR [--truth RAW_CAPTURE]``: fruit in 3D from a trained run, counted
-in the sampled field (``--path field``) or detected in rendered views and lifted (``--path views``)."""
+in the sampled field (``--path field``) or detected in rendered views and lifted (``--path views``); by default
+(``--path auto``) the one that counted best on runs of its kind (``agrinerf_ns.count.plan``)."""
 
 from __future__ import annotations
 
 import dataclasses
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Literal, Optional, Tuple
 
@@ -14,6 +15,7 @@ import tyro
 from agrinerf_ns.atomic import OutputExistsError
 from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count, trained_run_config
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, run_count
+from agrinerf_ns.count.plan import choose_plan
 from agrinerf_ns.count.render import CountInputError
 
 
@@ -28,9 +30,10 @@ class CountArgs:
     """Output folder (written to a temporary sibling, then renamed into place)."""
     config: Optional[Path] = None
     """The run's config.yml (outputs/<name>/<method>/<time>/config.yml) or its folder."""
-    path: Literal["views", "field"] = "views"
-    """views: detect in rendered views and lift (the better on trained runs, docs/count.md; --renders: always);
-    field: count in the sampled field, in 3D."""
+    path: Literal["auto", "views", "field"] = "auto"
+    """auto: what counted best on runs of this kind: RGB views placed by their rays where the RGB frames are lit, the
+    field's temperature where they are dark or absent (docs/count.md); views: detect in rendered views and lift
+    (--renders: always); field: count in the sampled field, in 3D."""
     renders: Optional[Path] = None
     """Instead of --config: a render folder written by an earlier count (OUT/renders), to re-detect without rendering."""
     truth: Optional[Path] = None
@@ -54,8 +57,20 @@ def main(args: CountArgs) -> CountResult:
                 raise ValueError("give --config RUN/config.yml (or the run folder)")
             return run_field_count(args.config, args.out, args.field, args.truth, args.overwrite, args.count)[0]
         config = trained_run_config(args.config) if args.config is not None else None
+        count, loaded = args.count, None
+        if args.path == "auto" and config is not None:
+            from agrinerf_ns.detect.render import load_run
+
+            loaded = load_run(config)  # loaded once: the plan reads its model, the chosen path counts it
+            plan = choose_plan(loaded.pipeline.model)
+            CONSOLE.print(f"Counting by the {plan.path} path: {plan.why}", soft_wrap=True)
+            if plan.path == "field":
+                return run_field_count(config, args.out, args.field, args.truth, args.overwrite, count, loaded)[0]
+            source = plan.source if count.detect.source == "auto" else count.detect.source
+            count = replace(count, detect=replace(count.detect, source=source),
+                            cluster=replace(count.cluster, triangulate=plan.triangulate))  # fmt: skip
         return run_count(
-            args.out, args.count, config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits
+            args.out, count, config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits, loaded
         )
     except (CountInputError, OutputExistsError, FileExistsError, FileNotFoundError, ValueError) as err:
         CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Dict, Optional, Tuple
+from typing import TYPE_CHECKING, Annotated, Any, Dict, Optional, Tuple
 
 import numpy as np
 import tyro
@@ -25,6 +25,9 @@ from agrinerf_ns.count.volume import (
     render_depth_views,
     sample_field,
 )
+
+if TYPE_CHECKING:
+    from agrinerf_ns.detect.render import LoadedRun
 
 
 @dataclass(frozen=True)
@@ -113,9 +116,11 @@ def run_field_count(
     truth: Optional[Path] = None,
     overwrite: bool = False,
     score: CountConfig = CountConfig(),
+    loaded: Optional["LoadedRun"] = None,
 ) -> Tuple[CountResult, Dict[str, Any]]:
     """Count the fruit of the trained run at ``run`` (folder or config.yml) in 3D and write ``out`` atomically; with
-    ``truth`` (a synthetic capture) also score it (``score``: match distance, alignment, visibility)."""
+    ``truth`` (a synthetic capture) also score it (``score``: match distance, alignment, visibility); ``loaded``: the
+    run already loaded (``agrinerf_ns.detect.render.load_run``)."""
     from agrinerf_ns.detect.render import load_run
 
     config_path = trained_run_config(run)
@@ -125,7 +130,7 @@ def run_field_count(
     if truth is not None:
         read_truth_fruit(truth)  # fail before loading
     frame = WorldFrame.read(config_path.parent / "dataparser_transforms.json")
-    loaded = load_run(config_path)
+    loaded = loaded if loaded is not None else load_run(config_path)
     model = loaded.pipeline.model
     model.eval()
     datamanager = loaded.pipeline.datamanager

@@ -6,7 +6,7 @@ import json
 import shutil
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Annotated, Any, Dict, List, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Annotated, Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import tyro
@@ -19,7 +19,14 @@ from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector, resolve_source
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
-from agrinerf_ns.count.render import CountInputError, RenderSet, WorldFrame, load_renders, render_run
+from agrinerf_ns.count.render import (
+    CountInputError,
+    RenderSet,
+    WorldFrame,
+    load_renders,
+    render_loaded_run,
+    render_run,
+)
 from agrinerf_ns.count.score import (
     Align,
     CountScore,
@@ -36,6 +43,9 @@ from agrinerf_ns.count.score import (
 )
 from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
+
+if TYPE_CHECKING:
+    from agrinerf_ns.detect.render import LoadedRun
 
 CONSOLE = Console()
 FLAT_DEPTH = 0.02
@@ -189,9 +199,11 @@ def run_count(
     overwrite: bool = False,
     save_renders: bool = True,
     splits: Sequence[str] = ("train", "eval"),
+    loaded: Optional["LoadedRun"] = None,
 ) -> CountResult:
     """Render the run at ``run_config`` (or read ``renders_dir``), count its fruit and write ``out`` atomically:
-    fruits.csv, fruits.ply, fruit_map.png, count.json, with ``truth`` also score.md; renders/ when ``save_renders``."""
+    fruits.csv, fruits.ply, fruit_map.png, count.json, with ``truth`` also score.md; renders/ when ``save_renders``;
+    ``loaded``: the run at ``run_config`` already loaded (``agrinerf_ns.detect.render.load_run``)."""
     if (run_config is None) == (renders_dir is None):
         raise ValueError("give exactly one of --config RUN/config.yml and --renders FOLDER")
     out = Path(out)
@@ -200,7 +212,9 @@ def run_count(
     if truth is not None:
         read_truth_fruit(truth)  # fail before rendering
     with atomic_output_dir(out, overwrite) as tmp:
-        if run_config is not None:
+        if loaded is not None:
+            renders = render_loaded_run(loaded, tmp / "renders" if save_renders else None, splits)
+        elif run_config is not None:
             renders = render_run(run_config, tmp / "renders" if save_renders else None, splits)
         else:
             assert renders_dir is not None

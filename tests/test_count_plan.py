@@ -1,0 +1,41 @@
+"""``agrinerf-count --path auto``: the path that counted best on runs of a kind (results/count-seeds) is chosen from
+the run's own model: RGB views placed by rays where its RGB frames are lit, the field's thermal outputs where they are
+dark (the model's low-light rule) or absent."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import pytest
+import torch
+from helpers.small_model import SMALL_MODEL
+from nerfstudio.data.scene_box import SceneBox
+
+from agrinerf_ns.count.plan import choose_plan
+from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+
+def _model(modalities: Sequence[str], rgb_level: float):
+    """A small AgriNeRF model set up as a dataset of ``modalities`` whose RGB frames average ``rgb_level``."""
+    box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    metadata = {"modalities": tuple(modalities), "rgb_level": rgb_level}
+    return AgriNeRFModelConfig(**SMALL_MODEL).setup(scene_box=box, num_train_data=4, metadata=metadata)
+
+
+@pytest.mark.parametrize(
+    "modalities, rgb_level, path",
+    [
+        (("rgb", "thermal", "events"), 0.4, "views"),  # lit: the RGB views, placed by rays
+        (("rgb", "thermal", "events"), 0.039, "field"),  # below low_light_level 0.04: the field's temperature
+        (("rgb", "thermal", "events"), 0.041, "views"),
+        (("thermal",), float("nan"), "field"),  # no RGB head: the only outputs it has are thermal
+        (("rgb",), 0.01, "views"),  # dark, but no thermal frames: nothing better than its RGB
+    ],
+)
+def test_the_plan_follows_the_light_and_the_heads_of_the_run(modalities, rgb_level: float, path: str) -> None:
+    plan = choose_plan(_model(modalities, rgb_level))
+    assert plan.path == path
+    if path == "views":
+        assert plan.source == "rgb" and plan.triangulate and "rays" in plan.why
+    else:
+        assert "field" in plan.why
