@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
+from agrinerf_ns.count.detectors import Source
 from agrinerf_ns.count.volume import field_sources
 
 
@@ -24,7 +25,7 @@ class CountPlan:
 
     path: Literal["views", "field"]
     why: str
-    source: str = "auto"
+    source: Source = "auto"
     """The view path's detection source (the field path picks its own: ``FieldCountConfig.source``)."""
     triangulate: bool = False
     """The view path places its fruit by their rays."""
