@@ -4,6 +4,7 @@ counted from RGB (and saying so), and what is not a trained run named."""
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -49,9 +50,11 @@ def test_the_field_counter_finds_the_known_fruit() -> None:
     assert cool.fruit == []  # these fruit are warm
     assert "warning" not in info
     empty_volume = VolumeConfig(voxel_size=0.025, density_threshold=1e9)  # above every density of the field
-    empty, _, empty_info = count_model(model, None, WorldFrame(np.eye(4)[:3], 1.0),
-                                       FieldCountConfig(source="temperature", volume=empty_volume,
-                                                        components=config.components), box=box)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no mean of nothing on the way
+        empty, _, empty_info = count_model(model, None, WorldFrame(np.eye(4)[:3], 1.0),
+                                           FieldCountConfig(source="temperature", volume=empty_volume,
+                                                            components=config.components), box=box)  # fmt: skip
     assert empty.fruit == [] and empty_info["dense_voxels"] == 0
     assert "no surface to count fruit on" in empty_info["warning"]
 

@@ -363,7 +363,8 @@ def sample_field(
     seen_by = views_seeing(points, views, seen_margin) if views else np.ones(len(flat), np.int32)
     keep = seen_by > 0
     flat, points, seen_by = flat[keep], points[keep], seen_by[keep]
-    eye = np.mean([v.centre for v in views], axis=0) if views else points.mean(0) - np.array([0.0, 0.0, 1.0])
+    middle = points.mean(0) if len(points) else np.asarray(box, np.float64).mean(0)  # no dense voxel: the box's
+    eye = np.mean([v.centre for v in views], axis=0) if views else middle - np.array([0.0, 0.0, 1.0])
     feature, temperature = field_features(model, points, source, eye, device)
     return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame, eye, views,
                         seen_margin)  # fmt: skip
