@@ -42,8 +42,9 @@ if TYPE_CHECKING:
 
 VIEW_SOURCES: Tuple[Source, ...] = ("temperature", "thermal", "rgb")
 VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
-"""The view path's rows: fruit placed by the rendered depth (`views`, `agrinerf-count`'s default) and by their
-detections' rays (`views-rays`, `--triangulate`), from the same renders and detections."""
+"""The view path's rows: fruit placed by the rendered depth (`views`, `agrinerf-count --path views`) and by their
+detections' rays (`views-rays`, `--triangulate`: what `--path auto` takes on RGB where the RGB frames are lit), from
+the same renders and detections."""
 ORACLE_METHOD = "oracle"
 
 

@@ -16,12 +16,12 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from agrinerf_ns.count.detectors import Source
-from agrinerf_ns.count.volume import field_sources
+from agrinerf_ns.count.volume import SOURCE_ORDER, field_sources
 
 
 @dataclass(frozen=True)
 class CountPlan:
-    """Which path counts a run, and why (printed, and kept in count.json)."""
+    """Which path counts a run, and why (printed; count.json holds the settings it leads to)."""
 
     path: Literal["views", "field"]
     why: str
@@ -34,7 +34,7 @@ class CountPlan:
 def choose_plan(model: Any) -> CountPlan:
     """The plan for a loaded run's ``model`` (an AgriNeRF model, or a stock one such as Nerfacto: views)."""
     sources = field_sources(model) if hasattr(model, "field") else {}
-    thermal_field = any(sources.get(s, False) for s in ("temperature", "thermal_camera", "thermal"))
+    thermal_field = any(sources.get(s, False) for s in SOURCE_ORDER if s != "rgb")
     if thermal_field and not getattr(model, "use_rgb", True):
         return CountPlan("field", "the run has no RGB head (trained without RGB frames): its field's thermal output")
     if thermal_field and getattr(model, "low_light", False):
