@@ -5,6 +5,22 @@ from __future__ import annotations
 import os
 import platform
 from pathlib import Path
+from typing import Literal
+
+
+def torch_device_type() -> Literal["cuda", "cpu"]:
+    """``cuda`` where PyTorch sees a CUDA device, else ``cpu``: where the presets, the bench and the counter run."""
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def yolo_device(device: str = "auto") -> str:
+    """An Ultralytics ``device`` argument: ``auto`` gives the first CUDA device (``"0"``) where there is one, else
+    ``"cpu"``; anything else is passed through."""
+    if device != "auto":
+        return device
+    return "0" if torch_device_type() == "cuda" else "cpu"
 
 
 def device_name() -> str:

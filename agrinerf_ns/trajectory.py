@@ -17,7 +17,7 @@ resolve below minutes: subtract a reference before any float32 use).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal, Optional, Union
+from typing import TYPE_CHECKING, Any, Dict, Literal, Optional, Union
 
 import numpy as np
 from jaxtyping import Float
@@ -114,12 +114,66 @@ class CameraTrajectory:
         return out.reshape(*t.shape, 3, 4)
 
     def poses_at_tensor(self, t: Float[Tensor, "*b"], dtype: Optional[torch.dtype] = None) -> Float[Tensor, "*b 3 4"]:
-        """:meth:`poses_at` for a tensor of times (pass float64 times); poses on ``t``'s device, in ``dtype``
-        (default float32). No gradient flows to the times (the interpolation runs in scipy on the CPU)."""
+        """:meth:`poses_at` in torch on ``t``'s device (pass float64 times): the same interpolation and extrapolation
+        (rotations: ``R_i exp(alpha log(R_i^T R_i+1))``, as scipy's Slerp; translations: linear), so a training step
+        on a GPU computes its rays' poses there without a round trip through the CPU. Poses in ``dtype`` (default
+        float32), computed in float64; equal to :meth:`poses_at` within float64 rounding. No gradient flows to the
+        times. With ``extrapolate="error"`` the check of the query times reads them back (a device sync)."""
         import torch
 
-        poses = self.poses_at(t.detach().to("cpu", torch.float64).numpy())
-        return torch.from_numpy(poses).to(device=t.device, dtype=dtype or torch.float32)
+        tables = self._tables(t.device)
+        flat = t.detach().reshape(-1).to(torch.float64)
+        if self.extrapolate == "error" and flat.numel() and bool(((flat < self.t_min) | (flat > self.t_max)).any()):
+            raise TrajectoryError(
+                f"query times {float(flat.min()):.6f}..{float(flat.max()):.6f} s leave the trajectory's "
+                f"{self.t_min:.6f}..{self.t_max:.6f} s"
+            )
+        rot, trans = tables["rotations"], tables["translations"]
+        if len(self) == 1:  # one sample: a constant pose
+            pose = torch.cat([rot[0], trans[0][:, None]], dim=-1).expand(flat.shape[0], 3, 4)
+            return pose.reshape(*t.shape, 3, 4).to(dtype or torch.float32)
+        times = tables["times"]
+        inside = flat.clamp(self.t_min, self.t_max)
+        # scipy's segment choice: the sample at or before the time, the first segment at the first sample
+        index = (torch.searchsorted(times, inside) - 1).clamp(0, len(self) - 2)
+        alpha = (inside - times[index]) / (times[index + 1] - times[index])
+        rotation = rot[index] @ rotvec_matrix(tables["segment_rotvecs"][index] * alpha[:, None])
+        translation = trans[index] + alpha[:, None] * (trans[index + 1] - trans[index])
+        if self.extrapolate == "linear":  # the end segments' constant velocities, continued from the end samples
+            for sel, end, ref in ((flat < self.t_min, 0, self.t_min), (flat > self.t_max, 1, self.t_max)):
+                tau = (flat - ref)[:, None]
+                i_end = 0 if end == 0 else len(self) - 1
+                ext_rot = rot[i_end] @ rotvec_matrix(tau * tables["end_omegas"][end])
+                ext_trans = trans[i_end] + tau * tables["end_velocities"][end]
+                rotation = torch.where(sel[:, None, None], ext_rot, rotation)
+                translation = torch.where(sel[:, None], ext_trans, translation)
+        pose = torch.cat([rotation, translation[:, :, None]], dim=-1)
+        return pose.reshape(*t.shape, 3, 4).to(dtype or torch.float32)
+
+    def _tables(self, device: torch.device) -> Dict[str, Tensor]:
+        """The samples as float64 tensors on `device` (made once per device): times, rotation matrices,
+        translations, each segment's rotation vector and the end segments' angular and linear velocities."""
+        import torch
+
+        key = str(device)
+        cache: Dict[str, Dict[str, Tensor]] = self.__dict__.setdefault("_device_tables", {})
+        if key not in cache:
+            tables = {"times": self.times, "rotations": self.rotations.as_matrix(), "translations": self.translations}
+            if len(self) > 1:
+                dt = np.diff(self.times)
+                tables["segment_rotvecs"] = (self.rotations[:-1].inv() * self.rotations[1:]).as_rotvec()
+                ends = (tables["segment_rotvecs"][[0, -1]], np.diff(self.translations, axis=0)[[0, -1]])
+                tables["end_omegas"] = ends[0] / dt[[0, -1], None]
+                tables["end_velocities"] = ends[1] / dt[[0, -1], None]
+            cache[key] = {k: torch.as_tensor(np.ascontiguousarray(v), dtype=torch.float64, device=device)
+                          for k, v in tables.items()}  # fmt: skip
+        return cache[key]
+
+    def __getstate__(self) -> Dict[str, Any]:
+        """Pickled without the per-device tensor tables (they are rebuilt on first use)."""
+        state = dict(self.__dict__)
+        state.pop("_device_tables", None)
+        return state
 
     def transformed(self, transform: Float[np.ndarray, "3 4"], scale: float = 1.0) -> "CameraTrajectory":
         """The trajectory in another world frame: ``p' = scale * (R p + t)`` for ``transform = [R | t]``.
@@ -133,6 +187,24 @@ class CameraTrajectory:
         c2w[:, :3, 3] = scale * (self.translations @ A[:3, :3].T + A[:3, 3])
         c2w[:, 3, 3] = 1.0
         return CameraTrajectory(self.times, c2w, self.extrapolate)
+
+
+def rotvec_matrix(rotvec: Float[Tensor, "*b 3"]) -> Float[Tensor, "*b 3 3"]:
+    """Rotation matrices of rotation vectors (Rodrigues' formula, on the vectors' device and dtype; a Taylor series
+    below 1e-4 rad, where the closed form loses precision)."""
+    import torch
+
+    theta2 = (rotvec * rotvec).sum(dim=-1, keepdim=True)[..., None]  # [*b, 1, 1]
+    theta = theta2.sqrt()
+    small = theta < 1e-4
+    safe = torch.where(small, torch.ones_like(theta), theta)
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(safe) / safe)
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(safe)) / (safe * safe))
+    x, y, z = rotvec.unbind(dim=-1)
+    zero = torch.zeros_like(x)
+    k = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], dim=-1).reshape(*rotvec.shape[:-1], 3, 3)
+    eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device)
+    return eye + a * k + b * (k @ k)
 
 
 def exposure_subtimes(exposure: Float[np.ndarray, "n 2"], k: int) -> Float[np.ndarray, "n k"]:

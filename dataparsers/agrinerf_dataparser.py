@@ -43,6 +43,7 @@ from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
+from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 from agrinerf_ns.views import evenly_spaced
@@ -140,8 +141,12 @@ class AgriNeRFDataParser(Nerfstudio):
             ply = data_dir / meta["ply_file_path"]
             if not ply.exists():
                 raise AgriNeRFDataError(f"{transforms_path}: ply_file_path {meta['ply_file_path']} does not exist")
-            points = self._load_3D_points(ply, outputs.dataparser_transform, float(outputs.dataparser_scale))
-            metadata["points3D_xyz"] = points["points3D_xyz"]
+            try:  # read with NumPy: Nerfstudio's reader imports open3d, which needs libusb (sfm_points.py)
+                transform = saved_to_output(meta, data_dir, outputs.dataparser_transform)
+                points = load_points3d(ply, transform, float(outputs.dataparser_scale))
+            except PlyError as err:
+                raise AgriNeRFDataError(f"{transforms_path}: ply_file_path: {err}") from err
+            metadata.update(points)  # points3D_xyz and points3D_rgb, the pair Nerfstudio's pipeline reads
         metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs

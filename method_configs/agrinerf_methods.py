@@ -92,7 +92,9 @@ def _evdeblurnerf_optimizers(max_steps: int) -> Dict[str, Dict[str, Any]]:
 
 def default_device_type() -> Literal["cuda", "cpu"]:
     """``cuda`` where PyTorch sees a CUDA device, else ``cpu`` (Nerfstudio's own default is always ``cuda``)."""
-    return "cuda" if torch.cuda.is_available() else "cpu"
+    from agrinerf_ns.machine import torch_device_type
+
+    return torch_device_type()
 
 
 @dataclass

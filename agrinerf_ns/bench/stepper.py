@@ -13,6 +13,7 @@ from typing import Any, Dict, Optional
 import torch
 
 from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.machine import torch_device_type
 
 
 class MethodStepper:
@@ -52,7 +53,7 @@ class MethodStepper:
             if not hasattr(config.pipeline.model, name):
                 raise ValueError(f"{type(config.pipeline.model).__name__} has no field {name!r}")
             setattr(config.pipeline.model, name, value)
-        self.pipeline = config.pipeline.setup(device="cpu", test_mode="val", world_size=1, local_rank=0)
+        self.pipeline = config.pipeline.setup(device=torch_device_type(), test_mode="val", world_size=1, local_rank=0)
         self.pipeline.train()
         self.optimizers = Optimizers(config.optimizers.copy(), self.pipeline.get_param_groups())
         self.callbacks = (

@@ -64,16 +64,18 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     if config.weights is None or not Path(config.weights).is_file():
         raise FileNotFoundError(f"{config.weights}: YOLO weights not found (--detector yolo needs --weights PATH)")
     from agrinerf_ns.detect.detector import configure_offline
+    from agrinerf_ns.machine import yolo_device
 
     configure_offline()
     from ultralytics import YOLO
 
     model = YOLO(str(config.weights))
     imgsz = int(model.overrides.get("imgsz", 640))
+    device = yolo_device()
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
         image = _detector_image(view, resolve_source(config, view).source)
-        result = model.predict(image, imgsz=imgsz, conf=config.confidence, device="cpu", verbose=False)[0]
+        result = model.predict(image, imgsz=imgsz, conf=config.confidence, device=device, verbose=False)[0]
         boxes = result.boxes.xyxy.cpu().numpy().reshape(-1, 4)
         scores = result.boxes.conf.cpu().numpy().reshape(-1)
         return [Detection(_ellipse_mask(view, box), float(s)) for box, s in zip(boxes, scores, strict=True)]

@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.detect.boxes import list_images
+from agrinerf_ns.machine import yolo_device
 
 INSTALL_HINT = (
     "Ultralytics is not installed. It is an optional extra (AGPL-3.0): run scripts/install_detect.sh "
@@ -44,7 +45,8 @@ class DetectorConfig:
     """Training and inference image size (pixels, multiple of 32)."""
     batch: int = 16
     seed: int = 0
-    device: str = "cpu"
+    device: str = "auto"
+    """Ultralytics device: "auto" (the first CUDA device where there is one, else "cpu"), "cpu", "0", ..."""
     patience: int = 0
     """Early-stopping patience in epochs (0: off)."""
     warmup_epochs: float = 0.0
@@ -96,7 +98,7 @@ def train_detector(
         batch=config.batch,
         seed=config.seed,
         deterministic=True,
-        device=config.device,
+        device=yolo_device(config.device),
         workers=0,
         pretrained=init is not None,  # False would drop the init weights (ultralytics Model.train)
         amp=False,
@@ -130,7 +132,7 @@ def predict_folder(
     image_dir: Path,
     imgsz: Optional[int] = None,
     conf: float = 0.001,
-    device: str = "cpu",
+    device: str = "auto",
     max_det: int = 100,
 ) -> Dict[str, Tuple[Float[np.ndarray, "n 4"], Float[np.ndarray, " n"], Tuple[int, int]]]:
     """Run the detector on every image in ``image_dir``: stem -> (pixel xyxy boxes, scores, (width, height)).
@@ -153,7 +155,12 @@ def predict_folder(
         for path, result in zip(
             chunk,
             model.predict(
-                [str(p) for p in chunk], imgsz=imgsz, conf=conf, device=device, max_det=max_det, verbose=False
+                [str(p) for p in chunk],
+                imgsz=imgsz,
+                conf=conf,
+                device=yolo_device(device),
+                max_det=max_det,
+                verbose=False,
             ),
             strict=True,
         ):

@@ -30,7 +30,7 @@ def score_render_folder(
     weights: Path,
     conf_threshold: float,
     min_box_pixels: int,
-    device: str = "cpu",
+    device: str = "auto",
     imgsz: Optional[int] = None,
 ) -> ScoredViews:
     """Detect on every rendered view (at ``imgsz``, default the detector's training size) and score against the

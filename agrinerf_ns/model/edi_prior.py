@@ -62,9 +62,9 @@ def event_pixels(
     ahead = in_event[:, 2] > 1e-9
     fx, fy, cx, cy = camera.intrinsics
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    safe = torch.where(ahead[:, None], in_event, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
+    safe = torch.where(ahead[:, None], in_event, in_event.new_tensor([0.0, 0.0, 1.0]))
     uv, _ = cv2.projectPoints(safe.numpy(), np.zeros(3), np.zeros(3), K, np.asarray(camera.distortion, np.float64))
-    uv = torch.from_numpy(uv[:, 0, :]).round().long()
+    uv = torch.from_numpy(uv[:, 0, :]).round().long()  # cpu: OpenCV's projection, beside the CPU event stream
     inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
     pixel = torch.where(inside, uv[:, 1] * camera.width + uv[:, 0], torch.zeros_like(uv[:, 0]))
     return pixel, inside
@@ -80,7 +80,7 @@ def edi_factors(
 ) -> Float[Tensor, "n 1"]:
     """mean_j exp(E_j) of each pixel over its exposure [start, end] (seconds): the blurred value divided by this is
     the sharp mid-exposure value (1 where no event fired)."""
-    fractions = torch.linspace(0.0, 1.0, steps, dtype=torch.float64)
+    fractions = torch.linspace(0.0, 1.0, steps, dtype=torch.float64, device=exposure.device)
     start, end = exposure[:, :1].double(), exposure[:, 1:2].double()
     times = torch.round((start + (end - start) * fractions[None, :]) * 1e6).long()  # [n, steps] us
     n = pixel.shape[0]

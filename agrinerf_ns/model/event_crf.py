@@ -69,9 +69,9 @@ def _identity_fit_cached(extra_features: int, width: int) -> Tuple[Tuple[str, Te
             nn.Linear(width, 1),
         )
         optimizer = torch.optim.Adam(mlp.parameters(), lr=1e-2)
-        zeros = torch.zeros(64 * 3, extra_features)
+        zeros = torch.zeros(64 * 3, extra_features)  # cpu: fitted once at construction, before the model moves
         for _ in range(IDENTITY_FIT_STEPS):
-            x = torch.rand(64 * 3, 1)
+            x = torch.rand(64 * 3, 1)  # cpu: as above
             y = torch.sigmoid(x + 0.1 * mlp(torch.cat([x, zeros], dim=-1)))
             loss = (y - x).pow(2).mean()
             optimizer.zero_grad()

@@ -67,17 +67,19 @@ class EventPairs:
         """`m` pairs drawn uniformly (with replacement) over all pairs: pixel, event time, successor time (us) and the
         successor's polarity (+1 / -1). Empty tensors when the stream has no pair."""
         if len(self) == 0 or m <= 0:
-            empty = torch.zeros(0, dtype=torch.long)
+            empty = torch.zeros(0, dtype=torch.long)  # cpu: the pairs live on the CPU (callers move them)
             return empty, empty, empty, empty
-        index = torch.randint(0, len(self), (m,), generator=generator)
+        index = torch.randint(0, len(self), (m,), generator=generator)  # cpu: indexes the CPU pairs
         return self.pixel[index], self.t_start_us[index], self.t_end_us[index], self.polarity[index].long()
 
 
 def pair_targets(
     polarity: Int[Tensor, " m"], c_on: Union[float, Float[Tensor, ""]], c_off: Union[float, Float[Tensor, ""]]
 ) -> Float[Tensor, "m 1"]:
-    """The log-luminance change each pair stands for: +C_on for an ON successor, -C_off for an OFF one."""
-    on = (polarity > 0).float()[:, None]
+    """The log-luminance change each pair stands for: +C_on for an ON successor, -C_off for an OFF one; on the
+    thresholds' device where they are tensors (learnt thresholds live with the model, the pairs on the CPU)."""
+    device = c_on.device if isinstance(c_on, Tensor) else polarity.device
+    on = (polarity.to(device) > 0).float()[:, None]
     return on * c_on - (1.0 - on) * c_off
 
 

@@ -92,9 +92,9 @@ def stream_event_logs(model: AgriNeRFModel, like: RayBundle) -> Dict[str, Tensor
     assert model.event_stream is not None and model.event_windows is not None and model.trajectory is not None
     assert model.event_camera_native is not None
     m = model.config.event_rays_per_batch
-    frames = torch.randint(0, model.event_windows.shape[0], (m,))
+    frames = torch.randint(0, model.event_windows.shape[0], (m,))  # cpu: the windows and the stream are on the CPU
     t0, t1 = sample_windows(model.event_windows, frames, model.config.event_window_min_fraction, None)
-    pixel = torch.randint(0, model.event_stream.width * model.event_stream.height, (m,))
+    pixel = torch.randint(0, model.event_stream.width * model.event_stream.height, (m,))  # cpu: as above
     on, off = model.event_stream.counts(pixel, t0, t1)
     origins, directions = event_rays(
         model.trajectory, model.event_camera_native, pixel, torch.stack([t0, t1], -1).double() * 1e-6

@@ -21,6 +21,7 @@ from nerfstudio.field_components.mlp import MLP
 from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
 
+from agrinerf_ns.model.device_sync import prune_on
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.grid_mapping import START_INNER, BoxContraction, axis_resolution
 from agrinerf_ns.model.vm_encoding import Resolution, VMCorners, VMLookup, VMVolume, vm_corners
@@ -308,6 +309,10 @@ class AgriNeRFField(Field):
         keep = valid.reshape(-1) & self.occupied(flat)
         if corners is None:
             corners = self.corners(flat)
+        if not prune_on(flat):  # a GPU: every point, masked after (a data-dependent prune would wait on the GPU)
+            raw = self.density_encoding.features(corners).sum(dim=-1, keepdim=True)
+            density = torch.where(keep[:, None], F.softplus(raw + self.density_shift).clamp(max=self.max_density), 0.0)
+            return density.reshape(*coords.shape[:-1], 1)
         if bool(keep.all()):  # nothing to prune: no gather/scatter
             raw = self.density_encoding.features(corners).sum(dim=-1, keepdim=True)
             density = F.softplus(raw + self.density_shift).clamp(max=self.max_density)
@@ -377,7 +382,8 @@ class AgriNeRFField(Field):
         axis = (torch.arange(res, device=device, dtype=torch.float32) + 0.5) / res * 2.0 - 1.0
         centres = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
         gen = torch.Generator(device="cpu").manual_seed(res)
-        jitter = (torch.rand(centres.shape, generator=gen) - 0.5).to(device) * (2.0 / res)
+        # cpu: a CPU generator draws the same jitter on every device
+        jitter = (torch.rand(centres.shape, generator=gen) - 0.5).to(device) * (2.0 / res)  # cpu: see above
         dens = torch.zeros(centres.shape[0], device=device)
         for pts in (centres, centres + jitter):
             for start in range(0, pts.shape[0], chunk):

@@ -114,7 +114,7 @@ def axis_resolution(box: Float[Tensor, "2 3"], inner: float, cube: int, minimum:
 def box_voxel(box: Float[Tensor, "2 3"], inner: float, cube: int) -> float:
     """Largest side (world units) of a grid cell inside `box` at the per-axis resolution of a `cube`^3 budget, as
     `BoxContraction.voxel_size` gives it there."""
-    res = torch.tensor(axis_resolution(box, inner, cube), dtype=torch.float64)
+    res = torch.tensor(axis_resolution(box, inner, cube), dtype=torch.float64, device=box.device)
     return float(((box[1] - box[0]).double() / (inner * (res - 1.0))).max())
 
 
@@ -158,7 +158,7 @@ def fit_box(
         dist = (points - origins).norm(dim=-1)
         keep &= torch.isfinite(dist)
         if int(keep.sum()) >= 8:
-            median = _weighted_quantile(dist[keep], weights[keep], torch.tensor([0.5]))[0]
+            median = _weighted_quantile(dist[keep], weights[keep], torch.tensor([0.5], device=dist.device))[0]
             keep &= dist <= depth_cut * median
     if int(keep.sum()) < 8:
         return None
@@ -209,7 +209,7 @@ def smallest_box(
         kept = float(w.sum())
         scale = float((box[1] - box[0]).max().clamp(min=1e-12))
         before = (box[1] - box[0]).clamp(min=1e-9 * scale).log().sum()
-        q = torch.tensor([chunk / kept, 1.0 - chunk / kept])
+        q = torch.tensor([chunk / kept, 1.0 - chunk / kept], device=points.device)
         best: Optional[Tuple[float, Tensor]] = None
         for axis in range(3):
             faces = _weighted_quantile(points[inside, axis], w, q)  # the low and the high face's next position

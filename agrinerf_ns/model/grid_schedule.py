@@ -50,10 +50,11 @@ def fit_box(model: AgriNeRFModel, cameras: Any, step: int) -> Optional[Tensor]:
         return None
     gen = torch.Generator().manual_seed(SIDE_STREAM_SEED + step)
     n = model.config.box_fit_rays
-    index = torch.randint(0, cameras.shape[0], (n,), generator=gen)
+    # cpu: a CPU generator draws the same rays on every device; Nerfstudio's training cameras stay on the CPU
+    index = torch.randint(0, cameras.shape[0], (n,), generator=gen)  # cpu: see above
     heights, widths = cameras.height[index, 0].float(), cameras.width[index, 0].float()
-    rows = (torch.rand(n, generator=gen) * heights).floor() + 0.5
-    cols = (torch.rand(n, generator=gen) * widths).floor() + 0.5
+    rows = (torch.rand(n, generator=gen) * heights).floor() + 0.5  # cpu: see above
+    cols = (torch.rand(n, generator=gen) * widths).floor() + 0.5  # cpu: see above
     bundle = cameras.generate_rays(camera_indices=index[:, None], coords=torch.stack([rows, cols], -1))
     bundle = bundle.to(model.device)
     points, weights, origins = [], [], []

@@ -160,7 +160,7 @@ def l1_volume_loss(*tensors: Tensor) -> Float[Tensor, ""]:
     entries by the resolution, so the planes dominate). TensoRF's `TensorVMSplit.density_L1` instead sums one mean |w|
     per factor, so a line weighs as much as a plane; the loss weight absorbs the difference in scale."""
     if not tensors:
-        return torch.zeros(())
+        return torch.zeros(())  # cpu: a 0-dim tensor, which torch adds to any device's tensors
     total = torch.stack([t.abs().sum() for t in tensors]).sum()
     count = sum(t.numel() for t in tensors)
     return total / max(count, 1)

@@ -43,6 +43,7 @@ from agrinerf_ns.model import (
     thermal_view,
 )
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
+from agrinerf_ns.model.device_sync import prune_on
 from agrinerf_ns.model.event_crf import EventCRF
 from agrinerf_ns.model.event_pairs import EventPairs
 from agrinerf_ns.model.field import AgriNeRFField
@@ -358,7 +359,7 @@ class AgriNeRFModel(Model):
         if self.config.background_color == "last_sample":
             selected[:, -1] = True
         directions = samples.frustums.directions.expand(num_rays, num_samples, 3)
-        every_sample = float(selected.float().mean()) >= DENSE_HEADS_FRACTION
+        every_sample = not prune_on(weights) or float(selected.float().mean()) >= DENSE_HEADS_FRACTION
         if heads is not None and not heads:
             flat_values = {}
         elif every_sample:  # heads on all samples, masked after: the volumes reuse the density's transposed lookups

@@ -89,7 +89,7 @@ def eval_outputs(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, 
     height, width = bundle.shape
     flat = bundle.flatten()
     c2w = camera.camera_to_worlds[0].detach().double().cpu().numpy()
-    at = torch.zeros(flat.shape[0], dtype=torch.float64)  # one pose: the held-out camera's
+    at = torch.zeros(flat.shape[0], dtype=torch.float64, device=flat.origins.device)  # one pose: the held-out camera's
     moved = reposed_rays(flat, CameraTrajectory(np.zeros(1), c2w[None]), at, at[:, None], **model.thermal_camera)
     rendered = model.get_outputs_for_camera_ray_bundle(moved.reshape((height, width)))
     return {**outputs, **{k: v for k, v in rendered.items() if k in OUTPUTS}}

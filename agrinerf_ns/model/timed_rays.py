@@ -45,14 +45,16 @@ def reposed_rays(
     """
     assert bundle.camera_indices is not None, "training rays carry their camera indices"
     n, k = times.shape
-    frame_pose = trajectory.poses_at_tensor(frame_times.double().cpu(), dtype=torch.float64)  # [n, 3, 4]
-    new_pose = trajectory.poses_at_tensor(times.double().cpu(), dtype=torch.float64)  # [n, k, 3, 4]
+    device, dtype = bundle.origins.device, bundle.origins.dtype
+    # poses on the rays' device, in float64 (trajectory times are seconds of a real clock)
+    frame_pose = trajectory.poses_at_tensor(frame_times.to(device, torch.float64), dtype=torch.float64)  # [n, 3, 4]
+    new_pose = trajectory.poses_at_tensor(times.to(device, torch.float64), dtype=torch.float64)  # [n, k, 3, 4]
     rot_t = frame_pose[:, :3, :3].transpose(-1, -2)
-    origins = bundle.origins.to(torch.float64).cpu()
+    origins = bundle.origins.to(torch.float64)
     local_o = (rot_t @ (origins - frame_pose[:, :3, 3])[..., None])[..., 0]  # [n, 3] in the camera frame
-    local_d = (rot_t @ bundle.directions.to(torch.float64).cpu()[..., None])[..., 0]
+    local_d = (rot_t @ bundle.directions.to(torch.float64)[..., None])[..., 0]
     if camera_centre is not None:
-        centre = camera_centre.to(torch.float64).cpu()
+        centre = camera_centre.to(device, torch.float64)
         if math.isfinite(plane_depth):
             forward = (-local_d[:, 2:3]).clamp(min=1e-9)  # OpenGL: the optical axis is -z
             on_plane = local_o + local_d * (plane_depth / forward)
@@ -61,16 +63,16 @@ def reposed_rays(
     rot = new_pose[..., :3]  # [n, k, 3, 3]
     new_o = new_pose[..., 3] + (rot @ local_o[:, None, :, None])[..., 0]
     new_d = (rot @ local_d[:, None, :, None])[..., 0]
-    device, dtype = bundle.origins.device, bundle.origins.dtype
     return RayBundle(
-        origins=new_o.reshape(n * k, 3).to(device=device, dtype=dtype),
-        directions=new_d.reshape(n * k, 3).to(device=device, dtype=dtype),
+        origins=new_o.reshape(n * k, 3).to(dtype),
+        directions=new_d.reshape(n * k, 3).to(dtype),
         pixel_area=bundle.pixel_area.repeat_interleave(k, dim=0),
         camera_indices=bundle.camera_indices.repeat_interleave(k, dim=0),
     )
 
 
 def camera_rows(bundle: RayBundle) -> Tensor:
-    """Each ray's camera index (into the training cameras) as a flat long tensor on the CPU."""
+    """Each ray's camera index (into the training cameras) as a flat long tensor on the CPU, where the frames'
+    timing (dataparser metadata) lives: a copy of n integers, the one read-back of a timed render on a GPU."""
     assert bundle.camera_indices is not None, "training rays carry their camera indices"
     return bundle.camera_indices.reshape(-1).long().cpu()

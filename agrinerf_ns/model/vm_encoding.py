@@ -455,7 +455,7 @@ class VMVolume(nn.Module):
             lines.append(new.T)
         self.plane_table = nn.Parameter(torch.cat(planes).contiguous())
         self.line_table = nn.Parameter(torch.cat(lines).contiguous())
-        self.res.copy_(torch.tensor(res, dtype=torch.int64))
+        self.res.copy_(torch.tensor(res, dtype=torch.int64, device=self.res.device))
 
     def upsample_grid(self, resolution: Union[int, Sequence[int]]) -> None:
         """Resample to `resolution` over the same coordinates (Nerfstudio's `upsample_grid`)."""
@@ -472,7 +472,7 @@ class VMVolume(nn.Module):
             comps, r = plane_coef.shape[1], plane_coef.shape[-1]
             state_dict[prefix + "plane_table"] = plane_coef.permute(0, 2, 3, 1).reshape(-1, comps)
             state_dict[prefix + "line_table"] = line_coef.permute(0, 2, 3, 1).reshape(-1, comps)
-            state_dict.setdefault(prefix + "res", torch.tensor([r, r, r], dtype=torch.int64))
+            state_dict.setdefault(prefix + "res", torch.tensor([r, r, r], dtype=torch.int64, device=plane_coef.device))
         saved_res = state_dict.get(prefix + "res")
         if saved_res is None:
             return
@@ -483,7 +483,7 @@ class VMVolume(nn.Module):
             comps = self.num_components
             self.plane_table = nn.Parameter(torch.empty(layout.plane_offsets[-1], comps, device=device, dtype=dtype))
             self.line_table = nn.Parameter(torch.empty(layout.line_offsets[-1], comps, device=device, dtype=dtype))
-            self.res.copy_(torch.tensor(res, dtype=torch.int64))
+            self.res.copy_(torch.tensor(res, dtype=torch.int64, device=self.res.device))
 
 
 def plane_views(table: Float[Tensor, "rows c"], layout: VMLayout) -> List[Float[Tensor, "h w c"]]:
