@@ -197,3 +197,27 @@ def test_every_per_step_tensor_factory_names_its_device() -> None:
         "            0, 1, 5)\n"
     )
     assert [line for line, _ in offending_calls(planted)] == [6, 10]
+
+
+def test_gpu_check_commands_all_parse_and_a_wrong_one_is_named(tmp_path: Path) -> None:
+    """`scripts/gpu_check.sh --dry-run` parses every command it would run with that command's own parser; a wrong
+    option makes it fail and names the command."""
+    import subprocess
+
+    done = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_check.sh"), "--dry-run", "--out", str(tmp_path)],
+                          check=False, capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    ok = [line for line in done.stdout.splitlines() if line.startswith("ok ")]
+    checks = {line.split(":")[0].split(maxsplit=1)[1] for line in ok}
+    assert {"scene", "dataset", "train agrinerf", "eval agrinerf", "render", "count", "step time"} <= checks
+    assert len(ok) == 2 + 2 * 6 + 3  # scene, dataset, train + eval per preset, render, count, step time
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import gpu_check
+    finally:
+        sys.path.pop(0)
+    plan = gpu_check.steps(gpu_check.Args(out=tmp_path, presets=("agrinerf-lite",)))
+    broken = [s._replace(argv=[*s.argv, "--no-such-option", "1"]) if s.check == "count" else s for s in plan]
+    lines = gpu_check.dry_run(broken)
+    assert [line.split(":")[0] for line in lines if line.startswith("FAILED")] == ["FAILED  count"]

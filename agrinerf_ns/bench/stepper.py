@@ -17,7 +17,7 @@ from agrinerf_ns.machine import torch_device_type
 
 
 class MethodStepper:
-    """One method's pipeline, optimizers, schedulers and training callbacks on the CPU.
+    """One method's pipeline, optimizers, schedulers and training callbacks, on the GPU where PyTorch sees one.
 
     Args:
         key: an ``agrinerf-bench`` method key (``agrinerf_ns.bench.methods.METHODS``).
@@ -86,4 +86,6 @@ class MethodStepper:
         """One training step (next batch, forward, loss, backward, optimizer step); returns its wall seconds."""
         start = time.perf_counter()
         self.apply(self.loss_dict(step), step)
+        if torch.device(self.pipeline.device).type == "cuda":
+            torch.cuda.synchronize()  # the step's kernels are queued, not done, when apply returns
         return time.perf_counter() - start
