@@ -98,16 +98,19 @@ def _count_figure(path: Path) -> Callable[[], str]:
     def read() -> str:
         report = json.loads(path.read_text())
         score = report.get("score") or {}
-        fruit = report.get("count", report.get("fruit"))
-        return f"{fruit} fruit; F1 {score.get('f1', float('nan')):.3f}" if score else f"{fruit} fruit"
+        fruit = report.get("fruit")
+        return f"{fruit} fruit; F1 {score['f1']:.3f} at {score['match_distance']} m" if score else f"{fruit} fruit"
 
     return read
 
 
 def _step_figure(path: Path) -> Callable[[], str]:
+    """Each run's median seconds per step and its median per-round ratio to the first run (tensorf)."""
+
     def read() -> str:
-        lines = [line for line in path.read_text().splitlines() if line.startswith("|")]
-        return "; ".join(" ".join(cell.strip() for cell in line.strip("|").split("|")) for line in lines[2:])
+        rows = [[c.strip() for c in line.strip().strip("|").split("|")] for line in path.read_text().splitlines()]
+        rows = [r for r in rows if len(r) >= 8 and r[0] not in ("run", "---")]
+        return "; ".join(f"{r[0]} {r[5]} s/step ({r[7]}x tensorf)" for r in rows)
 
     return read
 
@@ -116,8 +119,23 @@ def steps(args: Args) -> List[Step]:
     """Every command of the check, in order."""
     out, raw, data = args.out, args.out / "raw", args.out / "data"
     plan = [
-        Step("scene", ["agrinerf-synth", "--out", str(raw), "--scene", "garden", "--lighting", "dusk", "--seed", "0",
-                       "--views", "24", "--no-preview"]),  # fmt: skip
+        Step(
+            "scene",
+            [
+                "agrinerf-synth",
+                "--out",
+                str(raw),
+                "--scene",
+                "garden",
+                "--lighting",
+                "dusk",
+                "--seed",
+                "0",
+                "--views",
+                "24",
+                "--no-preview",
+            ],
+        ),  # fmt: skip
         Step("dataset", ["agrinerf-process", "--raw", str(raw), "--out", str(data), "--poses", "given"]),
     ]
     for preset in args.presets:
@@ -132,15 +150,43 @@ def steps(args: Args) -> List[Step]:
         )
     paper = _config(args, args.presets[0])
     plan += [
-        Step("render", ["ns-render", "dataset", "--load-config", str(paper), "--rendered-output-names", "rgb",
-                        "thermal", "--output-path", str(out / "renders")]),  # fmt: skip
-        Step("count", ["agrinerf-count", "--config", str(paper), "--out", str(out / "count"), "--truth", str(raw)],
-             _count_figure(out / "count" / "count.json")),  # fmt: skip
+        Step(
+            "render",
+            [
+                "ns-render",
+                "dataset",
+                "--load-config",
+                str(paper),
+                "--rendered-output-names",
+                "rgb",
+                "thermal",
+                "--output-path",
+                str(out / "renders"),
+            ],
+        ),  # fmt: skip
+        Step(
+            "count",
+            ["agrinerf-count", "--config", str(paper), "--out", str(out / "count"), "--truth", str(raw)],
+            _count_figure(out / "count" / "count.json"),
+        ),  # fmt: skip
         Step(
             "step time",
-            [sys.executable, str(BENCH / "bench_step_interleaved.py"), "--data", str(data), "--out",
-             str(out / "step-speed"), "--runs", "tensorf", "agrinerf", "agrinerf@7000", "--steps", "20",
-             "--rays-per-batch", str(args.rays_per_batch)],  # fmt: skip
+            [
+                sys.executable,
+                str(BENCH / "bench_step_interleaved.py"),
+                "--data",
+                str(data),
+                "--out",
+                str(out / "step-speed"),
+                "--runs",
+                "tensorf",
+                "agrinerf",
+                "agrinerf@7000",
+                "--steps",
+                "20",
+                "--rays-per-batch",
+                str(args.rays_per_batch),
+            ],  # fmt: skip
             _step_figure(out / "step-speed" / "step_speed.md"),
         ),
     ]
@@ -217,7 +263,7 @@ def run(args: Args, plan: List[Step]) -> List[Tuple[str, ...]]:
         if code == 0 and step.result is not None:
             try:
                 result = step.result()
-            except (OSError, ValueError, KeyError) as err:
+            except (OSError, ValueError, KeyError, IndexError) as err:
                 result = f"no figure: {err}"
         elif code != 0:
             result = f"failed: see {log}"

@@ -73,7 +73,10 @@ def record(args: Record) -> None:
 
 def compare(args: Compare) -> None:
     before, after = json.loads(args.before.read_text()), json.loads(args.after.read_text())
-    lines = ["| method | term | steps | equal to the last digit | max abs diff | max rel diff |", "|---|---|---|---|---|---|"]
+    lines = [
+        "| method | term | steps | equal to the last digit | max abs diff | max rel diff |",
+        "|---|---|---|---|---|---|",
+    ]
     for method in sorted(set(before) & set(after)):
         terms = sorted({k for step in before[method] for k in step} | {k for step in after[method] for k in step})
         for term in terms:
