@@ -38,7 +38,8 @@ def _header(path: Path, data: bytes) -> Tuple[str, List[Tuple[str, int, List[Tup
     if not data.startswith(b"ply") or end < 0:
         raise PlyError(f"{path}: not a PLY file (no 'ply' magic or no 'end_header')")
     body = data.index(b"\n", end) + 1
-    fmt, elements = "", []
+    fmt = ""
+    elements: List[Tuple[str, int, List[Tuple[str, str]]]] = []
     for raw in data[:end].decode("ascii", errors="replace").splitlines()[1:]:
         words = raw.split()
         if not words or words[0] in ("comment", "obj_info"):

@@ -3,6 +3,7 @@
 #   bash scripts/install.sh            the plugin, as a user gets it (non-editable)
 #   bash scripts/install.sh --dev      plus pytest, ruff, mypy, beartype, the [detect] and [ray] extras (what the tests need)
 #   bash scripts/install.sh --editable install the plugin editable (for development); combine with --dev
+# As root on Debian/Ubuntu it also apt-get installs the system packages pip cannot (scripts/install_system.sh).
 # Environment: TORCH_SPEC overrides the torch/torchvision pair (default: the pair tested here, see README).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -32,6 +33,12 @@ python -m pip install --quiet --force-reinstall --no-deps "opencv-contrib-python
 if [ "$DEV" = 1 ]; then bash scripts/install_detect.sh; fi
 # optional FLIR radiometric JPEG reader (flyr, EUPL-1.2, pure Python) for the tests of agrinerf_ns/process/flir.py
 if [ "$DEV" = 1 ]; then python -m pip install --quiet "flyr>=5.1"; fi
-# 5. system libraries pip cannot install (open3d's libusb for ns-export): say how to install what is missing.
-python -m agrinerf_ns.system_deps || echo "install.sh: installed; the commands named above need what is missing" >&2
+# 5. system packages pip cannot install: open3d's libusb (ns-export) and, with --dev, Chromium (the viewer test).
+#    install_system.sh installs them as root on Debian/Ubuntu (apt-get), else says what to run; system_deps then
+#    checks what the ns-* commands load (open3d, ffmpeg). Neither stops the install: only the commands named need them.
+SYSTEM_OK=1; SYSTEM_FLAG=""
+[ "$DEV" = 1 ] && SYSTEM_FLAG="--dev"
+bash scripts/install_system.sh $SYSTEM_FLAG || SYSTEM_OK=0
+python -m agrinerf_ns.system_deps || SYSTEM_OK=0
+[ "$SYSTEM_OK" = 1 ] || echo "install.sh: installed; the commands named above need what is missing" >&2
 python -c "import cv2; cv2.ximgproc; import agrinerf_ns, nerfstudio; print('agrinerf-ns', agrinerf_ns.__version__, 'installed; cv2', cv2.__version__)"

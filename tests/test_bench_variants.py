@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -45,19 +46,34 @@ def test_a_variant_key_sets_one_entry_of_a_dict_field() -> None:
 @pytest.mark.parametrize(
     "key, reason",
     [
-        ("agrinerf-lite%thermal_rays=128", "not FIELD=VALUE with a model config field"),
-        ("agrinerf-lite%loss_weights.event_loss=0", "not FIELD=VALUE with a model config field"),
+        ("agrinerf-lite%no_such_field=1", "'agrinerf-lite%no_such_field=1': no model config field 'no_such_field'"),
+        ("agrinerf-lite%thermal_rays=128", r"no model config field 'thermal_rays' \(close: thermal_rays_per_batch"),
+        ("agrinerf-lite%loss_weights.event_loss=0", "no model config field 'loss_weights'"),
+        ("agrinerf-lite%loss_coefficients.evnt_loss=0", r"loss_coefficients has no 'evnt_loss' \(close: event_loss"),
+        ("agrinerf-lite%camera_optimizer.mod=0", r"camera_optimizer has no 'mod' \(close: mode"),
+        ("agrinerf-lite%thermal_rays_per_batch.x=1", "thermal_rays_per_batch has no 'x'"),
         ("agrinerf-lite%thermal_rays_per_batch", "not FIELD=VALUE"),
         ("agrinerf-lite%thermal_rays_per_batch=12x", "not JSON"),
-        ("no-such-method%thermal_rays_per_batch=1", "is not a bench method"),
+        ("no-such-method%thermal_rays_per_batch=1", "'no-such-method' is not a bench method"),
+        ("agrinerf-lte%thermal_rays_per_batch=1", r"'agrinerf-lte' is not a bench method \(close: agrinerf-lite"),
     ],
 )
 def test_a_bad_variant_key_is_refused_with_the_reason(key: str, reason: str) -> None:
+    """At lookup, naming the key and the unknown BASE or field with the close names; the bench's own error too."""
     assert key not in METHODS
     with pytest.raises(KeyError, match=reason):
         METHODS[key]
-    with pytest.raises(ValueError, match="unknown methods"):
+    with pytest.raises(ValueError, match="unknown methods") as err:
         main(BenchConfig(out=Path("/nonexistent"), profile="tiny", methods=(key,)))
+    assert key in str(err.value) and re.search(reason, str(err.value))
+
+
+def test_a_variant_key_sets_a_field_of_a_nested_config() -> None:
+    method = METHODS['agrinerf-lite%camera_optimizer.mode="SO3xR3"']
+    preset = agrinerf_lite.config
+    parsed = tyro.cli(tyro.conf.FlagConversionOff[type(preset)], default=preset, args=list(method.train_args))
+    assert parsed.pipeline.model.camera_optimizer.mode == "SO3xR3"
+    assert preset.pipeline.model.camera_optimizer.mode == "off"
 
 
 def test_the_bench_trains_a_variant_under_its_own_key(tmp_path: Path) -> None:

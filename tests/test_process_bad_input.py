@@ -6,10 +6,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+import tyro
 import yaml
 from helpers.process_raw_fixture import make_raw_capture, write_events
 
 from agrinerf_ns.process import ProcessConfig, RawInputError, process_capture
+from agrinerf_ns.process.cli import ProcessArgs, main
 
 
 def _run(raw: Path, out: Path):
@@ -117,6 +119,37 @@ def test_odometry_does_not_overlap(raw, tmp_path):
         "".join(f"{float(ln.split()[0]) + 50} {' '.join(ln.split()[1:])}\n" for ln in odo.read_text().splitlines())
     )
     _expect_error(raw, tmp_path, r"odometry.txt: no pose within .* timestamps do not overlap")
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-Infinity"])
+def test_odometry_non_finite_value_is_refused_by_the_cli(raw, tmp_path, capsys, value):
+    """A NaN / infinite odometry value stops ``agrinerf-process --poses given`` with the file and the 1-based line,
+    instead of becoming a NaN pose in transforms.json; nothing is written and the raw folder is untouched."""
+    odo = raw / "odometry.txt"
+    lines = odo.read_text().splitlines()
+    lines.insert(0, "# t tx ty tz qx qy qz qw")  # a comment line: the reported line number counts it
+    parts = lines[3].split()
+    parts[2] = value  # ty of the third pose, file line 4
+    lines[3] = " ".join(parts)
+    odo.write_text("\n".join(lines) + "\n")
+    before = _snapshot(raw)
+    out = tmp_path / "out"
+    args = ["--raw", str(raw), "--out", str(out), "--poses", "given", "--no-show-progress"]
+    with pytest.raises(SystemExit) as exit_info:
+        main(tyro.cli(ProcessArgs, args=args))
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{odo}:4: value not finite (ty)" in err
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]
+    assert _snapshot(raw) == before
+    with pytest.raises(RawInputError, match=r"odometry.txt:4: value not finite \(ty\)"):  # the library call too
+        _run(raw, out)
+
+
+def _snapshot(folder: Path) -> dict:
+    """Every file under ``folder`` with its bytes and modification time."""
+    return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def test_missing_frame_file_and_bad_timestamp_line(raw, tmp_path):

@@ -88,3 +88,19 @@ def test_tum_reader_quaternion_convention(tmp_path: Path):
     t, c2w = readers.read_tum(f)
     np.testing.assert_allclose(c2w[0, :3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
     np.testing.assert_allclose(c2w[0, :3, 3], [1, 2, 3])
+
+
+@pytest.mark.parametrize(
+    ("row", "message"),
+    [
+        ("2.0 1 2 3 0 0 0 NaN", r":4: value not finite \(qw\)"),
+        ("inf 1 2 3 0 0 0 1", r":4: value not finite \(t\)"),
+        ("2.0 1 2 3 0 0 0 0", r":4: zero quaternion"),
+    ],
+)
+def test_tum_reader_names_the_file_line_of_a_bad_row(tmp_path: Path, row: str, message: str):
+    # the line number counts the comment and the blank line too: it is the file's, not the row's index
+    f = tmp_path / "odometry.txt"
+    f.write_text(f"# t tx ty tz qx qy qz qw\n0.0 0 0 0 0 0 0 1\n\n{row}\n")
+    with pytest.raises(RawInputError, match=rf"odometry.txt{message}"):
+        readers.read_tum(f)

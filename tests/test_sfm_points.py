@@ -142,7 +142,7 @@ def test_ns_train_on_a_dataset_with_sfm_points_without_open3d(tmp_path: Path, mo
              "--pipeline.model.upsampling-iters", "--pipeline.model.box-fit-iters", "3",
              "--pipeline.model.box-fit-rays", "512", "--machine.device-type", "cpu"]  # fmt: skip
     run = ns_train("agrinerf-lite", data, tmp_path / "outputs", "sfm", max_steps=5, rays_per_batch=256,
-                   extra_args=small, steps_per_save=5, timeout=600)  # fmt: skip
+                   extra_args=small, steps_per_save=5, timeout=600.0)  # fmt: skip
     log = run.config.parent.parent.parent / "agrinerf-lite.train.log"
     assert run.checkpoints(), log.read_text()[-2000:]
     assert "open3d blocked" not in log.read_text()

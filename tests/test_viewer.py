@@ -1,7 +1,7 @@
-"""`ns-viewer` on a tiny trained AgriNeRF run, opened in a real headless Chromium (Debian's `chromium`, which .ci/run
-installs; driven by playwright-python, which downloads no browser): the page connects, the viewer opens on `rgb`, its
-output list holds `rgb` and `thermal`, and `thermal` renders with a colormap. Screenshots are written next to the
-test's output (its tmp_path, printed on failure)."""
+"""`ns-viewer` on a tiny trained AgriNeRF run, opened in a real headless Chromium (Debian's `chromium`, which
+`scripts/install.sh --dev` installs as root; driven by playwright-python, which downloads no browser): the page
+connects, the viewer opens on `rgb`, its output list holds `rgb` and `thermal`, and `thermal` renders with a colormap.
+Screenshots are written next to the test's output (its tmp_path, printed on failure)."""
 
 from __future__ import annotations
 
@@ -27,12 +27,12 @@ STARTUP_S = 300
 
 
 def _chromium() -> str:
-    """Path of the system Chromium; a failure in CI (.ci/run installs it), a skip elsewhere."""
+    """Path of the system Chromium; a failure in CI (install.sh --dev installs it as root), a skip elsewhere."""
     for name in ("chromium", "chromium-browser"):
         path = shutil.which(name)
         if path:
             return path
-    message = "no Chromium on PATH: install Debian's with 'apt-get install chromium' (.ci/run does)"
+    message = "no Chromium on PATH: install Debian's with 'apt-get install chromium' (install.sh --dev does as root)"
     if os.environ.get("CI"):
         pytest.fail(message)
     pytest.skip(message)

@@ -20,7 +20,7 @@ from rich.console import Console
 
 from agrinerf_ns.bench import results
 from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, machine_note, scene_folders, train_record
-from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, BenchMethod
+from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, BenchMethod, unknown_reason
 from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
 from agrinerf_ns.orchestrate import bench_grid
@@ -224,11 +224,11 @@ def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[
 def main(config: BenchConfig) -> List[results.Row]:
     if config.profile not in PROFILES:
         raise ValueError(f"unknown profile {config.profile!r}: choose one of {', '.join(PROFILES)}")
-    unknown = [m for m in config.methods if m not in METHODS]
+    unknown = {m: why for m in config.methods if (why := unknown_reason(m)) is not None}
     if unknown:
         raise ValueError(
-            f"unknown methods {unknown}: choose from {', '.join(METHODS)}, or a variant BASE%FIELD=VALUE that sets a "
-            "model config field (e.g. agrinerf-lite%thermal_rays_per_batch=128)"
+            f"unknown methods {list(unknown)} ({'; '.join(unknown.values())}): choose from {', '.join(METHODS)}, or "
+            "a variant BASE%FIELD=VALUE that sets a model config field (e.g. agrinerf-lite%thermal_rays_per_batch=128)"
         )
     profile = PROFILES[config.profile]
     scenes = config.scenes or profile.scenes

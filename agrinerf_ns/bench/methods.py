@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import importlib.metadata as metadata
 import json
 from dataclasses import dataclass
-from typing import Any, Dict, List, Literal, Optional, Sequence, Set, Tuple
+from typing import Any, Dict, List, Literal, Mapping, Optional, Sequence, Tuple
 
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
@@ -41,16 +43,19 @@ VARIANT_SEPARATOR = "%"
 """Separates a bench key from the model config fields a variant sets: ``BASE%field=value[%field=value...]``."""
 
 
-def field_values(key: str, texts: Sequence[str], known: Optional[Set[str]] = None) -> Dict[str, Any]:
+def field_values(key: str, texts: Sequence[str], known: Optional[Mapping[str, Any]] = None) -> Dict[str, Any]:
     """The ``FIELD=VALUE`` parts of a key (VALUE in JSON) as {field: value}: the model config fields a variant key
     (`variant`) or a ``bench_step_interleaved.py --runs`` entry sets (FIELD ``loss_coefficients.sky_loss``: one
-    entry of a dict field). Raises KeyError naming the part that is not one, or whose field `known` (when given)
-    lacks."""
+    entry of a dict field; ``camera_optimizer.mode``: a field of a nested config). Raises KeyError naming the key and
+    the part that is not one, or the field that `known` (model config fields and their defaults, when given) lacks,
+    with the close names."""
     values: Dict[str, Any] = {}
     for text in texts:
         name, equals, value_text = text.partition("=")
-        if not name or not equals or (known is not None and name.split(".")[0] not in known):
-            raise KeyError(f"{key!r}: {text!r} is not FIELD=VALUE with a model config field")
+        if not name or not equals:
+            raise KeyError(f"{key!r}: {text!r} is not FIELD=VALUE")
+        if known is not None:
+            _check_field(key, name, known)
         try:
             values[name] = json.loads(value_text)
         except json.JSONDecodeError as err:
@@ -58,14 +63,40 @@ def field_values(key: str, texts: Sequence[str], known: Optional[Set[str]] = Non
     return values
 
 
+def _check_field(key: str, name: str, known: Mapping[str, Any]) -> None:
+    """KeyError unless each part of ``name`` (``field[.entry...]``) is a field of the model config, an entry of a dict
+    field's default or a field of a nested config: what ns-train's parser accepts (a dict field takes only the keys
+    of its default)."""
+    parts = name.split(".")
+    choices: Mapping[str, Any] = known
+    for depth, part in enumerate(parts):
+        if part not in choices:
+            close = difflib.get_close_matches(part, [str(c) for c in choices], n=3)
+            hint = f" (close: {', '.join(close)})" if close else ""
+            where = "no model config field" if depth == 0 else f"model config field {'.'.join(parts[:depth])} has no"
+            raise KeyError(f"{key!r}: {where} {part!r}{hint}")
+        choices = _entries(choices[part])
+
+
+def _entries(value: Any) -> Mapping[str, Any]:
+    """The names a dotted field can go on with below ``value``: a dict's keys, a nested config's fields, else none."""
+    if isinstance(value, Mapping):
+        return value
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
+    return {}
+
+
 def variant(key: str) -> BenchMethod:
     """The bench method of a variant key ``BASE%field=value[%field=value...]``: BASE's, with model config fields set
     through ``--pipeline.model.<field> <value>`` (`field_values`; a list is several values), e.g.
     ``agrinerf-lite%thermal_rays_per_batch=128``. Built from the key alone, so a worker process (``--ray``) rebuilds
-    the same method. Raises KeyError naming what is wrong."""
+    the same method. Raises KeyError naming the key and what is wrong (an unknown BASE or field, with close names)."""
     base_key, *fields = key.split(VARIANT_SEPARATOR)
     if base_key not in METHODS or not fields:
-        raise KeyError(f"{key!r}: {base_key!r} is not a bench method")
+        close = difflib.get_close_matches(base_key, list(METHODS), n=3)
+        hint = f" (close: {', '.join(close)})" if close else ""
+        raise KeyError(f"{key!r}: {base_key!r} is not a bench method{hint}")
     base = METHODS[base_key]
     options: List[str] = []
     for name, value in field_values(key, fields, _model_fields(base.ns_method)).items():
@@ -75,13 +106,26 @@ def variant(key: str) -> BenchMethod:
                                train_args=base.train_args + tuple(options))  # fmt: skip
 
 
-def _model_fields(ns_method: str) -> Optional[Set[str]]:
-    """The model config fields of an AgriNeRF preset (None for Nerfstudio's own methods: ns-train checks those)."""
-    if not ns_method.startswith(("agrinerf", "evdeblurnerf")):
-        return None
-    from agrinerf_ns.model.model_config import AgriNeRFModelConfig
+def unknown_reason(key: str) -> Optional[str]:
+    """Why ``key`` is no bench method, for an error message (None when it is one)."""
+    try:
+        METHODS[key]
+    except KeyError as err:
+        if VARIANT_SEPARATOR in key and err.args:
+            return str(err.args[0])  # variant(): names the unknown BASE or field
+        close = difflib.get_close_matches(key, list(METHODS), n=3)
+        return f"{key!r} is not a bench method" + (f" (close: {', '.join(close)})" if close else "")
+    return None
 
-    return {f.name for f in dataclasses.fields(AgriNeRFModelConfig)}
+
+def _model_fields(ns_method: str) -> Optional[Dict[str, Any]]:
+    """The model config fields of this plugin's ``ns-train`` method with the preset's values (None for Nerfstudio's
+    own methods: ns-train checks those); a dict field's value gives the keys it takes."""
+    entry_point = next(iter(metadata.entry_points(group="nerfstudio.method_configs", name=ns_method)), None)
+    if entry_point is None or not entry_point.value.startswith("agrinerf_ns."):
+        return None
+    model = entry_point.load().config.pipeline.model
+    return {f.name: getattr(model, f.name) for f in dataclasses.fields(model) if not f.name.startswith("_")}
 
 
 class MethodTable(Dict[str, BenchMethod]):

@@ -28,7 +28,7 @@ from agrinerf_ns.process.dataset_writer import (
     write_transforms,
 )
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.readers import read_triggers
+from agrinerf_ns.process.readers import read_triggers, read_tum
 from agrinerf_ns.process.step_events import write_event_frames
 from agrinerf_ns.process.step_poses import estimate_poses, write_odometry_trajectory
 from agrinerf_ns.process.step_rgb import write_rgb_frames
@@ -63,8 +63,10 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         CONSOLE.log(f"[yellow]Warning: {w}")
     if config.poses == "sfm-thermal" and cap.thermal is None:
         raise RawInputError(f"{raw}: --poses sfm-thermal needs thermal frames")
-    if config.poses == "given" and not (raw / "odometry.txt").is_file():
-        raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses given needs the odometry file")
+    if config.poses == "given":
+        if not (raw / "odometry.txt").is_file():
+            raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses given needs the odometry file")
+        read_tum(raw / "odometry.txt")  # every line checked (8 finite numbers) before any output is written
     if config.sync == "trigger":
         if cap.event_file is None:
             raise RawInputError(f"{raw / 'events'}: --sync trigger needs an event file with trigger events")

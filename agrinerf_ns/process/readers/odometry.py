@@ -11,12 +11,21 @@ from jaxtyping import Float
 
 from agrinerf_ns.process.errors import RawInputError
 
+_TUM_FIELDS = ("t", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
+"""The names of a TUM line's eight values, in order (for error messages)."""
+
 
 def read_tum(path: Path) -> Tuple[Float[np.ndarray, " n"], Float[np.ndarray, "n 4 4"]]:
-    """Read a TUM trajectory "t tx ty tz qx qy qz qw" -> (times, 4x4 camera-to-world matrices)."""
+    """Read a TUM trajectory "t tx ty tz qx qy qz qw" -> (times, 4x4 camera-to-world matrices).
+
+    Raises :class:`RawInputError` naming the file and the 1-based line of a malformed row: not 8 numbers, a NaN or
+    infinite value (``float()`` accepts "nan" and "inf", which would otherwise become a NaN pose), or a zero
+    quaternion.
+    """
     if not path.is_file():
         raise RawInputError(f"{path}: pose file missing")
     rows = []
+    linenos = []  # the file line of each row (comments and blank lines are skipped), for the messages below
     for lineno, line in enumerate(path.read_text().splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -28,14 +37,18 @@ def read_tum(path: Path) -> Tuple[Float[np.ndarray, " n"], Float[np.ndarray, "n 
             raise RawInputError(f"{path}:{lineno}: non-numeric value in {line!r}") from err
         if len(vals) != 8:
             raise RawInputError(f"{path}:{lineno}: expected 8 values 't tx ty tz qx qy qz qw', got {len(vals)}")
+        bad = [name for name, v in zip(_TUM_FIELDS, vals, strict=True) if not np.isfinite(v)]
+        if bad:
+            raise RawInputError(f"{path}:{lineno}: value not finite ({', '.join(bad)}) in {line!r}")
         rows.append(vals)
+        linenos.append(lineno)
     if not rows:
         raise RawInputError(f"{path}: no poses")
     arr = np.asarray(rows, dtype=np.float64)
     q = arr[:, 4:8]
     norm = np.linalg.norm(q, axis=1)
     if np.any(norm < 1e-8):
-        raise RawInputError(f"{path}: zero quaternion at line {int(np.argmin(norm)) + 1}")
+        raise RawInputError(f"{path}:{linenos[int(np.argmin(norm))]}: zero quaternion")
     q = q / norm[:, None]
     c2w = np.tile(np.eye(4), (arr.shape[0], 1, 1))
     c2w[:, :3, :3] = quat_xyzw_to_rotmat(q)
