@@ -43,6 +43,7 @@ from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
+from agrinerf_ns.dataparsers.fruit_masks import fruit_mask_paths
 from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
@@ -104,6 +105,9 @@ class AgriNeRFDataParser(Nerfstudio):
                 _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
             metadata[metadata_key] = paths
 
+        fruit_masks = fruit_mask_paths(kept, data_dir, transforms_path, lambda frame: _frame_size(frame, meta))
+        if fruit_masks is not None:
+            metadata["fruit_mask_filenames"] = fruit_masks
         if "thermal_filenames" in metadata:
             metadata.update(_temperature(frames, kept, block, meta, data_dir, transforms_path))
             camera = _warped_camera(block, outputs, meta, "thermal")

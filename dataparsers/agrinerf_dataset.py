@@ -9,7 +9,9 @@ Keys returned by :meth:`AgriNeRFDataset.get_metadata` (only for modalities the d
 - ``"thermal"`` in [0, 1] and ``"thermal_mask"`` in {0, 1} (all ones when the dataset has no thermal masks);
 - ``"event"`` in [0, 1] (representation in ``metadata["agrinerf"]["events"]``) and ``"event_mask"`` in {0, 1};
 - ``"temperature"`` in degrees C and ``"temperature_mask"`` in {0, 1} (the thermal mask, and the image has a value),
-  when the dataset has temperature images (``metadata["temperature_filenames"]``).
+  when the dataset has temperature images (``metadata["temperature_filenames"]``);
+- ``"fruit"`` and ``"fruit_known"`` in {0, 1} (``dataparsers/fruit_masks.py``), when the frames have fruit masks
+  (``metadata["fruit_mask_filenames"]``).
 
 Like ``"image"``, these keys stay on the CPU in the cached batch (``exclude_batch_keys_from_device``); a model
 moves them with ``batch["thermal"].to(self.device)`` as it does the image.
@@ -30,6 +32,7 @@ from PIL import Image
 from torch import Tensor
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataError, AgriNeRFDataParserConfig
+from agrinerf_ns.dataparsers.fruit_masks import load_fruit_mask
 
 # batch key -> (metadata key of its files, metadata key of its masks, batch key of its mask)
 MODALITY_KEYS: Dict[str, Tuple[str, str, str]] = {
@@ -141,6 +144,8 @@ class AgriNeRFDataset(InputDataset):
         "event_off",
         "temperature",
         "temperature_mask",
+        "fruit",
+        "fruit_known",
     ]
 
     def get_metadata(self, data: Dict) -> Dict[str, Any]:
@@ -162,6 +167,9 @@ class AgriNeRFDataset(InputDataset):
         if temperature_files:
             out["temperature"], valid = load_temperature_frame(temperature_files[image_idx], height, width)
             out["temperature_mask"] = valid * out.get("thermal_mask", torch.ones_like(valid))
+        fruit_masks = self.metadata.get("fruit_mask_filenames")
+        if fruit_masks:
+            out["fruit"], out["fruit_known"] = load_fruit_mask(fruit_masks[image_idx], height, width)
         sums_files = self.metadata.get("event_sums_filenames")
         if sums_files:
             out["event_on"], out["event_off"] = load_event_counts(sums_files[image_idx], height, width)

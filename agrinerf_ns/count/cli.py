@@ -30,10 +30,11 @@ class CountArgs:
     """Output folder (written to a temporary sibling, then renamed into place)."""
     config: Optional[Path] = None
     """The run's config.yml (outputs/<name>/<method>/<time>/config.yml) or its folder."""
-    path: Literal["auto", "views", "field"] = "auto"
+    path: Literal["auto", "views", "field", "fruit"] = "auto"
     """auto: what counted best on runs of this kind: RGB views placed by their rays where the RGB frames are lit, the
     field's temperature where they are dark or absent (docs/count.md); views: detect in rendered views and lift
-    (--renders: always); field: count in the sampled field, in 3D."""
+    (--renders: always); field: count in the sampled field, in 3D; fruit: count in 3D where the run's fruit head
+    (trained from the frames' fruit masks) says fruit."""
     renders: Optional[Path] = None
     """Instead of --config: a render folder written by an earlier count (OUT/renders), to re-detect without rendering."""
     truth: Optional[Path] = None
@@ -52,10 +53,11 @@ class CountArgs:
 
 def main(args: CountArgs) -> CountResult:
     try:
-        if args.path == "field" and args.renders is None:
+        if args.path in ("field", "fruit") and args.renders is None:
             if args.config is None:
                 raise ValueError("give --config RUN/config.yml (or the run folder)")
-            return run_field_count(args.config, args.out, args.field, args.truth, args.overwrite, args.count)[0]
+            settings = replace(args.field, source="fruit") if args.path == "fruit" else args.field
+            return run_field_count(args.config, args.out, settings, args.truth, args.overwrite, args.count)[0]
         config = trained_run_config(args.config) if args.config is not None else None
         count, loaded = args.count, None
         if args.path == "auto" and config is not None:

@@ -5,7 +5,8 @@
 filter over the grid, normalised by the voxels it covers), in units of the robust spread (1.4826 MAD) of that
 difference over all of them; a voxel beyond ``threshold`` is a fruit voxel. With ``polarity both`` warm and cool
 voxels are grouped apart (a seed's fruit are all warmer or all cooler than its leaves, the ground and bark can be
-either). RGB: the fruit-colour score of :func:`agrinerf_ns.count.blobs.fruit_colour` (red to yellow saturation after
+either). Source ``fruit``: the fruit head's probability reaches ``fruit_probability``. RGB: the fruit-colour score
+of :func:`agrinerf_ns.count.blobs.fruit_colour` (red to yellow saturation after
 scaling the voxels' 99th brightness percentile to 1), warm polarity only.
 
 *Fruit-sized*: a 26-connected component of fruit voxels is a fruit when its diameter (``2 sqrt(5 l1)``, with l1 the
@@ -52,6 +53,9 @@ class ComponentConfig:
     min_views: int = 2
     """Training views that must show a fruit with at least ``min_pixels`` of their pixels (without views: the most
     views that see any of its voxels)."""
+    fruit_probability: float = 0.5
+    """Source ``fruit``: a voxel is a fruit voxel where the fruit head's probability reaches this (instead of standing
+    out from its surroundings)."""
     min_pixels: float = 3.0
     """Pixels of a training image (at the dataset's resolution) a fruit must cover to count as shown in it (as a true
     fruit is visible with 3 pixels of a training view's truth mask)."""
@@ -87,16 +91,19 @@ def _feature(sampled: SampledField) -> Float[np.ndarray, " n"]:
 
 def find_fruit(sampled: SampledField, config: ComponentConfig = ComponentConfig()) -> Tuple[List[Fruit], dict]:
     """Fruit (dataset frame and units) of a sampled field, and a summary of what was found and dropped."""
-    z = standing_out(sampled, config)
-    polarities = (
-        ["warm"] if sampled.source == "rgb" else (["warm", "cool"] if config.polarity == "both" else [config.polarity])
-    )
+    if sampled.source == "fruit":  # the fruit head says it directly: its probability against a threshold
+        probability = sampled.feature[:, 0].astype(np.float32)
+        selections = [(probability >= config.fruit_probability, probability)]
+    else:
+        z = standing_out(sampled, config)
+        polarities = ["warm"] if sampled.source == "rgb" else (
+            ["warm", "cool"] if config.polarity == "both" else [config.polarity])  # fmt: skip
+        selections = [(z >= config.threshold if p == "warm" else z <= -config.threshold, np.abs(z)) for p in polarities]
     fruit: List[Fruit] = []
     stats = {"fruit_voxels": 0, "components": 0, "too_small": 0, "too_large": 0, "elongated": 0, "unseen": 0}
-    for polarity in polarities:
-        selected = z >= config.threshold if polarity == "warm" else z <= -config.threshold
+    for selected, score in selections:
         stats["fruit_voxels"] += int(selected.sum())
-        found, dropped = _components(sampled, selected, z, config)
+        found, dropped = _components(sampled, selected, score, config)
         fruit.extend(found)
         for key, value in dropped.items():
             stats[key] += value
@@ -105,7 +112,7 @@ def find_fruit(sampled: SampledField, config: ComponentConfig = ComponentConfig(
 
 
 def _components(
-    sampled: SampledField, selected: np.ndarray, z: np.ndarray, config: ComponentConfig
+    sampled: SampledField, selected: np.ndarray, score: np.ndarray, config: ComponentConfig
 ) -> Tuple[List[Fruit], dict]:
     from scipy.ndimage import label
 
@@ -154,7 +161,7 @@ def _components(
                 views=views,
                 detections=int(len(members)),
                 temperature=temperature,
-                score=float(np.mean(np.abs(z[members]))),
+                score=float(np.mean(score[members])),
             )
         )
     return fruit, dropped

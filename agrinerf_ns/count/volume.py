@@ -20,10 +20,11 @@ from jaxtyping import Bool, Float, Int
 
 from agrinerf_ns.count.render import CountInputError, WorldFrame
 
-FieldSource = Literal["auto", "temperature", "thermal_camera", "thermal", "rgb"]
-"""What fruit are told apart by in the field: ``temperature`` (degrees C, a radiometric thermal camera), the thermal
-camera's channel ``thermal_camera``, the cross-spectral ``thermal``, or ``rgb`` (fruit colour); ``auto``: the first the
-run has, in that order."""
+FieldSource = Literal["auto", "fruit", "temperature", "thermal_camera", "thermal", "rgb"]
+"""What fruit are told apart by in the field: ``fruit`` (the fruit head's probability, learnt from the frames' fruit
+masks), ``temperature`` (degrees C, a radiometric thermal camera), the thermal camera's channel ``thermal_camera``,
+the cross-spectral ``thermal``, or ``rgb`` (fruit colour); ``auto``: the first the run has of the last four, in that
+order (the fruit head is asked for by name: ``--path fruit``)."""
 SOURCE_ORDER: Tuple[str, ...] = ("temperature", "thermal_camera", "thermal", "rgb")
 CHUNK = 1 << 18
 """Points per field evaluation."""
@@ -242,6 +243,7 @@ def field_sources(model: Any) -> Dict[str, bool]:
     field = model.field
     has_thermal = getattr(field, "thermal_head", None) is not None
     return {
+        "fruit": getattr(model, "fruit_head", None) is not None,
         "temperature": getattr(field, "temperature_head", None) is not None,
         "thermal_camera": has_thermal and bool(getattr(model, "has_thermal_camera", False)),
         "thermal": has_thermal,
@@ -287,7 +289,10 @@ def field_features(
             directions = part - torch.as_tensor(eye, dtype=torch.float32, device=device)
             directions = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-9)
             heads = field.appearance_at(coords, directions)
-            if source == "rgb":
+            if source == "fruit":
+                features = field.density_encoding.features(field.corners(coords))
+                value = model.fruit_head.probability(features, coords)
+            elif source == "rgb":
                 value = heads[FieldHeadNames.RGB]
             elif source == "temperature":
                 value = field.temperature_head.to_celsius(heads[AgriNeRFFieldHeadNames.TEMPERATURE])

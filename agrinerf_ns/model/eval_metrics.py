@@ -11,6 +11,7 @@ from nerfstudio.utils import colormaps
 from torch import Tensor
 
 from agrinerf_ns.model import losses, thermal_view
+from agrinerf_ns.model.fruit_head import fruit_iou
 
 if TYPE_CHECKING:
     from agrinerf_ns.model.model import AgriNeRFModel
@@ -35,6 +36,12 @@ def image_metrics_and_images(
         metrics["psnr"] = float(model.psnr(pred_c, gt_c).item())
         metrics["ssim"] = float(model.ssim(pred_c, gt_c).item())  # type: ignore[union-attr]
         metrics["lpips"] = float(lpips(model)(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
+    if "fruit" in outputs and "fruit" in batch:  # the fruit head against the held-out frame's mask
+        known = batch["fruit_known"].to(model.device)
+        metrics["fruit_iou"] = fruit_iou(outputs["fruit"], batch["fruit"].to(model.device), known)
+        images["fruit"] = torch.cat([batch["fruit"].to(model.device) * known, outputs["fruit"]], dim=1).expand(
+            -1, -1, 3
+        )
     outputs = thermal_view.eval_outputs(model, outputs)  # thermal outputs as the thermal camera saw them
     if model.has_thermal_head:
         pred_th = outputs["thermal"]

@@ -11,6 +11,7 @@ from torch import Tensor
 
 from agrinerf_ns import colour
 from agrinerf_ns.model import event_supervision, losses, thermal_view
+from agrinerf_ns.model.fruit_head import fruit_loss
 from agrinerf_ns.model.plane_tv import plane_tv
 
 if TYPE_CHECKING:
@@ -73,11 +74,12 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
     if "edi_factor" in outputs and image is not None:  # EvDeblurNeRF's EDI prior on the frame ray
         sharp = colour.linear_to_srgb(colour.srgb_to_linear(image) / outputs["edi_factor"])
         terms["edi_prior_loss"] = losses.masked_mse(pred("edi_prior_loss"), sharp, outputs["edi_valid"])
-    if "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples
+    mode = model.plan.event_supervision
+    if mode == "pairs" and "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples (none: no pair)
         terms["event_loss"] = losses.event_pair_loss(
             outputs["event_log_start"], outputs["event_log_end"], outputs["event_target"]
         )
-    elif "event_on" in outputs:  # the stream's event pixels carry their own counts
+    elif mode == "stream" and "event_on" in outputs:  # the stream's event pixels carry their own counts
         terms["event_loss"] = losses.event_loss(
             outputs["event_log_start"],
             outputs["event_log_end"],
@@ -86,7 +88,7 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
             *event_supervision.event_thresholds(model),
             lower_bound=model.config.event_loss_bound,
         )
-    elif "event_log_start" in outputs and "event_on" in batch:
+    elif mode == "frames" and "event_log_start" in outputs and "event_on" in batch:
         m = outputs["event_log_start"].shape[0]
         mask = optional("event_mask")
         terms["event_loss"] = losses.event_loss(
@@ -98,6 +100,8 @@ def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str
             None if mask is None else mask[:m],
             lower_bound=model.config.event_loss_bound,
         )
+    if "fruit" in outputs and "fruit" in batch:  # the fruit head against the frames' masks (fruit_head.py)
+        terms["fruit_loss"] = fruit_loss(outputs["fruit"], optional("fruit"), optional("fruit_known"))
     if not model.has_thermal_head:
         return terms
     # the thermal frames' terms: on the first rays of the batch seen from the thermal camera, where training rendered

@@ -31,7 +31,6 @@ from torch.nn import Parameter
 
 from agrinerf_ns import cpu_memory
 from agrinerf_ns.dataparsers.event_stream import EventCamera, EventStream
-from agrinerf_ns.modalities import normalise_modalities
 from agrinerf_ns.model import (
     blur_renders,
     edi_prior,
@@ -48,9 +47,11 @@ from agrinerf_ns.model.event_crf import EventCRF
 from agrinerf_ns.model.event_pairs import EventPairs
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
+from agrinerf_ns.model.fruit_head import FruitHead
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
 from agrinerf_ns.model.loss_routing import PAPER_DENSITY_GRADIENT_SCALES, TERM_OUTPUTS
 from agrinerf_ns.model.model_config import SIDE_STREAM_SEED, AgriNeRFModelConfig
+from agrinerf_ns.model.plan import ModelPlan, resolve_plan
 from agrinerf_ns.model.rigid_blur import RigidBlurKernel
 
 __all__ = ["PAPER_DENSITY_GRADIENT_SCALES", "TERM_OUTPUTS", "AgriNeRFModel", "AgriNeRFModelConfig"]
@@ -76,34 +77,16 @@ class AgriNeRFModel(Model):
 
     def __init__(self, config: AgriNeRFModelConfig, **kwargs) -> None:
         metadata = kwargs.get("metadata") or {}
-        dataset_modalities = normalise_modalities(metadata.get("modalities", ("rgb",)))
-        wanted = normalise_modalities(config.modalities)
-        self.modalities: Tuple[str, ...] = tuple(m for m in wanted if m in dataset_modalities)
-        self.use_rgb = "rgb" in self.modalities
-        self.use_thermal = "thermal" in self.modalities
-        self.use_events = "events" in self.modalities
-        self.has_thermal_head = self.use_thermal or (self.use_events and config.cross_spectral_output)
-        self.has_thermal_camera = self.use_thermal and config.thermal_camera_output
-        rgb_level = float(metadata.get("rgb_level", float("nan")))
-        # NaN (no level recorded) compares False: no low-light rule
-        dark = rgb_level < config.low_light_level
-        self.low_light = self.has_thermal_camera and dark
-        # the density gradient scales in force: the configured ones, the thermal-camera term at full strength in low light
-        self.density_gradient_scales: Dict[str, float] = {
-            k: float(v) for k, v in config.density_gradient_scales.items()
-        }
-        if self.low_light:
-            camera_scale = self.density_gradient_scales.get("thermal_camera_loss", 1.0)
-            self.density_gradient_scales["thermal_camera_loss"] = max(camera_scale, 1.0)
-            CONSOLE.print(
-                f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
-                f"{config.low_light_level}), so the thermal-camera term shapes the geometry too."
-            )
+        self.plan: ModelPlan = resolve_plan(config, metadata)  # every on/off decision, made once (plan.py)
+        for note in self.plan.notes:
+            CONSOLE.print(note)
+        plan = self.plan
+        self.modalities: Tuple[str, ...] = plan.modalities
+        self.density_gradient_scales: Dict[str, float] = dict(plan.density_gradient_scales)
         # dataset temperatures in degrees C (mean_c, std_c, min_c, max_c): only with a radiometric calibration
         self.temperature_stats: Optional[Dict[str, float]] = metadata.get("temperature_stats")
         # metres per scene unit, where the dataset's poses are metric (dataparser metadata; None: unknown scale)
         self.metres_per_unit: Optional[float] = metadata.get("metres_per_unit")
-        self.has_temperature = self.use_thermal and config.temperature_output and self.temperature_stats is not None
         # timing of the training frames (dataparser metadata): what the blur model and the event loss need
         self.frame_times: Optional[Tensor] = metadata.get("times")
         self.exposure: Optional[Tensor] = metadata.get("exposure")
@@ -113,57 +96,35 @@ class AgriNeRFModel(Model):
         self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
         self.thermal_camera: Dict[str, Any] = metadata.get("thermal_camera") or {}  # its centre (thermal_view.py)
         self.eval_camera: Optional[Cameras] = None
-        timed = self.trajectory is not None and self.frame_times is not None
-        self.use_blur = (
-            self.use_rgb
-            and config.blur_samples > 1
-            and (config.blur_kernel == "learnt" or (timed and self.exposure is not None))
-        )
-        self.use_event_loss = (
-            self.use_rgb
-            and self.use_events
-            and timed
-            and self.event_windows is not None
-            and config.event_rays_per_batch > 0
-            and config.loss_coefficients.get("event_loss", 0.0) > 0
-        )
-        if self.use_event_loss and dark and not config.low_light_event_loss:
-            self.use_event_loss = False
-            CONSOLE.print(
-                f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
-                f"{config.low_light_level}), so the event loss is off (--pipeline.model.low-light-event-loss True "
-                "keeps it)."
-            )
+        native = self.event_camera_native
         self.event_stream: Optional[EventStream] = None
-        if self.use_event_loss and config.event_supervision == "stream" and self.event_camera_native is not None:
-            self.event_stream = self.event_camera_native.stream()
+        if plan.event_supervision == "stream" and native is not None:
+            self.event_stream = native.stream()
         self.event_pairs: Optional[EventPairs] = None
-        if self.use_event_loss and config.event_supervision == "pairs" and self.event_camera_native is not None:
-            native = self.event_camera_native
+        if plan.event_supervision == "pairs" and native is not None:
             self.event_pairs = EventPairs.from_h5(native.path, native.width, native.height)
         # the EDI prior's counts at the event pixels (EventStream), where its inputs are all there
         self.edi_stream: Optional[EventStream] = None
-        if (
-            config.edi_prior
-            and self.use_rgb
-            and self.use_events
-            and timed
-            and self.exposure is not None
-            and self.event_camera_native is not None
-        ):
-            self.edi_stream = self.event_stream or self.event_camera_native.stream()
+        if plan.edi_prior and native is not None:
+            self.edi_stream = self.event_stream or native.stream()
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         self.loss_means: Optional[Tuple[float, float]] = None  # running RGB and event losses (`noise` weighting)
         self.event_weight = 0.0  # the `noise` weighting's last factor, logged as a metric
-        if not (self.use_rgb or self.use_thermal):
-            raise ValueError(
-                f"AgriNeRF needs RGB or thermal supervision: config modalities {wanted}, dataset modalities "
-                f"{dataset_modalities} leave {self.modalities}."
-            )
         self.upsampling_resolutions: List[int] = grid_schedule.upsampling_resolutions(
             config.init_resolution, config.final_resolution, config.upsampling_iters
         )
         super().__init__(config=config, **kwargs)
+
+    # the plan's decisions, under the names the model's parts read
+    use_rgb = property(lambda self: self.plan.use_rgb)
+    use_thermal = property(lambda self: self.plan.use_thermal)
+    use_events = property(lambda self: self.plan.use_events)
+    has_thermal_head = property(lambda self: self.plan.has_thermal_head)
+    has_thermal_camera = property(lambda self: self.plan.has_thermal_camera)
+    has_temperature = property(lambda self: self.plan.has_temperature)
+    low_light = property(lambda self: self.plan.low_light)
+    use_blur = property(lambda self: self.plan.use_blur)
+    use_event_loss = property(lambda self: self.plan.use_event_loss)
 
     # ------------------------------------------------------------------ setup
     def populate_modules(self) -> None:
@@ -208,6 +169,15 @@ class AgriNeRFModel(Model):
             occupancy_resolution=cfg.occupancy_resolution,
             vm_lookup=cfg.vm_lookup,
         )
+
+        self.fruit_head: Optional[FruitHead] = None  # where the frames have fruit masks (fruit_head.py)
+        if self.plan.has_fruit_head:
+            with torch.random.fork_rng(
+                devices=[]
+            ):  # an optional part leaves the field's (and the batches') draws alone
+                torch.manual_seed(SIDE_STREAM_SEED)
+                features = self.field.density_encoding.get_out_dim()
+                self.fruit_head = FruitHead(features, cfg.fruit_mlp_width, cfg.fruit_shapes_geometry)
 
         # the first full-resolution box: around the dataset's SfM points where it has them (refitted in training)
         points = (self.kwargs.get("metadata") or {}).get("points3D_xyz")
@@ -261,6 +231,8 @@ class AgriNeRFModel(Model):
         }
         if self.log_event_threshold is not None:
             groups["fields"].append(self.log_event_threshold)
+        if self.fruit_head is not None:
+            groups["fields"] += list(self.fruit_head.parameters())
         if self.blur_kernel is not None:
             groups["blur_kernel"] = list(self.blur_kernel.parameters())
         if self.event_crf is not None:
@@ -320,11 +292,12 @@ class AgriNeRFModel(Model):
                     outputs.update(thermal_view.thermal_view_outputs(self, ray_bundle))
                 if self.edi_stream is not None:
                     outputs.update(event_supervision.edi_outputs(self, ray_bundle))
-                if self.use_event_loss and self.event_pairs is not None:
+                mode = self.plan.event_supervision
+                if mode == "pairs":
                     outputs.update(event_supervision.pair_event_logs(self, ray_bundle))
-                elif self.use_event_loss and self.event_stream is not None:
+                elif mode == "stream":
                     outputs.update(event_supervision.stream_event_logs(self, ray_bundle))
-                elif self.use_event_loss:
+                elif mode == "frames":
                     outputs["event_log_start"], outputs["event_log_end"] = event_supervision.event_window_logs(
                         self, ray_bundle
                     )
@@ -392,6 +365,10 @@ class AgriNeRFModel(Model):
         outputs: Dict[str, Tensor] = {
             name: self.composite(weights, accumulation, values) for name, values in dense.items()
         }
+        if self.fruit_head is not None and (heads is None or "fruit" in heads):
+            features = self.field.density_encoding.features(corners)
+            in_box = self.field.full_resolution(samples.frustums.get_positions())  # fruit grow in the scene's box
+            outputs["fruit"] = self.fruit_head.render(features, coords.reshape(-1, 3), weights * in_box[..., None])
         outputs["depth"] = self.renderer_depth(weights, samples)
         outputs["accumulation"] = accumulation
         if not self.training:  # where the weight falls and how fine the grid is there (`grid_diagnostics`)

@@ -183,6 +183,7 @@ class AgriNeRFModelConfig(ModelConfig):
             "event_loss": 0.1,
             "temperature_loss": 1.0,
             "edi_prior_loss": 1.0,
+            "fruit_loss": 1.0,
             "l1_reg": 5.0e-4,
             "tv_reg_density": 1.0e-3,
             "tv_reg_appearance": 1.0e-4,
@@ -190,6 +191,11 @@ class AgriNeRFModelConfig(ModelConfig):
     )
     """Weights: paper L = L_rgb + L_th + L_reg (reg_rgb_loss + reg_event_loss), plus the thermal-camera term and TensoRF
     L1/TV; 0 disables a term."""
+    fruit_output: bool = True
+    """The fruit head and its `fruit` output (`model/fruit_head.py`), where the dataset's frames have fruit masks."""
+    fruit_mlp_width: int = 32
+    fruit_shapes_geometry: bool = False
+    """Let the fruit loss's gradient reach the density (off: FruitNeRF's choice, the masks cannot bend the geometry)."""
     blur_samples: int = 1
     """Blur model: a training frame's pixel is compared with the mean, in linear radiance, of this many renders at
     poses spread over the frame's exposure (the dataset's exposure intervals and camera trajectory). 1: the frame's

@@ -35,8 +35,8 @@ def thermal_camera_used(model: AgriNeRFModel) -> bool:
 
 def uses_thermal_view(model: AgriNeRFModel) -> bool:
     """Whether training renders the thermal terms from the thermal camera: `thermal_camera_used`, and the rig's
-    trajectory gives each frame's orientation."""
-    return thermal_camera_used(model) and model.trajectory is not None and model.frame_times is not None
+    trajectory gives each frame's orientation (the model's plan: `plan.thermal_view`)."""
+    return model.plan.thermal_view
 
 
 def thermal_frame_times(model: AgriNeRFModel) -> Optional[Tensor]:
@@ -69,7 +69,7 @@ def main_render_heads(model: AgriNeRFModel) -> Optional[Tuple[str, ...]]:
     """The heads the RGB rays' render needs in a training step: without the temperature head where the thermal
     camera's rays carry the temperature term (`uses_thermal_view`: no term reads it on the RGB rays); None: all."""
     if model.training and torch.is_grad_enabled() and uses_thermal_view(model):
-        return ("rgb", "thermal")
+        return ("rgb", "thermal", "fruit") if getattr(model, "fruit_head", None) is not None else ("rgb", "thermal")
     return None
 
 

@@ -31,8 +31,9 @@ def scene_at(points: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
     return torch.where(solid, DENSITY, 0.0), temperature
 
 
-def fruit_model(steps: int = 400, seed: int = 0) -> Any:
-    """An `AgriNeRFModel` (RGB and thermal heads, a temperature head) whose field is fitted to `scene_at`."""
+def fruit_model(steps: int = 400, seed: int = 0, fruit_head: bool = False) -> Any:
+    """An `AgriNeRFModel` (RGB and thermal heads, a temperature head) whose field is fitted to `scene_at`; with
+    `fruit_head`, also a fruit head fitted to which solid points are fruit (as masks would teach it)."""
     from nerfstudio.data.scene_box import SceneBox
 
     from agrinerf_ns.model.model import AgriNeRFModelConfig
@@ -48,10 +49,13 @@ def fruit_model(steps: int = 400, seed: int = 0) -> Any:
         "modalities": ("rgb", "thermal"),
         "temperature_stats": {"mean_c": 20.0, "std_c": 2.0, "min_c": 15.0, "max_c": 25.0},
     }
+    if fruit_head:
+        metadata["fruit_mask_filenames"] = []  # the plan builds a fruit head where the frames have masks
     config = AgriNeRFModelConfig(**settings)
     model = config.setup(scene_box=SceneBox(torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=1, metadata=metadata)
     field = model.field
     params = [p for p in field.parameters() if p.requires_grad]
+    params += list(model.fruit_head.parameters()) if model.fruit_head is not None else []
     optimizer = torch.optim.Adam(params, lr=0.02)
     generator = torch.Generator().manual_seed(seed)
     for _ in range(steps):
@@ -66,6 +70,11 @@ def fruit_model(steps: int = 400, seed: int = 0) -> Any:
 
         predicted = heads[AgriNeRFFieldHeadNames.TEMPERATURE][:, 0]
         loss = loss + ((predicted - field.temperature_head.normalise(target_temperature[solid])) ** 2).mean()
+        if fruit_head:
+            is_fruit = (target_temperature[solid] == FRUIT_C).float()[:, None]
+            features = field.density_encoding.features(field.corners(coords[solid]))
+            probability = model.fruit_head.probability(features, coords[solid]).clamp(1e-6, 1 - 1e-6)
+            loss = loss + torch.nn.functional.binary_cross_entropy(probability, is_fruit)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()

@@ -1,0 +1,178 @@
+"""What a model trains, decided once: which heads, which loss terms, which event supervision, the low-light rules.
+
+:func:`resolve_plan` is a pure function of the model config and the dataset's metadata (the dataparser's). The model
+builds its parts from the plan, its forward pass and its loss terms dispatch on it, and it prints the plan's notes;
+nothing else decides these things again from which objects or output keys exist. Model only what a scene requires: a
+dataset without events gets no event term, one without thermal frames no thermal head.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, FrozenSet, Literal, Mapping, Tuple
+
+from agrinerf_ns.modalities import normalise_modalities
+
+if TYPE_CHECKING:
+    from agrinerf_ns.model.model_config import AgriNeRFModelConfig
+
+EventSupervision = Literal["off", "pairs", "stream", "frames"]
+"""How the event loss is supervised: off; EvDeblurNeRF's event-to-event pairs; the stream's event pixels in random
+windows; the frames' event windows (the dataset's per-frame ON / OFF counts)."""
+BlurModel = Literal["off", "trajectory", "learnt"]
+"""The RGB blur model: off; sub-poses of the rig's trajectory across each exposure; a learnt rigid kernel."""
+
+REGULARISERS = ("l1_reg", "tv_reg_density", "tv_reg_appearance")
+
+
+@dataclass(frozen=True)
+class ModelPlan:
+    """The parts a model has and the terms it trains, for one config and one dataset."""
+
+    modalities: Tuple[str, ...]
+    """The config's modalities that the dataset has."""
+    use_rgb: bool
+    use_thermal: bool
+    """Thermal frames supervise the model (the thermal terms)."""
+    use_events: bool
+    """The dataset's events reach the model (the event loss where on, the cross-spectral event term)."""
+    has_thermal_head: bool
+    """The cross-spectral `thermal` output: with thermal frames, or with events and `cross_spectral_output`."""
+    has_thermal_camera: bool
+    """The `thermal_camera` output (the thermal frames as the camera saw them)."""
+    has_temperature: bool
+    """The `temperature` output (degrees C): thermal frames with a radiometric calibration."""
+    dark: bool
+    """The RGB frames average below `low_light_level` of full scale."""
+    low_light: bool
+    """Dark with a thermal camera: the thermal-camera term shapes the geometry at full strength."""
+    thermal_view: bool
+    """The thermal terms are rendered from the thermal camera's own rays (its place known, rays per batch > 0)."""
+    timed: bool
+    """The dataset gives each frame's time and the rig's trajectory."""
+    blur: BlurModel
+    event_supervision: EventSupervision
+    edi_prior: bool
+    """EvDeblurNeRF's EDI prior on the frame rays."""
+    has_fruit_head: bool
+    """The fruit head and its `fruit` output: the frames have fruit masks (`fruit_output`, a `fruit_loss` weight)."""
+    density_gradient_scales: Mapping[str, float]
+    """Per term, the scale of its gradient into the density (low light raises the thermal camera's to 1)."""
+    terms: FrozenSet[str]
+    """The loss terms with a weight: data terms the plan switches on, regularisers with a coefficient."""
+    notes: Tuple[str, ...]
+    """What the model says about its decisions when it is built (low light, a supervision the data cannot give)."""
+
+    @property
+    def use_blur(self) -> bool:
+        return self.blur != "off"
+
+    @property
+    def use_event_loss(self) -> bool:
+        return self.event_supervision != "off"
+
+
+def resolve_plan(config: AgriNeRFModelConfig, metadata: Mapping[str, Any]) -> ModelPlan:
+    """The plan of a model with `config` on a dataset with `metadata` (the dataparser's; empty: RGB only).
+
+    Raises:
+        ValueError: when neither RGB nor thermal frames are left to supervise the model.
+    """
+    dataset_modalities = normalise_modalities(metadata.get("modalities", ("rgb",)))
+    wanted = normalise_modalities(config.modalities)
+    modalities = tuple(m for m in wanted if m in dataset_modalities)
+    use_rgb, use_thermal, use_events = ("rgb" in modalities), ("thermal" in modalities), ("events" in modalities)
+    if not (use_rgb or use_thermal):
+        raise ValueError(
+            f"AgriNeRF needs RGB or thermal supervision: config modalities {wanted}, dataset modalities "
+            f"{dataset_modalities} leave {modalities}."
+        )
+    notes = []
+    has_thermal_head = use_thermal or (use_events and config.cross_spectral_output)
+    has_thermal_camera = use_thermal and config.thermal_camera_output
+    rgb_level = float(metadata.get("rgb_level", math.nan))
+    dark = rgb_level < config.low_light_level  # NaN (no level recorded) compares False: no low-light rule
+    low_light = has_thermal_camera and dark
+    scales = {k: float(v) for k, v in config.density_gradient_scales.items()}
+    if low_light:
+        scales["thermal_camera_loss"] = max(scales.get("thermal_camera_loss", 1.0), 1.0)
+        notes.append(
+            f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
+            f"{config.low_light_level}), so the thermal-camera term shapes the geometry too."
+        )
+    has_temperature = use_thermal and config.temperature_output and metadata.get("temperature_stats") is not None
+    timed = metadata.get("trajectory") is not None and metadata.get("times") is not None
+    has_exposure = metadata.get("exposure") is not None
+    thermal_camera = metadata.get("thermal_camera") or {}
+    thermal_view = use_thermal and config.thermal_rays_per_batch > 0 and "camera_centre" in thermal_camera and timed
+
+    blur: BlurModel = "off"
+    if use_rgb and config.blur_samples > 1 and (config.blur_kernel == "learnt" or (timed and has_exposure)):
+        blur = config.blur_kernel
+
+    coefficients = config.loss_coefficients
+    event_loss = (
+        use_rgb
+        and use_events
+        and timed
+        and metadata.get("event_windows") is not None
+        and config.event_rays_per_batch > 0
+        and coefficients.get("event_loss", 0.0) > 0
+    )
+    if event_loss and dark and not config.low_light_event_loss:
+        event_loss = False
+        notes.append(
+            f"Low light: the RGB frames average {rgb_level:.3f} of full scale (below low_light_level "
+            f"{config.low_light_level}), so the event loss is off (--pipeline.model.low-light-event-loss True "
+            "keeps it)."
+        )
+    native = metadata.get("event_stream") is not None
+    supervision: EventSupervision = "off"
+    if event_loss:
+        supervision = config.event_supervision if native or config.event_supervision == "frames" else "frames"
+        if supervision != config.event_supervision:
+            notes.append(
+                f"Events: event_supervision {config.event_supervision!r} needs the dataset's event stream "
+                "(events/stream.h5), which it lacks: the frames' event windows supervise the event loss."
+            )
+    edi_prior = config.edi_prior and use_rgb and use_events and timed and has_exposure and native
+
+    has_fruit_head = (
+        metadata.get("fruit_mask_filenames") is not None
+        and config.fruit_output
+        and coefficients.get("fruit_loss", 0.0) > 0
+    )
+    on = {
+        "fruit_loss": has_fruit_head,
+        "rgb_loss": use_rgb,
+        "edi_prior_loss": edi_prior,
+        "event_loss": supervision != "off",
+        "thermal_loss": use_thermal,
+        "thermal_camera_loss": has_thermal_camera,
+        "temperature_loss": has_temperature,
+        "reg_rgb_loss": use_rgb and has_thermal_head,
+        "reg_event_loss": use_events and has_thermal_head,
+        **{name: True for name in REGULARISERS},
+    }
+    terms = frozenset(name for name, wanted_on in on.items() if wanted_on and coefficients.get(name, 0.0) > 0)
+    return ModelPlan(
+        modalities=modalities,
+        use_rgb=use_rgb,
+        use_thermal=use_thermal,
+        use_events=use_events,
+        has_thermal_head=has_thermal_head,
+        has_thermal_camera=has_thermal_camera,
+        has_temperature=has_temperature,
+        dark=dark,
+        low_light=low_light,
+        thermal_view=thermal_view,
+        timed=timed,
+        blur=blur,
+        event_supervision=supervision,
+        edi_prior=edi_prior,
+        has_fruit_head=has_fruit_head,
+        density_gradient_scales=scales,
+        terms=terms,
+        notes=tuple(notes),
+    )

@@ -1,0 +1,82 @@
+"""Fruit masks per training frame (``fruit_mask_file_path`` in ``transforms.json``), in the RGB camera's plane.
+
+A mask is a single-channel 8-bit image at the RGB frame's resolution: 0 background, :data:`UNKNOWN` (128) "unknown,
+do not supervise", any other value fruit (so 0/255 and 0/1 masks, as segmenters and FruitNeRF's ``semantics/`` write
+them, read as they are). The dataset returns ``fruit`` (1 fruit, 0 not) and ``fruit_known`` (1 where the mask says
+either) per pixel; the fruit head's loss reads only the known pixels.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from PIL import Image
+from torch import Tensor
+
+from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError
+
+UNKNOWN = 128
+"""The mask value of a pixel whose class nobody knows (not supervised)."""
+FRUIT = 255
+BACKGROUND = 0
+FRAME_KEY = "fruit_mask_file_path"
+
+
+def read_fruit_mask(path: Path) -> np.ndarray:
+    """The mask's 8-bit values [H, W]; an :class:`AgriNeRFDataError` naming the file when it is not a single-channel
+    8-bit image."""
+    try:
+        image = Image.open(path)
+        image.load()
+    except Exception as error:  # PIL raises several types for unreadable files
+        raise AgriNeRFDataError(f"{path}: cannot read fruit mask: {error}") from error
+    if image.mode not in ("L", "1", "P"):
+        raise AgriNeRFDataError(f"{path}: a fruit mask must be a single-channel 8-bit image, got mode {image.mode}")
+    return np.asarray(image.convert("L") if image.mode == "1" else image, dtype=np.uint8)
+
+
+def fruit_mask_paths(
+    frames: List[Dict[str, Any]], data_dir: Path, transforms_path: Path, size: Callable[[Dict[str, Any]], Any]
+) -> Optional[List[Path]]:
+    """The fruit mask of every frame in `frames`, or None when no frame of the dataset names one; an
+    :class:`AgriNeRFDataError` naming the frame or the file when one frame lacks its mask, a file is missing or its
+    size is not its RGB frame's (`size(frame)`: (width, height))."""
+    if not any(FRAME_KEY in frame for frame in frames):
+        return None
+    paths = []
+    for frame in frames:
+        if FRAME_KEY not in frame:
+            raise AgriNeRFDataError(
+                f"{transforms_path}: frame {frame.get('file_path')} has no {FRAME_KEY} while other frames have one; "
+                "give every training frame a mask (128 marks pixels nobody labelled)"
+            )
+        path = data_dir / frame[FRAME_KEY]
+        if not path.is_file():
+            raise AgriNeRFDataError(f"{path}: fruit mask of frame {frame.get('file_path')} does not exist")
+        with Image.open(path) as image:
+            got = image.size
+        expected = size(frame)
+        if expected is not None and tuple(got) != tuple(expected):
+            raise AgriNeRFDataError(
+                f"{path}: fruit mask is {got[0]}x{got[1]} but its RGB frame {frame.get('file_path')} is "
+                f"{expected[0]}x{expected[1]}; masks are in the RGB camera's plane at its resolution"
+            )
+        paths.append(path)
+    return paths
+
+
+def load_fruit_mask(
+    path: Path, height: int, width: int
+) -> Tuple[Float[Tensor, "height width 1"], Float[Tensor, "height width 1"]]:
+    """(fruit, known) of a mask file as float32 (H, W, 1) at (height, width); a resize takes the nearest pixel (the
+    values are labels)."""
+    values = read_fruit_mask(path)
+    if values.shape != (height, width):
+        values = np.asarray(Image.fromarray(values).resize((width, height), resample=Image.Resampling.NEAREST))
+    known = values != UNKNOWN
+    fruit = known & (values != BACKGROUND)
+    return torch.from_numpy(fruit.astype(np.float32))[..., None], torch.from_numpy(known.astype(np.float32))[..., None]
