@@ -1,9 +1,7 @@
-"""Fruit masks per training frame (``fruit_mask_file_path`` in ``transforms.json``), in the RGB camera's plane.
+"""Fruit masks per training frame, read for the dataset (the format: ``agrinerf_ns/fruit_mask_format.py``).
 
-A mask is a single-channel 8-bit image at the RGB frame's resolution: 0 background, :data:`UNKNOWN` (128) "unknown,
-do not supervise", any other value fruit (so 0/255 and 0/1 masks, as segmenters and FruitNeRF's ``semantics/`` write
-them, read as they are). The dataset returns ``fruit`` (1 fruit, 0 not) and ``fruit_known`` (1 where the mask says
-either) per pixel; the fruit head's loss reads only the known pixels.
+The dataset returns ``fruit`` (1 fruit, 0 not) and ``fruit_known`` (1 where the mask says either) per pixel; the
+fruit head's loss reads only the known pixels. Every frame's mask is found and its size checked before training.
 """
 
 from __future__ import annotations
@@ -18,12 +16,7 @@ from PIL import Image
 from torch import Tensor
 
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError
-
-UNKNOWN = 128
-"""The mask value of a pixel whose class nobody knows (not supervised)."""
-FRUIT = 255
-BACKGROUND = 0
-FRAME_KEY = "fruit_mask_file_path"
+from agrinerf_ns.fruit_mask_format import FRAME_KEY, fruit_and_known
 
 
 def read_fruit_mask(path: Path) -> np.ndarray:
@@ -77,6 +70,5 @@ def load_fruit_mask(
     values = read_fruit_mask(path)
     if values.shape != (height, width):
         values = np.asarray(Image.fromarray(values).resize((width, height), resample=Image.Resampling.NEAREST))
-    known = values != UNKNOWN
-    fruit = known & (values != BACKGROUND)
+    fruit, known = fruit_and_known(values)
     return torch.from_numpy(fruit.astype(np.float32))[..., None], torch.from_numpy(known.astype(np.float32))[..., None]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal, Optional
 
 from agrinerf_ns.process import exposure
@@ -48,6 +49,10 @@ class ProcessConfig:
     """Where a frame's timestamp lies in its exposure, for --exposure-time: middle, start or end."""
     min_registered_frac: float = 0.5
     """Fail when SfM registers fewer than this fraction of the frames."""
+    fruit_masks: Optional[Path] = None
+    """A folder of fruit masks, one per raw RGB frame named like it (a FruitNeRF dataset folder: its semantics/), from
+    the user's segmenter: 0 background, 128 unknown, any other value fruit. They train the fruit head
+    (`agrinerf-count --path fruit`)."""
     overwrite: bool = False
     """Replace an existing non-empty output folder."""
     show_progress: bool = True

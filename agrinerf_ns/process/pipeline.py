@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from agrinerf_ns.fruit_mask_format import FRAME_KEY
 from agrinerf_ns.process import exposure
 from agrinerf_ns.process import poses as pose_utils
 from agrinerf_ns.process.capture import Capture, inspect_capture
@@ -30,6 +31,7 @@ from agrinerf_ns.process.dataset_writer import (
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.readers import read_triggers, read_tum
 from agrinerf_ns.process.step_events import write_event_frames
+from agrinerf_ns.process.step_fruit_masks import check_fruit_masks, find_fruit_masks, write_fruit_masks
 from agrinerf_ns.process.step_poses import estimate_poses, write_odometry_trajectory
 from agrinerf_ns.process.step_rgb import write_rgb_frames
 from agrinerf_ns.process.step_thermal import write_thermal_frames
@@ -83,6 +85,10 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
             f"{cap.sync.residual_rms_us:.1f} us (max {cap.sync.residual_max_us:.1f} us)"
         )
 
+    fruit_masks = None
+    if config.fruit_masks is not None:  # every mask found and read before any output is written
+        fruit_masks = find_fruit_masks(config.fruit_masks, cap.rgb.paths)
+        check_fruit_masks(fruit_masks, cap.calib.rgb.width, cap.calib.rgb.height)
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -92,10 +98,18 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         disable=not config.show_progress,
     )
     with atomic_output_dir(out, config.overwrite) as tmp, progress:
-        return _process(raw, out, tmp, cap, config, progress)
+        return _process(raw, out, tmp, cap, config, progress, fruit_masks)
 
 
-def _process(raw: Path, out: Path, tmp: Path, cap: Capture, config: ProcessConfig, progress: Progress) -> Path:
+def _process(
+    raw: Path,
+    out: Path,
+    tmp: Path,
+    cap: Capture,
+    config: ProcessConfig,
+    progress: Progress,
+    fruit_masks: Optional[List[Path]] = None,
+) -> Path:
     calib = cap.calib
     n = len(cap.rgb)
     names = [f"{i:06d}" for i in range(n)]
@@ -115,6 +129,8 @@ def _process(raw: Path, out: Path, tmp: Path, cap: Capture, config: ProcessConfi
     meta: Dict = {"version": 1, "warnings": list(cap.warnings), "exposure": cap.exposure_meta}
 
     write_rgb_frames(cap, tmp, frames, progress)
+    if fruit_masks is not None:
+        meta["fruit_masks"] = write_fruit_masks(fruit_masks, calib.rgb, tmp, frames, names)
     if cap.thermal is not None and calib.thermal is not None:
         thermal_dropped, thermal_meta = write_thermal_frames(raw, tmp, cap, config, names, frames, progress)
         dropped.update(thermal_dropped)
@@ -183,5 +199,6 @@ _FILE_KEYS = (
     "event_file_path",
     "event_mask_path",
     "event_sums_path",
+    FRAME_KEY,
 )
 """The keys of a frame's files in the dataset (removed with a dropped frame)."""

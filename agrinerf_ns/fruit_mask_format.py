@@ -1,0 +1,25 @@
+"""The fruit-mask format of a dataset, shared by the processing that writes masks and the dataparser that reads them.
+
+A frame's ``fruit_mask_file_path`` (``transforms.json``) names a single-channel 8-bit image in the RGB camera's plane,
+at the RGB frame's resolution: :data:`BACKGROUND` (0), :data:`UNKNOWN` (128: nobody knows, not supervised), any other
+value fruit (so 0/255 and 0/1 masks, as segmenters and FruitNeRF's ``semantics/`` write them, read as they are).
+"""
+
+from __future__ import annotations
+
+from typing import Tuple
+
+import numpy as np
+from jaxtyping import Bool, UInt8
+
+FRAME_KEY = "fruit_mask_file_path"
+BACKGROUND = 0
+UNKNOWN = 128
+FRUIT = 255
+"""The value masks made here give fruit (any value but 0 and 128 reads as fruit)."""
+
+
+def fruit_and_known(values: UInt8[np.ndarray, "h w"]) -> Tuple[Bool[np.ndarray, "h w"], Bool[np.ndarray, "h w"]]:
+    """(fruit, known) of a mask's values."""
+    known = values != UNKNOWN
+    return known & (values != BACKGROUND), known

@@ -1,0 +1,59 @@
+"""agrinerf-process --fruit-masks: the user's masks (a plain folder, or a FruitNeRF dataset's semantics/) reach the
+dataset and its batches; a missing mask or one of the wrong size is refused, naming the file, before any output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from helpers.process_raw_fixture import make_raw_capture
+
+from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
+from agrinerf_ns.dataparsers.agrinerf_dataset import AgriNeRFDataset
+from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.pipeline import ProcessConfig, process_capture
+
+
+def _masks(raw: Path, folder: Path, value: int = 255) -> None:
+    """A fruit square, an unknown top row and background, per RGB frame, named like the frame."""
+    folder.mkdir(parents=True)
+    for frame in sorted((raw / "rgb").glob("*.png")):
+        mask = np.zeros((48, 64), np.uint8)
+        mask[10:20, 20:36] = value
+        mask[0] = 128
+        cv2.imwrite(str(folder / f"{frame.stem}.png"), mask)
+
+
+def _snapshot(folder: Path) -> dict:
+    return {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.mark.parametrize("layout", ["folder", "fruitnerf"])
+def test_user_masks_reach_the_batches(tmp_path: Path, layout: str) -> None:
+    raw = make_raw_capture(tmp_path / "raw", n=4)
+    given = tmp_path / "seg"
+    _masks(raw, given / "semantics" if layout == "fruitnerf" else given, value=1 if layout == "fruitnerf" else 255)
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False, fruit_masks=given))
+    outputs = AgriNeRFDataParserConfig(data=out).setup().get_dataparser_outputs("train")
+    assert len(outputs.metadata["fruit_mask_filenames"]) == len(outputs.image_filenames)
+    item = AgriNeRFDataset(outputs)[0]
+    assert float(item["fruit"][10:20, 20:36].min()) == 1.0 and float(item["fruit"].sum()) == 10 * 16
+    assert float(item["fruit_known"][0].max()) == 0.0 and float(item["fruit_known"][1:].min()) == 1.0
+
+
+def test_a_missing_or_wrongly_sized_mask_is_refused_before_any_output(tmp_path: Path) -> None:
+    raw = make_raw_capture(tmp_path / "raw", n=4)
+    given = tmp_path / "seg"
+    _masks(raw, given)
+    before = _snapshot(raw)
+    frames = sorted((raw / "rgb").glob("*.png"))
+    (given / f"{frames[2].stem}.png").unlink()
+    with pytest.raises(RawInputError, match=f"no mask named like RGB frame {frames[2].name}"):
+        process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False, fruit_masks=given))
+    cv2.imwrite(str(given / f"{frames[2].stem}.png"), np.zeros((24, 32), np.uint8))
+    with pytest.raises(RawInputError, match=f"{frames[2].stem}.png: fruit mask is 32x24 but the RGB frames are 64x48"):
+        process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False, fruit_masks=given))
+    assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds*"))
+    assert _snapshot(raw) == before
