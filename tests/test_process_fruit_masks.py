@@ -57,3 +57,45 @@ def test_a_missing_or_wrongly_sized_mask_is_refused_before_any_output(tmp_path: 
         process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False, fruit_masks=given))
     assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds*"))
     assert _snapshot(raw) == before
+
+
+def test_the_colour_maker_finds_a_red_fruit_not_a_tan_stake() -> None:
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, colour_mask
+
+    rgb = np.zeros((60, 80, 3), np.uint8)
+    rgb[:] = (60, 140, 50)  # leaves
+    rgb[:, 60:64] = (170, 155, 130)  # a tan stake: a fruit's hue, dull
+    cv2.circle(rgb, (25, 30), 5, (200, 30, 25), -1)  # a red fruit
+    mask = colour_mask(rgb, MaskMakerConfig())
+    disc = np.zeros((60, 80), np.uint8)
+    cv2.circle(disc, (25, 30), 5, 1, -1)
+    assert (mask[disc > 0] == 255).mean() > 0.9 and (mask[disc == 0] == 255).sum() == 0
+
+
+def test_the_thermal_maker_finds_a_warm_fruit_and_leaves_the_unseen_unknown() -> None:
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, thermal_mask
+
+    rng = np.random.default_rng(0)
+    thermal = np.clip(100 + rng.normal(0, 2, (60, 80)), 0, 255).astype(np.uint8)
+    cv2.circle(thermal, (40, 30), 4, 160, -1)
+    seen = np.ones((60, 80), bool)
+    seen[:, :10] = False  # outside the thermal camera's view
+    mask = thermal_mask(thermal, seen, MaskMakerConfig(polarity="warm"))
+    assert (mask[:, :10] == 128).all()
+    assert mask[30, 40] == 255 and (mask[seen] == 255).sum() < 80
+    assert (thermal_mask(thermal, np.zeros_like(seen), MaskMakerConfig()) == 128).all()
+
+
+def test_processing_makes_masks_from_the_frames_and_records_how(tmp_path: Path) -> None:
+    raw = make_raw_capture(tmp_path / "raw", n=4)
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False,
+                                                               fruit_mask_maker="auto"))  # fmt: skip
+    import json
+
+    record = json.loads((out / "transforms.json").read_text())["agrinerf"]["fruit_masks"]
+    assert record["source"] == "maker:auto" and sum(record["frames"].values()) == 4
+    outputs = AgriNeRFDataParserConfig(data=out).setup().get_dataparser_outputs("train")
+    assert len(outputs.metadata["fruit_mask_filenames"]) == len(outputs.image_filenames)
+    with pytest.raises(ValueError, match="either --fruit-masks DIR or --fruit-mask-maker"):
+        process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="given", show_progress=False,
+                                                             fruit_mask_maker="colour", fruit_masks=tmp_path))  # fmt: skip

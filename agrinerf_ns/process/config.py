@@ -9,6 +9,7 @@ from typing import Literal, Optional
 from agrinerf_ns.process import exposure
 from agrinerf_ns.process import poses as pose_utils
 from agrinerf_ns.process.event_frames import EventFrameConfig
+from agrinerf_ns.process.fruit_mask_makers import MaskMaker, MaskMakerConfig
 from agrinerf_ns.process.thermal_rescale import ThermalRescaleConfig
 
 
@@ -53,6 +54,12 @@ class ProcessConfig:
     """A folder of fruit masks, one per raw RGB frame named like it (a FruitNeRF dataset folder: its semantics/), from
     the user's segmenter: 0 background, 128 unknown, any other value fruit. They train the fruit head
     (`agrinerf-count --path fruit`)."""
+    fruit_mask_maker: MaskMaker = "none"
+    """Fruit masks made from the captured frames instead (agrinerf_ns/process/fruit_mask_makers.py): colour (lit RGB
+    frames), thermal (temperature contrast, no light needed), auto (colour where the RGB frames are lit, thermal where
+    they are dark); none: no masks unless --fruit-masks gives them."""
+    mask_maker: MaskMakerConfig = field(default_factory=MaskMakerConfig)
+    """Settings of the mask makers."""
     overwrite: bool = False
     """Replace an existing non-empty output folder."""
     show_progress: bool = True

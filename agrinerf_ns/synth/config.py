@@ -43,6 +43,13 @@ class SynthConfig:
     """Thermal (width, height); None derives 320x256-like from the RGB size (half the RGB width)."""
     event_size: Optional[Tuple[int, int]] = None
     """Event camera (width, height); None derives a 16:9 sensor of 0.8x the RGB width."""
+    rgb_hfov_deg: float = 66.0
+    """Horizontal field of view of the RGB camera (degrees): narrower shows the same fruit larger at the same frame
+    size (docs/count.md: the realistic count profile)."""
+    thermal_hfov_deg: float = 56.0
+    """Horizontal field of view of the thermal camera (degrees)."""
+    event_hfov_deg: float = 72.0
+    """Horizontal field of view of the event camera (degrees)."""
     fps: float = 10.0
     """Frame rate of the RGB and thermal cameras."""
     speed: float = 0.75
@@ -146,6 +153,13 @@ class SynthConfig:
                 raise SynthConfigError(f"{name} resolution must be at least 8x8 pixels, got {w}x{h}")
             if w * h > 4096 * 4096:
                 raise SynthConfigError(f"{name} resolution {w}x{h} is too large for this renderer")
+        for name, hfov in (
+            ("rgb", self.rgb_hfov_deg),
+            ("thermal", self.thermal_hfov_deg),
+            ("event", self.event_hfov_deg),
+        ):
+            if not 1.0 <= hfov <= 170.0:
+                raise SynthConfigError(f"{name}_hfov_deg must lie in 1 .. 170 degrees, got {hfov}")
         if not self.fps > 0:
             raise SynthConfigError(f"fps must be positive, got {self.fps}")
         if not self.speed > 0:

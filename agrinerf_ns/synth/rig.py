@@ -135,9 +135,11 @@ def build_rig(config: SynthConfig) -> Rig:
     tw, th = config.thermal_wh
     ew, eh = config.event_wh
     cams = {
-        "rgb": _pinhole(config.width, config.height, 66.0, 1.001, (0.011, -0.008), (-0.06, 0.012, 4e-4, -3e-4)),
-        "thermal": _pinhole(tw, th, 56.0, 0.998, (-0.009, 0.012), (-0.11, 0.03, 6e-4, 2e-4)),
-        "event": _pinhole(ew, eh, 72.0, 1.0, (0.006, 0.01), (-0.08, 0.015, -5e-4, 4e-4)),
+        "rgb": _pinhole(
+            config.width, config.height, config.rgb_hfov_deg, 1.001, (0.011, -0.008), (-0.06, 0.012, 4e-4, -3e-4)
+        ),
+        "thermal": _pinhole(tw, th, config.thermal_hfov_deg, 0.998, (-0.009, 0.012), (-0.11, 0.03, 6e-4, 2e-4)),
+        "event": _pinhole(ew, eh, config.event_hfov_deg, 1.0, (0.006, 0.01), (-0.08, 0.015, -5e-4, 4e-4)),
     }
     # points in cam0 -> camN: camN sits at offset o in cam0's frame, slightly rotated
     R1 = rot_x(np.radians(0.6)) @ rot_y(np.radians(-0.8)) @ rot_z(np.radians(0.3))

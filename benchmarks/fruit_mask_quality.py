@@ -1,0 +1,103 @@
+"""How good a dataset's fruit masks are, against a synthetic capture's truth: pixel precision, recall and IoU over
+the known pixels, and the share of the truth's fruit (with at least ``--min-pixels`` in a frame) that a mask touches.
+
+    python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET [--out TABLE.md]
+    python benchmarks/fruit_mask_quality.py --raw RAW --write-oracle MASKS/   # truth masks, for the oracle row only
+
+The truth (``truth/fruit_ids``) is the raw RGB frame's; it is undistorted with the RGB calibration as the processing
+undistorts the frames (nearest pixel). ``--write-oracle`` writes 8-bit masks from it (fruit 255, background 0) to
+feed ``agrinerf-process --fruit-masks``: an oracle that measures the ceiling, never an input to a reported row.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import cv2
+import numpy as np
+import tyro
+
+from agrinerf_ns.fruit_mask_format import FRUIT, fruit_and_known
+
+
+@dataclass
+class Args:
+    raw: Path
+    """A synthetic raw capture (agrinerf-synth), with truth/fruit_ids."""
+    dataset: Optional[Path] = None
+    """Its processed dataset with fruit masks (agrinerf-process --fruit-masks / --fruit-mask-maker)."""
+    out: Optional[Path] = None
+    """Markdown table to write (else printed)."""
+    min_pixels: int = 3
+    write_oracle: Optional[Path] = None
+    """Write the truth's masks here (8-bit, named like the raw RGB frames) and stop."""
+
+
+def _undistort_maps(raw: Path):
+    from agrinerf_ns.process import align
+    from agrinerf_ns.process.readers import read_calibration
+
+    return align.undistort_maps(read_calibration(raw / "calib.yaml").rgb)
+
+
+def truth_fruit(raw: Path, name: str, maps) -> np.ndarray:
+    """The fruit ids of raw RGB frame `name` (undistorted like the frame; 0: no fruit)."""
+    ids = cv2.imread(str(raw / "truth" / "fruit_ids" / name), cv2.IMREAD_UNCHANGED)
+    if maps is not None:
+        ids = cv2.remap(ids, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return ids
+
+
+def quality(args: Args) -> str:
+    assert args.dataset is not None
+    meta = json.loads((args.dataset / "transforms.json").read_text())
+    maps = _undistort_maps(args.raw)
+    tp = fp = fn = 0
+    touched = total = 0
+    for frame in meta["frames"]:
+        ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
+        values = cv2.imread(str(args.dataset / frame["fruit_mask_file_path"]), cv2.IMREAD_GRAYSCALE)
+        fruit, known = fruit_and_known(values)
+        truth = ids > 0
+        tp += int((fruit & truth & known).sum())
+        fp += int((fruit & ~truth & known).sum())
+        fn += int((~fruit & truth & known).sum())
+        labels, counts = np.unique(ids[ids > 0], return_counts=True)
+        for label in labels[counts >= args.min_pixels]:
+            total += 1
+            touched += int((fruit & (ids == label)).any())
+    precision, recall = tp / max(tp + fp, 1), tp / max(tp + fn, 1)
+    iou = tp / max(tp + fp + fn, 1)
+    source = meta.get("agrinerf", {}).get("fruit_masks", {}).get("source", "?")
+    scene = json.loads((args.raw / "truth" / "scene.json").read_text())["config"]
+    return (
+        "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched |\n|---|---|---|---|---|---|---|\n"
+        f"| {scene['scene']} {scene['lighting']} seed {scene['seed']} | {source} | {len(meta['frames'])} | "
+        f"{precision:.3f} | {recall:.3f} | {iou:.3f} | {touched}/{total} ({touched / max(total, 1):.0%}) |\n"
+    )
+
+
+def write_oracle(args: Args) -> None:
+    assert args.write_oracle is not None
+    args.write_oracle.mkdir(parents=True, exist_ok=True)
+    for path in sorted((args.raw / "truth" / "fruit_ids").glob("*.png")):
+        ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)  # raw frame geometry: the processing undistorts it
+        cv2.imwrite(str(args.write_oracle / path.name), np.where(ids > 0, FRUIT, 0).astype(np.uint8))
+
+
+def main(args: Args) -> None:
+    if args.write_oracle is not None:
+        write_oracle(args)
+        return
+    text = quality(args)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))
