@@ -2,6 +2,7 @@
 the known pixels, and the share of the truth's fruit (with at least ``--min-pixels`` in a frame) that a mask touches.
 
     python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET [--out TABLE.md]
+    python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET --colour-scores 0.3 0.4 0.5  # tuning sweep
     python benchmarks/fruit_mask_quality.py --raw RAW --write-oracle MASKS/   # truth masks, for the oracle row only
 
 The truth (``truth/fruit_ids``) is the raw RGB frame's; it is undistorted with the RGB calibration as the processing
@@ -14,7 +15,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -32,6 +33,9 @@ class Args:
     out: Optional[Path] = None
     """Markdown table to write (else printed)."""
     min_pixels: int = 3
+    colour_scores: Tuple[float, ...] = ()
+    """Instead of the dataset's masks: the colour maker's masks of its RGB frames at each of these
+    ``min_colour_score`` values (the other settings default), one row each: how the setting was chosen."""
     write_oracle: Optional[Path] = None
     """Write the truth's masks here (8-bit, named like the raw RGB frames) and stop."""
 
@@ -51,7 +55,14 @@ def truth_fruit(raw: Path, name: str, maps) -> np.ndarray:
     return ids
 
 
-def quality(args: Args) -> str:
+HEADER = (
+    "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched |\n"
+    "|---|---|---|---|---|---|---|\n"
+)
+
+
+def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str) -> str:
+    """One table row: the masks `masks(frame)` of the dataset's frames against the truth."""
     assert args.dataset is not None
     meta = json.loads((args.dataset / "transforms.json").read_text())
     maps = _undistort_maps(args.raw)
@@ -59,8 +70,7 @@ def quality(args: Args) -> str:
     touched = total = 0
     for frame in meta["frames"]:
         ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
-        values = cv2.imread(str(args.dataset / frame["fruit_mask_file_path"]), cv2.IMREAD_GRAYSCALE)
-        fruit, known = fruit_and_known(values)
+        fruit, known = fruit_and_known(masks(frame))
         truth = ids > 0
         tp += int((fruit & truth & known).sum())
         fp += int((fruit & ~truth & known).sum())
@@ -71,13 +81,32 @@ def quality(args: Args) -> str:
             touched += int((fruit & (ids == label)).any())
     precision, recall = tp / max(tp + fp, 1), tp / max(tp + fn, 1)
     iou = tp / max(tp + fp + fn, 1)
-    source = meta.get("agrinerf", {}).get("fruit_masks", {}).get("source", "?")
     scene = json.loads((args.raw / "truth" / "scene.json").read_text())["config"]
     return (
-        "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched |\n|---|---|---|---|---|---|---|\n"
         f"| {scene['scene']} {scene['lighting']} seed {scene['seed']} | {source} | {len(meta['frames'])} | "
         f"{precision:.3f} | {recall:.3f} | {iou:.3f} | {touched}/{total} ({touched / max(total, 1):.0%}) |\n"
     )
+
+
+def rows(args: Args) -> str:
+    assert args.dataset is not None
+    dataset = args.dataset
+    if not args.colour_scores:
+        meta = json.loads((dataset / "transforms.json").read_text())
+        source = meta.get("agrinerf", {}).get("fruit_masks", {}).get("source", "?")
+        return quality(
+            args, lambda f: cv2.imread(str(dataset / f["fruit_mask_file_path"]), cv2.IMREAD_GRAYSCALE), source
+        )
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, colour_mask
+
+    def maker(score: float) -> Callable[[dict], np.ndarray]:
+        def masks(frame: dict) -> np.ndarray:
+            rgb = np.ascontiguousarray(cv2.imread(str(dataset / frame["file_path"]))[..., ::-1])
+            return colour_mask(rgb, MaskMakerConfig(min_colour_score=score))
+
+        return masks
+
+    return "".join(quality(args, maker(s), f"colour, min score {s:g}") for s in args.colour_scores)
 
 
 def write_oracle(args: Args) -> None:
@@ -92,7 +121,7 @@ def main(args: Args) -> None:
     if args.write_oracle is not None:
         write_oracle(args)
         return
-    text = quality(args)
+    text = HEADER + rows(args)
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text)
