@@ -174,3 +174,20 @@ def test_garden_scene_and_motion_blur(tmp_path: Path) -> None:
     a = np.asarray(Image.open(blurred / "rgb" / "000001.png")).astype(np.float64)
     b = np.asarray(Image.open(sharp / "rgb" / "000001.png")).astype(np.float64)
     assert not np.array_equal(a, b)
+
+
+def test_a_narrower_field_of_view_shows_fruit_larger_and_a_bad_one_is_refused() -> None:
+    """The count profile's fruit sizes come from the cameras' fields of view (docs/count.md)."""
+    import pytest
+
+    from agrinerf_ns.synth import SynthConfig
+    from agrinerf_ns.synth.config import SynthConfigError
+    from agrinerf_ns.synth.rig import build_rig
+
+    wide, narrow = build_rig(SynthConfig()), build_rig(SynthConfig(rgb_hfov_deg=22.0, thermal_hfov_deg=20.0))
+    assert (
+        narrow.cams["rgb"].fx > 3.0 * wide.cams["rgb"].fx and narrow.cams["thermal"].fx > 2.5 * wide.cams["thermal"].fx
+    )
+    for bad in (0.0, 180.0, float("nan")):
+        with pytest.raises(SynthConfigError, match="rgb_hfov_deg"):
+            SynthConfig(rgb_hfov_deg=bad).validate()
