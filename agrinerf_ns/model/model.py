@@ -177,7 +177,9 @@ class AgriNeRFModel(Model):
             ):  # an optional part leaves the field's (and the batches') draws alone
                 torch.manual_seed(SIDE_STREAM_SEED)
                 features = self.field.density_encoding.get_out_dim()
-                self.fruit_head = FruitHead(features, cfg.fruit_mlp_width, cfg.fruit_shapes_geometry)
+                self.fruit_head = FruitHead(
+                    features, cfg.fruit_mlp_width, cfg.fruit_shapes_geometry, cfg.fruit_position_octaves
+                )
 
         # the first full-resolution box: around the dataset's SfM points where it has them (refitted in training)
         points = (self.kwargs.get("metadata") or {}).get("points3D_xyz")

@@ -194,6 +194,9 @@ class AgriNeRFModelConfig(ModelConfig):
     fruit_output: bool = True
     """The fruit head and its `fruit` output (`model/fruit_head.py`), where the dataset's frames have fruit masks."""
     fruit_mlp_width: int = 32
+    fruit_position_octaves: int = 6
+    """Octaves of the sinusoidal encoding of a sample's grid position that the fruit head reads beside the density
+    features (`model/fruit_head.py`)."""
     fruit_shapes_geometry: bool = False
     """Let the fruit loss's gradient reach the density (off: FruitNeRF's choice, the masks cannot bend the geometry)."""
     blur_samples: int = 1
