@@ -132,3 +132,22 @@ def test_the_fruit_path_counts_the_fruit_of_a_tiny_field() -> None:
     plain = fruit_model(steps=5)
     with pytest.raises(Exception, match="no 'fruit' output"):
         count_model(plain, None, WorldFrame(np.eye(4)[:3], 1.0), config, box=box)
+
+
+def test_touching_fruit_are_split_into_fruit_of_the_given_size() -> None:
+    """Two touching solid balls (the counter's diameter convention): one component too large for a fruit, split into
+    two parts at the balls."""
+    from agrinerf_ns.count.components import DIAMETER_PER_SD, _split
+
+    rng = np.random.default_rng(0)
+    centres = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+    points = rng.uniform(-0.05, 0.05, size=(4000, 3))
+    ball = points[np.linalg.norm(points, axis=1) <= 0.05][:800]
+    xyz = np.concatenate([c + ball[i::2] for i, c in enumerate(centres)])
+    spreads = np.sqrt(np.linalg.eigvalsh(np.cov(xyz.T)))[::-1]
+    assert DIAMETER_PER_SD * spreads[0] > 0.16  # beyond the default largest fruit
+    parts = _split(xyz, spreads, 0.1)
+    assert len(parts) == 2
+    found = sorted(xyz[p].mean(0)[0] for p in parts)
+    assert abs(found[0] - 0.0) < 0.02 and abs(found[1] - 0.1) < 0.02
+    assert len(_split(xyz[:400], np.sqrt(np.linalg.eigvalsh(np.cov(xyz[:400].T)))[::-1], 0.1)) == 1  # one ball

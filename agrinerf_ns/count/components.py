@@ -19,7 +19,7 @@ rule for a fruit visible from the capture).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Literal, Tuple
+from typing import List, Literal, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -56,6 +56,10 @@ class ComponentConfig:
     fruit_probability: float = 0.5
     """Source ``fruit``: a voxel is a fruit voxel where the fruit head's probability reaches this (instead of standing
     out from its surroundings)."""
+    split_diameter: Optional[float] = None
+    """Touching fruit: a component too large or too elongated for one fruit is split by k-means into as many parts
+    as fruit of this diameter (dataset units) would cover its two largest spreads, and each part is judged alone;
+    None: such components are dropped."""
     min_pixels: float = 3.0
     """Pixels of a training image (at the dataset's resolution) a fruit must cover to count as shown in it (as a true
     fruit is visible with 3 pixels of a training view's truth mask)."""
@@ -100,7 +104,15 @@ def find_fruit(sampled: SampledField, config: ComponentConfig = ComponentConfig(
             ["warm", "cool"] if config.polarity == "both" else [config.polarity])  # fmt: skip
         selections = [(z >= config.threshold if p == "warm" else z <= -config.threshold, np.abs(z)) for p in polarities]
     fruit: List[Fruit] = []
-    stats = {"fruit_voxels": 0, "components": 0, "too_small": 0, "too_large": 0, "elongated": 0, "unseen": 0}
+    stats = {
+        "fruit_voxels": 0,
+        "components": 0,
+        "split": 0,
+        "too_small": 0,
+        "too_large": 0,
+        "elongated": 0,
+        "unseen": 0,
+    }
     for selected, score in selections:
         stats["fruit_voxels"] += int(selected.sum())
         found, dropped = _components(sampled, selected, score, config)
@@ -109,6 +121,19 @@ def find_fruit(sampled: SampledField, config: ComponentConfig = ComponentConfig(
             stats[key] += value
     stats["fruit"] = len(fruit)
     return sorted(fruit, key=lambda f: (-f.views, tuple(f.centre))), stats
+
+
+def _split(xyz: Float[np.ndarray, "n 3"], spreads: np.ndarray, diameter: float) -> List[np.ndarray]:
+    """Index arrays of the k-means parts of a component whose two largest spreads would hold k fruit of
+    `diameter` (one part when k < 2)."""
+    from scipy.cluster.vq import kmeans2
+
+    sd = diameter / DIAMETER_PER_SD
+    k = int(min(len(xyz) // 3, round(float(spreads[0] * spreads[1]) / sd**2)))
+    if k < 2:
+        return [np.arange(len(xyz))]
+    _, assignment = kmeans2(xyz.astype(np.float64), k, minit="++", seed=0)
+    return [np.flatnonzero(assignment == j) for j in range(k) if np.any(assignment == j)]
 
 
 def _components(
@@ -122,10 +147,11 @@ def _components(
     order = np.argsort(voxel_label, kind="stable")
     bounds = np.searchsorted(voxel_label[order], np.arange(1, count + 2))
     points = frame.to_dataset(sampled.points())
-    dropped = {"components": count, "too_small": 0, "too_large": 0, "elongated": 0, "unseen": 0}
+    dropped = {"components": count, "split": 0, "too_small": 0, "too_large": 0, "elongated": 0, "unseen": 0}
     fruit: List[Fruit] = []
-    for k in range(count):
-        members = order[bounds[k] : bounds[k + 1]]
+    queue = [(order[bounds[k] : bounds[k + 1]], True) for k in range(count)]  # (voxels, may be split)
+    while queue:
+        members, splittable = queue.pop()
         if len(members) < config.min_voxels:
             dropped["too_small"] += 1
             continue
@@ -137,10 +163,17 @@ def _components(
         if diameter < config.min_diameter:
             dropped["too_small"] += 1
             continue
-        if diameter > config.max_diameter:
+        too_large, elongated = diameter > config.max_diameter, spreads[0] > config.max_elongation * spreads[1]
+        if (too_large or elongated) and config.split_diameter and splittable:
+            parts = _split(xyz, spreads, config.split_diameter)
+            if len(parts) > 1:
+                queue.extend((members[part], False) for part in parts)
+                dropped["split"] += 1
+                continue
+        if too_large:
             dropped["too_large"] += 1
             continue
-        if spreads[0] > config.max_elongation * spreads[1]:
+        if elongated:
             dropped["elongated"] += 1
             continue
         if sampled.views:
