@@ -13,6 +13,8 @@ import numpy as np
 from jaxtyping import Bool, UInt8
 
 FRAME_KEY = "fruit_mask_file_path"
+FOLDER = "fruit_masks"
+"""Where the processing writes them in a dataset (``fruit_masks/NNNNNN.png``)."""
 BACKGROUND = 0
 UNKNOWN = 128
 FRUIT = 255

@@ -32,7 +32,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional, Tuple
 import tyro
 
 from agrinerf_ns.bench import layout
-from agrinerf_ns.bench.ns_commands import headless_train_args
+from agrinerf_ns.bench.ns_commands import console_script, headless_train_args
 
 PRESETS = (
     "agrinerf",
@@ -242,18 +242,13 @@ def dry_run(plan: List[Step]) -> List[str]:
     return lines
 
 
-def _executable(name: str) -> str:
-    local = Path(sys.executable).with_name(name)
-    return str(local) if local.exists() else name
-
-
 def run(args: Args, plan: List[Step]) -> List[Tuple[str, ...]]:
     """Run the commands in order (a failed one is recorded and the rest still run); returns the table's rows."""
     logs = args.out / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     rows = []
     for i, step in enumerate(plan):
-        argv = [_executable(step.argv[0]), *step.argv[1:]] if step.argv[0] != sys.executable else step.argv
+        argv = [console_script(step.argv[0]), *step.argv[1:]] if step.argv[0] != sys.executable else step.argv
         log = logs / f"{i:02d}-{step.check.replace(' ', '-')}.log"
         start = time.perf_counter()
         with open(log, "w") as handle:

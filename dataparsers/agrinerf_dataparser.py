@@ -45,6 +45,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
 from agrinerf_ns.dataparsers.fruit_masks import fruit_mask_paths
 from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
+from agrinerf_ns.fruit_mask_format import FRAME_KEY as FRUIT_MASK_KEY
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 from agrinerf_ns.views import evenly_spaced
@@ -105,8 +106,10 @@ class AgriNeRFDataParser(Nerfstudio):
                 _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
             metadata[metadata_key] = paths
 
-        fruit_masks = fruit_mask_paths(kept, data_dir, transforms_path, lambda frame: _frame_size(frame, meta))
+        fruit_masks = fruit_mask_paths(kept, data_dir, transforms_path)
         if fruit_masks is not None:
+            for frame, path in zip(kept, fruit_masks, strict=True):
+                _check_aligned_frame(path, frame, meta, FRUIT_MASK_KEY, transforms_path)
             metadata["fruit_mask_filenames"] = fruit_masks
         if "thermal_filenames" in metadata:
             metadata.update(_temperature(frames, kept, block, meta, data_dir, transforms_path))

@@ -7,7 +7,7 @@ fruit head's loss reads only the known pixels. Every frame's mask is found and i
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -32,34 +32,19 @@ def read_fruit_mask(path: Path) -> np.ndarray:
     return np.asarray(image.convert("L") if image.mode == "1" else image, dtype=np.uint8)
 
 
-def fruit_mask_paths(
-    frames: List[Dict[str, Any]], data_dir: Path, transforms_path: Path, size: Callable[[Dict[str, Any]], Any]
-) -> Optional[List[Path]]:
+def fruit_mask_paths(frames: List[Dict[str, Any]], data_dir: Path, transforms_path: Path) -> Optional[List[Path]]:
     """The fruit mask of every frame in `frames`, or None when no frame of the dataset names one; an
-    :class:`AgriNeRFDataError` naming the frame or the file when one frame lacks its mask, a file is missing or its
-    size is not its RGB frame's (`size(frame)`: (width, height))."""
+    :class:`AgriNeRFDataError` naming the frame when one lacks its mask (the dataparser checks each file as it checks
+    the thermal and event frames: there, and at its RGB frame's size)."""
     if not any(FRAME_KEY in frame for frame in frames):
         return None
-    paths = []
     for frame in frames:
         if FRAME_KEY not in frame:
             raise AgriNeRFDataError(
                 f"{transforms_path}: frame {frame.get('file_path')} has no {FRAME_KEY} while other frames have one; "
                 "give every training frame a mask (128 marks pixels nobody labelled)"
             )
-        path = data_dir / frame[FRAME_KEY]
-        if not path.is_file():
-            raise AgriNeRFDataError(f"{path}: fruit mask of frame {frame.get('file_path')} does not exist")
-        with Image.open(path) as image:
-            got = image.size
-        expected = size(frame)
-        if expected is not None and tuple(got) != tuple(expected):
-            raise AgriNeRFDataError(
-                f"{path}: fruit mask is {got[0]}x{got[1]} but its RGB frame {frame.get('file_path')} is "
-                f"{expected[0]}x{expected[1]}; masks are in the RGB camera's plane at its resolution"
-            )
-        paths.append(path)
-    return paths
+    return [data_dir / frame[FRAME_KEY] for frame in frames]
 
 
 def load_fruit_mask(

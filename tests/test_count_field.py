@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers.fruit_field import FRUIT_C, FRUIT_CENTRES, FRUIT_RADIUS, fruit_model
+from helpers.fruit_field import assert_finds_the_known_fruit, fruit_model
 
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.components import ComponentConfig
@@ -33,14 +33,7 @@ def test_the_field_counter_finds_the_known_fruit() -> None:
     box = np.array([[-1.0] * 3, [1.0] * 3])
     result, sampled, info = count_model(model, None, WorldFrame(np.eye(4)[:3], 1.0), config, box=box)
     assert info["source"] == "temperature" and info["too_large"] >= 1  # the ground
-    assert len(result.fruit) == len(FRUIT_CENTRES)
-    centres = np.stack([f.centre for f in result.fruit])
-    distance = np.linalg.norm(centres[:, None] - FRUIT_CENTRES[None], axis=-1)
-    assert sorted(distance.argmin(1).tolist()) == list(range(len(FRUIT_CENTRES)))
-    assert distance.min(1).max() < 0.03
-    for fruit in result.fruit:
-        assert abs(fruit.diameter - 2 * FRUIT_RADIUS) < 0.3 * 2 * FRUIT_RADIUS
-        assert fruit.temperature is not None and abs(fruit.temperature - FRUIT_C) < 1.0
+    assert_finds_the_known_fruit(result.fruit)
     cool = count_model(
         model, None, WorldFrame(np.eye(4)[:3], 1.0),
         FieldCountConfig(source="temperature", volume=config.volume,

@@ -25,14 +25,16 @@ class NerfstudioCommandError(RuntimeError):
     """An ``ns-*`` command exited non-zero; the message holds the command and the tail of its output."""
 
 
-def _ns_executable(name: str) -> str:
-    """The ``ns-*`` script next to this interpreter (the active venv), else the one on PATH."""
+def console_script(name: str) -> str:
+    """The console script ``name`` (``ns-*``, ``agrinerf-*``) next to this interpreter (the active venv), else the one
+    on PATH."""
     local = Path(sys.executable).parent / name
     if local.exists():
         return str(local)
     found = shutil.which(name)
     if found is None:
-        raise NerfstudioCommandError(f"'{name}' not found: is nerfstudio installed in this environment?")
+        package = "nerfstudio" if name.startswith("ns-") else "agrinerf-ns"
+        raise NerfstudioCommandError(f"'{name}' not found: is {package} installed in this environment?")
     return found
 
 
@@ -54,7 +56,7 @@ def run_ns(
     which on Linux starts from the parent's high-water mark: a child forked by a 3 GiB benchmark process reports at
     least 3 GiB).
     """
-    command = [_ns_executable(f"ns-{name}"), *map(str, args)]
+    command = [console_script(f"ns-{name}"), *map(str, args)]
     with tempfile.TemporaryDirectory() as tmp:
         log = log_path if log_path is not None else Path(tmp) / "ns.log"
         log.parent.mkdir(parents=True, exist_ok=True)

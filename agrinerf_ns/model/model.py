@@ -172,9 +172,8 @@ class AgriNeRFModel(Model):
 
         self.fruit_head: Optional[FruitHead] = None  # where the frames have fruit masks (fruit_head.py)
         if self.plan.has_fruit_head:
-            with torch.random.fork_rng(
-                devices=[]
-            ):  # an optional part leaves the field's (and the batches') draws alone
+            # an optional part leaves the field's (and the batches') draws alone
+            with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(SIDE_STREAM_SEED)
                 features = self.field.density_encoding.get_out_dim()
                 self.fruit_head = FruitHead(

@@ -47,8 +47,10 @@ class ModelPlan:
     """The RGB frames average below `low_light_level` of full scale."""
     low_light: bool
     """Dark with a thermal camera: the thermal-camera term shapes the geometry at full strength."""
+    thermal_camera_rays: bool
+    """The thermal terms are seen from the thermal camera: thermal frames, its place known, rays per batch > 0."""
     thermal_view: bool
-    """The thermal terms are rendered from the thermal camera's own rays (its place known, rays per batch > 0)."""
+    """Training renders them along its own rays: `thermal_camera_rays`, and the trajectory gives each frame's pose."""
     timed: bool
     """The dataset gives each frame's time and the rig's trajectory."""
     blur: BlurModel
@@ -105,7 +107,8 @@ def resolve_plan(config: AgriNeRFModelConfig, metadata: Mapping[str, Any]) -> Mo
     timed = metadata.get("trajectory") is not None and metadata.get("times") is not None
     has_exposure = metadata.get("exposure") is not None
     thermal_camera = metadata.get("thermal_camera") or {}
-    thermal_view = use_thermal and config.thermal_rays_per_batch > 0 and "camera_centre" in thermal_camera and timed
+    thermal_camera_rays = use_thermal and config.thermal_rays_per_batch > 0 and "camera_centre" in thermal_camera
+    thermal_view = thermal_camera_rays and timed
 
     blur: BlurModel = "off"
     if use_rgb and config.blur_samples > 1 and (config.blur_kernel == "learnt" or (timed and has_exposure)):
@@ -166,6 +169,7 @@ def resolve_plan(config: AgriNeRFModelConfig, metadata: Mapping[str, Any]) -> Mo
         has_temperature=has_temperature,
         dark=dark,
         low_light=low_light,
+        thermal_camera_rays=thermal_camera_rays,
         thermal_view=thermal_view,
         timed=timed,
         blur=blur,

@@ -29,8 +29,8 @@ L_reg terms stay on the RGB ray: their targets are RGB luma and event frames).""
 
 def thermal_camera_used(model: AgriNeRFModel) -> bool:
     """Whether the thermal terms are seen from the thermal camera: the model uses thermal frames, the dataset records
-    where that camera sits (`thermal_camera`) and `thermal_rays_per_batch` > 0."""
-    return model.use_thermal and model.config.thermal_rays_per_batch > 0 and "camera_centre" in model.thermal_camera
+    where that camera sits (`thermal_camera`) and `thermal_rays_per_batch` > 0 (the model's plan)."""
+    return model.plan.thermal_camera_rays
 
 
 def uses_thermal_view(model: AgriNeRFModel) -> bool:

@@ -23,11 +23,10 @@ import cv2
 import numpy as np
 from jaxtyping import Bool, UInt8
 
-from agrinerf_ns.fruit_mask_format import BACKGROUND, FRAME_KEY, FRUIT, UNKNOWN
+from agrinerf_ns.fruit_mask_format import BACKGROUND, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
 
 MaskMaker = Literal["none", "colour", "thermal", "auto"]
-FOLDER = "fruit_masks"
 
 
 @dataclass(frozen=True)

@@ -17,14 +17,13 @@ import cv2
 import numpy as np
 from jaxtyping import UInt8
 
-from agrinerf_ns.fruit_mask_format import FRAME_KEY, UNKNOWN
+from agrinerf_ns.fruit_mask_format import FOLDER, FRAME_KEY, UNKNOWN
 from agrinerf_ns.images import write_png
 from agrinerf_ns.process import align
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.readers import CameraCalib
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-FOLDER = "fruit_masks"
 
 
 def mask_folder(folder: Path) -> Path:

@@ -80,3 +80,16 @@ def fruit_model(steps: int = 400, seed: int = 0, fruit_head: bool = False) -> An
         optimizer.step()
     model.eval()
     return model
+
+
+def assert_finds_the_known_fruit(fruit: Any) -> None:
+    """The counted `fruit` are the scene's: one at each centre (within 3 cm), of its size (30%) and temperature
+    (1 C)."""
+    assert len(fruit) == len(FRUIT_CENTRES)
+    centres = np.stack([f.centre for f in fruit])
+    distance = np.linalg.norm(centres[:, None] - FRUIT_CENTRES[None], axis=-1)
+    assert sorted(distance.argmin(1).tolist()) == list(range(len(FRUIT_CENTRES)))
+    assert distance.min(1).max() < 0.03
+    for one in fruit:
+        assert abs(one.diameter - 2 * FRUIT_RADIUS) < 0.3 * 2 * FRUIT_RADIUS
+        assert one.temperature is not None and abs(one.temperature - FRUIT_C) < 1.0
