@@ -20,9 +20,10 @@ from typing import Dict, Tuple
 import tyro
 
 from agrinerf_ns.bench import results
-from agrinerf_ns.bench.cli import prepare_scene, run_method
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
+from agrinerf_ns.bench.runs import run_method
+from agrinerf_ns.bench.scenes import prepare_scene
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.method_configs.agrinerf_methods import evdeblurnerf_lite
 

@@ -18,9 +18,10 @@ from typing import Dict, List, Tuple
 import tyro
 
 from agrinerf_ns.bench import results
-from agrinerf_ns.bench.cli import prepare_scene, run_method
 from agrinerf_ns.bench.methods import BenchMethod
 from agrinerf_ns.bench.profiles import PROFILES
+from agrinerf_ns.bench.runs import run_method
+from agrinerf_ns.bench.scenes import prepare_scene
 from agrinerf_ns.dataparsers.agrinerf_dataparser import rgb_level
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS

@@ -29,7 +29,8 @@ import tyro
 from agrinerf_ns.bench.layout import BenchLayout, machine_note
 from agrinerf_ns.bench.profiles import PROFILES
 from agrinerf_ns.orchestrate import bench_grid
-from agrinerf_ns.orchestrate.jobs import JobsReport, Resources, executor_for
+from agrinerf_ns.orchestrate.executors import executor_for
+from agrinerf_ns.orchestrate.jobs import JobsReport, Resources
 
 QUALITY = ("psnr", "psnr_clean", "thermal_psnr")
 

@@ -8,10 +8,10 @@ from typing import Sequence
 import pytest
 
 from agrinerf_ns.bench import ns_commands
-from agrinerf_ns.bench.cli import run_method
 from agrinerf_ns.bench.layout import BenchLayout, checkpoints, machine_note, run_config, split_scene
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.bench.profiles import PROFILES
+from agrinerf_ns.bench.runs import run_method
 from agrinerf_ns.detect.plan import plan_from_bench
 
 

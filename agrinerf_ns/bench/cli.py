@@ -7,27 +7,22 @@ run (resumable: finished runs are skipped), then ``results.md`` (table + summary
 
 from __future__ import annotations
 
-import json
 import math
-import shutil
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Dict, List, Optional, Sequence, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import tyro
 from rich.console import Console
 
 from agrinerf_ns.bench import results
-from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, machine_note, scene_folders, train_record
-from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, BenchMethod, unknown_reason
-from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
-from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
+from agrinerf_ns.bench.layout import BenchLayout, machine_note
+from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, unknown_reason
+from agrinerf_ns.bench.profiles import PROFILES
 from agrinerf_ns.orchestrate import bench_grid
-from agrinerf_ns.orchestrate.jobs import FolderInUse, executor_for
-
-if TYPE_CHECKING:
-    from agrinerf_ns.synth import SynthConfig
+from agrinerf_ns.orchestrate.executors import executor_for
+from agrinerf_ns.orchestrate.jobs import FolderInUse
 
 CONSOLE = Console()
 
@@ -73,98 +68,6 @@ class BenchConfig:
     """Further attempts of a run that fails or whose worker dies, before it is reported in OUT/failures.md."""
     ray_cpus: Optional[int] = None
     """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
-
-
-def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tuple[Path, Path]:
-    """Synthesise and process one scene (cached under ``root``); returns (raw capture, dataset)."""
-    from agrinerf_ns.process import ProcessConfig, process_capture
-    from agrinerf_ns.process.pipeline import recorded_plane_depth
-    from agrinerf_ns.synth import SynthConfig, generate_capture
-
-    scene, _, lighting = name.partition("-")
-    raw, data = scene_folders(root, name)
-    config = SynthConfig(scene=scene, lighting=lighting, seed=seed, views=profile.views, width=profile.width,
-                         height=profile.height, **profile.synth)  # fmt: skip
-    if not _same_capture(raw, config):
-        if raw.exists():
-            shutil.rmtree(raw)
-        generate_capture(config, raw)
-        if data.exists():
-            shutil.rmtree(data)
-    if (
-        not (data / "transforms.json").exists()
-        or recorded_plane_depth(data) != profile.plane_depth
-        or not _same_split(data, profile.eval_every)
-    ):
-        # Poses from the capture's odometry: the benchmark compares reconstructions, not SfM.
-        process = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth,
-                                eval_every=profile.eval_every)  # fmt: skip
-        process_capture(raw, data, process)
-    return raw, data
-
-
-def _extra_args(profile: BenchProfile, method_key: str, method: BenchMethod) -> Tuple[str, ...]:
-    """The profile's extra ``ns-train`` options for a bench key, else for its ``ns-train`` method."""
-    return profile.extra_args.get(method_key, profile.extra_args.get(method.ns_method, ()))
-
-
-def _same_split(data: Path, eval_every: int) -> bool:
-    """Whether the dataset's held-out list is the one ``eval_every`` gives."""
-    from agrinerf_ns.process.dataset_writer import split_names
-
-    meta = json.loads((data / "transforms.json").read_text())
-    names = [frame["file_path"] for frame in meta["frames"]]
-    return meta.get("test_filenames") == split_names(names, eval_every)["test_filenames"]
-
-
-def _same_capture(raw: Path, config: "SynthConfig") -> bool:
-    """Whether ``raw`` is a finished capture written with ``config`` (its ``truth/scene.json``). A capture that lacks a
-    setting (written before the synthesiser had it) is not: the setting may change what is written."""
-    scene_json = raw / "truth" / "scene.json"
-    if not (raw / "calib.yaml").exists() or not scene_json.exists():
-        return False
-    written = json.loads(scene_json.read_text()).get("config", {})
-    wanted = json.loads(json.dumps(asdict(config)))  # tuples as the JSON lists they are written as
-    return all(key in written and written[key] == value for key, value in wanted.items())
-
-
-def run_method(
-    scene: str,
-    method_key: str,
-    method: BenchMethod,
-    raw: Path,
-    data: Path,
-    profile: BenchProfile,
-    runs: Path,
-    device: str,
-) -> List[Dict[str, object]]:
-    """Train one method on one scene and evaluate its checkpoints; returns the result rows.
-
-    ``runs``: the output folder's ``runs/`` (:mod:`agrinerf_ns.bench.layout`)."""
-    from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
-
-    # an ablation or a sample budget: its method's budget (scaled to about equal wall time)
-    steps = profile.steps.get(method_key, round(profile.steps[method.ns_method] * method.step_scale))
-    save_every = max(1, steps // profile.evaluations)
-    record = train_record(runs, scene, method_key)
-    experiment = experiment_folder(runs, scene, method_key)
-    run = TrainRun.load(record) if record.exists() else None
-    if run is None or not run.checkpoints():
-        run = ns_train(method.ns_method, data / method.data_file, experiment.parent, experiment.name, max_steps=steps,
-                       rays_per_batch=profile.rays_per_batch,
-                       extra_args=(*method.train_args, *_extra_args(profile, method_key, method)),
-                       dataparser_args=method.dataparser_args, steps_per_save=save_every)  # fmt: skip
-        run.save(record)  # an interrupted evaluation resumes without retraining
-    truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
-    rows = []
-    for step, checkpoint in run.checkpoints():
-        metrics = evaluate_checkpoint(run.config, step, method, truth, max_views=profile.eval_views)
-        rows.append({
-            "scene": scene, "method": method_key, "label": method.label, "step": step + 1,
-            "wall_s": checkpoint.stat().st_mtime - run.started_at, "s_per_step": run.s_per_step,
-            "peak_rss_mb": run.peak_rss_mb, "device": device, **metrics,
-        })  # fmt: skip
-    return rows
 
 
 def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:

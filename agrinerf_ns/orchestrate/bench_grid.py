@@ -21,6 +21,8 @@ from agrinerf_ns.bench import results
 from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, train_record
 from agrinerf_ns.bench.methods import METHODS, BenchMethod
 from agrinerf_ns.bench.profiles import BenchProfile
+from agrinerf_ns.bench.runs import run_method
+from agrinerf_ns.bench.scenes import prepare_scene
 from agrinerf_ns.orchestrate.jobs import (
     Executor,
     Job,
@@ -76,8 +78,6 @@ def run_resources(profile_name: str, cpus: Optional[int], gpus: Optional[float])
 
 def prepare(scene: str, profile: BenchProfile, scene_seed: int, scenes_root: Path) -> Tuple[Path, Path]:
     """Job: synthesise and process one scene (cached); its (raw capture, dataset)."""
-    from agrinerf_ns.bench.cli import prepare_scene
-
     raw, data = prepare_scene(scene, profile, scene_seed, scenes_root)
     return raw, data
 
@@ -86,7 +86,6 @@ def train_and_evaluate(
     run: GridRun, profile: BenchProfile, runs_root: Path, prepared: Tuple[Path, Path]
 ) -> List[Dict[str, object]]:
     """Job: train one run and evaluate its checkpoints; its result rows."""
-    from agrinerf_ns.bench.cli import run_method
     from agrinerf_ns.machine import device_name
 
     raw, data = prepared

@@ -31,7 +31,6 @@ from typing import (
     Protocol,
     Sequence,
     Tuple,
-    Union,
     runtime_checkable,
 )
 
@@ -217,22 +216,6 @@ class LocalExecutor:
 
     def close(self) -> None:
         self._queue.clear()
-
-
-@contextmanager
-def executor_for(ray_address: Optional[str], **ray_options: Any) -> Iterator[Union[LocalExecutor, Any]]:
-    """This process (``ray_address`` None) or Ray (:class:`~agrinerf_ns.orchestrate.ray_executor.RayExecutor`, options
-    passed on), closed on leaving."""
-    if ray_address is None:
-        executor: Any = LocalExecutor()
-    else:
-        from agrinerf_ns.orchestrate.ray_executor import RayExecutor
-
-        executor = RayExecutor(ray_address, **ray_options)
-    try:
-        yield executor
-    finally:
-        executor.close()
 
 
 def run_jobs(

@@ -22,12 +22,12 @@ from rich.console import Console
 
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.orchestrate.bench_grid import write_failures
+from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import (
     FolderInUse,
     Job,
     Resources,
     driver_lock,
-    executor_for,
     failures_markdown,
     run_jobs,
 )
