@@ -19,11 +19,12 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.count.cluster import ClusterConfig
-from agrinerf_ns.count.detectors import DetectorConfig, Source
+from agrinerf_ns.count.detectors import DetectorConfig
 from agrinerf_ns.count.diagnose import diagnose
 from agrinerf_ns.count.oracle import oracle_renders, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import load_renders
+from agrinerf_ns.count.sources import CountSource
 
 CASES = ("capture frames, true depth", "run's colours, true depth", "run's colours, rendered depth")
 
@@ -34,7 +35,7 @@ class Args:
     """Render folders of trained runs (agrinerf-count OUT/renders)."""
     raw: Tuple[Path, ...]
     """The synthetic capture of each, in the same order."""
-    source: Source = "rgb"
+    source: CountSource = "rgb"
     """What fruit are detected in."""
     out: Optional[Path] = None
 

@@ -16,7 +16,7 @@ from helpers.tiny_scene import cast_sphere_view
 from agrinerf_ns.count.blobs import BlobConfig, detect_blobs, surround_sides
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
-from agrinerf_ns.count.detectors import DetectorConfig, resolve_source
+from agrinerf_ns.count.detectors import DetectorConfig, view_source
 from agrinerf_ns.count.diagnose import diagnose
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
@@ -148,15 +148,15 @@ def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
     # the same scene as a temperature render in degrees C (leaves 20 C, fruit +-3 C): the same fruit
     view.temperature = (20.0 + 30.0 * (thermal - 0.4)).astype(np.float32)
     assert len(detect_blobs(view, "temperature", 1.0, BlobConfig())) == 4
-    assert resolve_source(DetectorConfig(), view).source == "temperature"  # auto: what the run renders
-    assert resolve_source(DetectorConfig(detector="yolo"), view).source == "thermal"
-    assert resolve_source(DetectorConfig(source="rgb"), view).source == "rgb"
+    assert view_source(DetectorConfig(), view) == "temperature"  # auto: what the run renders
+    assert view_source(DetectorConfig(detector="yolo"), view) == "thermal"
+    assert view_source(DetectorConfig(source="rgb"), view) == "rgb"
     view.temperature = None
-    assert resolve_source(DetectorConfig(), view).source == "thermal"
+    assert view_source(DetectorConfig(), view) == "thermal"
     with pytest.raises(ValueError, match="no 'temperature' output"):
         detect_blobs(view, "temperature", 1.0, BlobConfig())
     view.thermal = None
-    assert resolve_source(DetectorConfig(), view).source == "rgb"
+    assert view_source(DetectorConfig(), view) == "rgb"
     with pytest.raises(ValueError, match="no cross-spectral 'thermal' output"):
         detect_blobs(view, "thermal", 1.0, BlobConfig())
     view.thermal = thermal.astype(np.float32)
@@ -164,7 +164,7 @@ def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
     assert all(p is not None and p.diameter == pytest.approx(0.06, rel=0.3) for p in frame_points)
     view.rgb = None  # a run trained without RGB frames (Table IV "Thermal"): its thermal fruit, no colour ones
     assert len(detect_blobs(view, "thermal", 1.0, BlobConfig())) == 4
-    assert resolve_source(DetectorConfig(), view).source == "thermal"
+    assert view_source(DetectorConfig(), view) == "thermal"
     with pytest.raises(ValueError, match="view 000000: the run renders no 'rgb' output"):
         detect_blobs(view, "rgb", 1.0, BlobConfig())
 

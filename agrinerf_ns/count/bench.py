@@ -19,7 +19,6 @@ from agrinerf_ns.bench.layout import BenchLayout, split_scene
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.bench.results import seed_base
 from agrinerf_ns.count.cluster import ClusterConfig
-from agrinerf_ns.count.detectors import Source
 from agrinerf_ns.count.pipeline import (
     CONSOLE,
     CountConfig,
@@ -34,13 +33,14 @@ from agrinerf_ns.count.pipeline import (
 )
 from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
 from agrinerf_ns.count.score import read_frames
+from agrinerf_ns.count.sources import VIEW_ORDER, CountSource
 from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.field_count import FieldCountConfig
     from agrinerf_ns.detect.render import LoadedRun
 
-VIEW_SOURCES: Tuple[Source, ...] = ("temperature", "thermal", "rgb")
+VIEW_SOURCES: Tuple[CountSource, ...] = VIEW_ORDER
 VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
 """The view path's rows: fruit placed by the rendered depth (`views`, `agrinerf-count --path views`) and by their
 detections' rays (`views-rays`, `--triangulate`: what `--path auto` takes on RGB where the RGB frames are lit), from
@@ -125,7 +125,7 @@ def count_run_rows(
     (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``.
     ``field_config``: the field path's `FieldCountConfig` (None: its defaults)."""
     from agrinerf_ns.count.field_count import FieldCountConfig, trained_run_config
-    from agrinerf_ns.count.volume import field_sources
+    from agrinerf_ns.count.sources import field_outputs
     from agrinerf_ns.detect.render import load_run
 
     config = trained_run_config(config)
@@ -139,7 +139,7 @@ def count_run_rows(
     train = raw_training_frames(dataset, names)
     rows: List[Dict[str, Any]] = []
     folder = out / scene / method
-    sources = [source for source, have in field_sources(model).items() if have]
+    sources: List[str] = list(field_outputs(model).available())
     if sources:
         field_config = FieldCountConfig() if field_config is None else field_config
         rows += _field_rows(scene, method, seed, loaded.step, model, sources, datamanager.train_dataset.cameras,
@@ -207,7 +207,7 @@ def _view_rows(scene: str, method: str, seed: int, loaded: "LoadedRun", raw: Pat
     view_cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
     view_surface = surface_points(renders)  # under every view count's fruit map
     for source in VIEW_SOURCES:
-        if getattr(renders.views[0], source) is None:  # a run without that output (rgb: trained on thermal alone)
+        if not renders.outputs().has(source):  # a run without that output (rgb: trained on thermal alone)
             continue
         begin = time.perf_counter()
         lifted, per_view = detect_and_lift(renders, DetectorConfig(source=source))  # once for both placements

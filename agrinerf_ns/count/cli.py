@@ -68,9 +68,7 @@ def main(args: CountArgs) -> CountResult:
             CONSOLE.print(f"Counting by the {plan.path} path: {plan.why}", soft_wrap=True)
             if plan.path == "field":
                 return run_field_count(config, args.out, args.field, args.truth, args.overwrite, count, loaded)[0]
-            source = plan.source if count.detect.source == "auto" else count.detect.source
-            count = replace(count, detect=replace(count.detect, source=source),
-                            cluster=replace(count.cluster, triangulate=plan.triangulate))  # fmt: skip
+            count = replace(count, cluster=replace(count.cluster, triangulate=plan.triangulate))
         return run_count(
             args.out, count, config, args.renders, args.truth, args.overwrite, args.save_renders, args.splits, loaded
         )

@@ -4,19 +4,19 @@ inside :func:`yolo_detections`, when it is asked for)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Callable, List, Literal, Optional, Tuple
+from typing import Annotated, Callable, List, Literal, Optional
 
 import numpy as np
 import tyro
 
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, detect_blobs
 from agrinerf_ns.count.render import RenderedView
+from agrinerf_ns.count.sources import CountSource, resolve_source
 from agrinerf_ns.images import to_uint8
 
 DetectorName = Literal["blobs", "yolo"]
-Source = Literal["auto", "temperature", "thermal", "rgb"]
 
 
 @dataclass(frozen=True)
@@ -26,10 +26,11 @@ class DetectorConfig:
     detector: DetectorName = "blobs"
     """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
     e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
-    source: Source = "auto"
+    source: CountSource = "auto"
     """The output fruit are found in: ``temperature`` (degrees C, where the run has one: fruit differ from leaves in
-    temperature), the cross-spectral ``thermal`` or ``rgb``; ``auto``: the first of these the renders have (YOLO:
-    thermal, else rgb)."""
+    temperature), the cross-spectral ``thermal`` or ``rgb``; ``auto``: rgb on a run whose RGB frames are lit, else the
+    first of temperature, thermal, rgb the renders have (YOLO: thermal, rgb), as :mod:`agrinerf_ns.count.sources`
+    resolves it."""
     weights: Optional[Path] = None
     """YOLO weights (``.pt``), for ``--detector yolo``."""
     confidence: float = 0.25
@@ -38,25 +39,21 @@ class DetectorConfig:
     """Settings of ``--detector blobs``."""
 
 
-def resolve_source(config: DetectorConfig, view: RenderedView) -> DetectorConfig:
-    """``config`` with ``source`` ``auto`` replaced by the first output of ``view`` (a rendered view of the run) the
-    detector can read: temperature (blobs only), thermal, rgb."""
-    if config.source != "auto":
-        return config
-    names: Tuple[Source, ...] = ("thermal",) if config.detector == "yolo" else ("temperature", "thermal")
-    source: Source = next((name for name in names if getattr(view, name) is not None), "rgb")
-    return replace(config, source=source)
-
-
 Detector = Callable[[RenderedView, float], List[Detection]]
 """(view, dataparser scale: Nerfstudio units per dataset unit) -> the view's fruit."""
 
 
 def make_detector(config: DetectorConfig) -> Detector:
-    """The detector ``config`` asks for (YOLO weights are loaded once, here); ``auto`` is resolved per view."""
+    """The detector ``config`` asks for (YOLO weights are loaded once, here); ``auto`` is resolved per view, its run's
+    light not known (:func:`agrinerf_ns.count.pipeline.run_count` resolves it for the whole run first)."""
     if config.detector == "yolo":
         return yolo_detector(config)
-    return lambda view, scale: detect_blobs(view, resolve_source(config, view).source, scale, config.blobs)
+    return lambda view, scale: detect_blobs(view, view_source(config, view), scale, config.blobs)
+
+
+def view_source(config: DetectorConfig, view: RenderedView) -> str:
+    """The source ``config`` detects on in ``view`` (:func:`agrinerf_ns.count.sources.resolve_source`)."""
+    return resolve_source(config.source, "views", view.outputs(), config.detector)[0]
 
 
 def yolo_detector(config: DetectorConfig) -> Detector:
@@ -74,7 +71,7 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     device = yolo_device()
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
-        image = _detector_image(view, resolve_source(config, view).source)
+        image = _detector_image(view, view_source(config, view))
         result = model.predict(image, imgsz=imgsz, conf=config.confidence, device=device, verbose=False)[0]
         boxes = result.boxes.xyxy.cpu().numpy().reshape(-1, 4)
         scores = result.boxes.conf.cpu().numpy().reshape(-1)

@@ -17,14 +17,8 @@ from agrinerf_ns.count.components import ComponentConfig, find_fruit
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, raw_training_frames, score_result, write_count
 from agrinerf_ns.count.render import CountInputError, WorldFrame, dataset_folder, relative_path
 from agrinerf_ns.count.score import read_truth_fruit
-from agrinerf_ns.count.volume import (
-    FieldSource,
-    SampledField,
-    VolumeConfig,
-    choose_source,
-    render_depth_views,
-    sample_field,
-)
+from agrinerf_ns.count.sources import CountSource, field_outputs, resolve_source
+from agrinerf_ns.count.volume import SampledField, VolumeConfig, render_depth_views, sample_field
 
 if TYPE_CHECKING:
     from agrinerf_ns.detect.render import LoadedRun
@@ -34,9 +28,10 @@ if TYPE_CHECKING:
 class FieldCountConfig:
     """How fruit are found in the field."""
 
-    source: FieldSource = "auto"
-    """The output fruit are told apart by: temperature, thermal_camera, thermal (cross-spectral), rgb; auto: the
-    first of these the run has (RGB only when it has no thermal output, and the count says so)."""
+    source: CountSource = "auto"
+    """The output fruit are told apart by: fruit (the fruit head), temperature, thermal_camera, thermal
+    (cross-spectral), rgb; auto: the first of the last four the run has (RGB only when it has no thermal output, and
+    the count says so; :mod:`agrinerf_ns.count.sources`)."""
     volume: Annotated[VolumeConfig, tyro.conf.arg(name="")] = field(default_factory=VolumeConfig)
     components: Annotated[ComponentConfig, tyro.conf.arg(name="")] = field(default_factory=ComponentConfig)
     seen_margin: float = 0.05
@@ -78,7 +73,7 @@ def count_model(
     """Count the fruit of ``model`` (an AgriNeRF model: ``model.field`` and its heads), seen from ``cameras`` (its
     training cameras; None: every dense voxel counts as seen); ``box``: the Nerfstudio-frame box to sample (None:
     the occupied box of the rendered views)."""
-    source, note = choose_source(model, config.source)
+    source, note = resolve_source(config.source, "field", field_outputs(model))
     start = time.perf_counter()
     views = render_depth_views(model, cameras, config.volume) if cameras is not None else []
     rendered = time.perf_counter()

@@ -17,7 +17,7 @@ from rich.progress import Progress
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
-from agrinerf_ns.count.detectors import DetectorConfig, make_detector, resolve_source
+from agrinerf_ns.count.detectors import DetectorConfig, make_detector
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.render import (
     CountInputError,
@@ -41,6 +41,7 @@ from agrinerf_ns.count.score import (
     score_fruit,
     visible_fruit,
 )
+from agrinerf_ns.count.sources import resolve_source
 from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
 
@@ -223,8 +224,9 @@ def run_count(
                 shutil.copytree(renders_dir, tmp / "renders")
         if not renders.views:
             raise CountInputError(f"{run_config or renders_dir}: no views to count fruit in")
-        config = replace(config, detect=resolve_source(config.detect, renders.views[0]))
-        CONSOLE.print(f"Detecting fruit on '{config.detect.source}' ({config.detect.detector})")
+        source, why = resolve_source(config.detect.source, "views", renders.outputs(), config.detect.detector)
+        config = replace(config, detect=replace(config.detect, source=source))
+        CONSOLE.print(f"Detecting fruit on '{source}' ({config.detect.detector}): {why}", soft_wrap=True)
         spread = depth_spread(renders)
         if spread < FLAT_DEPTH:
             CONSOLE.print(

@@ -8,6 +8,9 @@ results/count-seeds), F1 at 0.05 m pooled per lighting:
 - dark RGB frames (the model's low-light rule, ``low_light_level``): the field's temperature, 0.04 at a count error
   of -15%, against 0.02 at -91% from the RGB views;
 - no RGB head (trained on thermal frames alone): the field's thermal output, the only one it has.
+
+The plan picks the path; each path's source is resolved by :func:`agrinerf_ns.count.sources.resolve_source`, the same
+whether the path was chosen here or asked for by name.
 """
 
 from __future__ import annotations
@@ -15,8 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from agrinerf_ns.count.detectors import Source
-from agrinerf_ns.count.volume import SOURCE_ORDER, field_sources
+from agrinerf_ns.count.sources import field_outputs
 
 
 @dataclass(frozen=True)
@@ -25,19 +27,17 @@ class CountPlan:
 
     path: Literal["views", "field"]
     why: str
-    source: Source = "auto"
-    """The view path's detection source (the field path picks its own: ``FieldCountConfig.source``)."""
     triangulate: bool = False
     """The view path places its fruit by their rays."""
 
 
 def choose_plan(model: Any) -> CountPlan:
     """The plan for a loaded run's ``model`` (an AgriNeRF model, or a stock one such as Nerfacto: views)."""
-    sources = field_sources(model) if hasattr(model, "field") else {}
-    thermal_field = any(sources.get(s, False) for s in SOURCE_ORDER if s != "rgb")
+    outputs = field_outputs(model)
+    thermal_field = outputs.thermal_any
     if thermal_field and not getattr(model, "use_rgb", True):
         return CountPlan("field", "the run has no RGB head (trained without RGB frames): its field's thermal output")
-    if thermal_field and getattr(model, "low_light", False):
+    if thermal_field and outputs.dark:
         return CountPlan(
             "field",
             "the run's RGB frames are dark (its low-light rule): the field's temperature, which counted best in the "
@@ -47,6 +47,5 @@ def choose_plan(model: Any) -> CountPlan:
         "views",
         "the run's RGB frames are lit (or it has no thermal field): fruit colour in its RGB views placed by their "
         "rays, which counted best in light (F1 0.18-0.29 against 0.05 or less from thermal, results/count-seeds)",
-        source="rgb",
         triangulate=True,
     )

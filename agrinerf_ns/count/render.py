@@ -20,17 +20,15 @@ from typing import TYPE_CHECKING, Any, Dict, List, Optional, Sequence
 import numpy as np
 from jaxtyping import Float
 
+from agrinerf_ns.count.errors import CountInputError
+from agrinerf_ns.count.sources import RunOutputs, rgb_frames_dark
+
 if TYPE_CHECKING:
     from agrinerf_ns.detect.render import LoadedRun
 
 RENDERS_JSON = "renders.json"
 OPTIONAL_OUTPUTS = ("thermal", "temperature")
 """Outputs kept when the run renders them (the cross-spectral channel, degrees C)."""
-
-
-class CountInputError(ValueError):
-    """Input the counting cannot use (a run without depth, an empty render folder, a scene without truth fruit);
-    the message names the file."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +95,12 @@ class RenderedView:
             raise ValueError(f"view {self.name}: the run renders no {what} output{why}")
         return image
 
+    def outputs(self, dark: Optional[bool] = None) -> RunOutputs:
+        """The sources this view holds (:func:`agrinerf_ns.count.sources.resolve_source`); ``dark``: whether the
+        run's RGB frames are dark (None: not known)."""
+        return RunOutputs(temperature=self.temperature is not None, thermal=self.thermal is not None,
+                          rgb=self.rgb is not None, dark=dark)  # fmt: skip
+
     def points(self) -> Float[np.ndarray, "h w 3"]:
         """The surface point of every pixel: origin + direction x depth."""
         return self.origins + self.directions * self.depth[..., None]
@@ -126,6 +130,13 @@ class RenderSet:
     dataset: Optional[Path]
     config: Optional[Path]
     method: Optional[str]
+    dark: Optional[bool] = None
+    """Whether the run's RGB frames are dark by its model's low-light rule (None: not known, e.g. a render folder
+    written before it was recorded); it decides the view path's ``auto`` source."""
+
+    def outputs(self) -> RunOutputs:
+        """The sources its views hold (those of the first: every view of a run renders the same outputs)."""
+        return self.views[0].outputs(self.dark) if self.views else RunOutputs(dark=self.dark)
 
 
 def render_run(
@@ -180,7 +191,7 @@ def render_loaded_run(
                     view.file_path = relative_path(Path(dataset.image_filenames[index]), dataset_dir)
                 views.append(view)
                 progress.advance(task)
-    result = RenderSet(views, frame, dataset_dir, config_path, run.method)
+    result = RenderSet(views, frame, dataset_dir, config_path, run.method, rgb_frames_dark(run.pipeline.model))
     if out_dir is not None:
         save_renders(result, Path(out_dir))
     return result
@@ -244,6 +255,7 @@ def save_renders(renders: RenderSet, out_dir: Path) -> None:
         "dataset": None if renders.dataset is None else str(renders.dataset),
         "dataparser_transform": renders.frame.transform.tolist(),
         "dataparser_scale": renders.frame.scale,
+        "rgb_dark": renders.dark,
         "views": [{"name": v.name, "split": v.split, "file_path": v.file_path} for v in renders.views],
     }
     (out_dir / RENDERS_JSON).write_text(json.dumps(meta, indent=1) + "\n")
@@ -292,4 +304,4 @@ def load_renders(folder: Path) -> RenderSet:
             )
     dataset = Path(meta["dataset"]) if meta.get("dataset") else None
     config = Path(meta["config"]) if meta.get("config") else None
-    return RenderSet(views, frame, dataset, config, meta.get("method"))
+    return RenderSet(views, frame, dataset, config, meta.get("method"), meta.get("rgb_dark"))

@@ -13,19 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple
+from typing import Any, List, Optional, Sequence, Tuple
 
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
 from agrinerf_ns.count.render import CountInputError, WorldFrame
 
-FieldSource = Literal["auto", "fruit", "temperature", "thermal_camera", "thermal", "rgb"]
-"""What fruit are told apart by in the field: ``fruit`` (the fruit head's probability, learnt from the frames' fruit
-masks), ``temperature`` (degrees C, a radiometric thermal camera), the thermal camera's channel ``thermal_camera``,
-the cross-spectral ``thermal``, or ``rgb`` (fruit colour); ``auto``: the first the run has of the last four, in that
-order (the fruit head is asked for by name: ``--path fruit``)."""
-SOURCE_ORDER: Tuple[str, ...] = ("temperature", "thermal_camera", "thermal", "rgb")
 CHUNK = 1 << 18
 """Points per field evaluation."""
 MIN_ACCUMULATION = 0.5
@@ -236,36 +230,6 @@ def views_showing_pixels(
         if seen.any() and len(np.unique(pixel[seen])) * view.pixel_area >= min_pixels:
             shown += 1
     return shown
-
-
-def field_sources(model: Any) -> Dict[str, bool]:
-    """Which of :data:`SOURCE_ORDER` the run's model can give."""
-    field = model.field
-    has_thermal = getattr(field, "thermal_head", None) is not None
-    return {
-        "fruit": getattr(model, "fruit_head", None) is not None,
-        "temperature": getattr(field, "temperature_head", None) is not None,
-        "thermal_camera": has_thermal and bool(getattr(model, "has_thermal_camera", False)),
-        "thermal": has_thermal,
-        "rgb": getattr(field, "rgb_head", None) is not None,
-    }
-
-
-def choose_source(model: Any, wanted: str) -> Tuple[str, str]:
-    """(source, why): ``wanted`` when the run has it, else a :class:`CountInputError`; ``auto``: the first of
-    :data:`SOURCE_ORDER` the run has, with a note when that is RGB (no thermal frames)."""
-    available = field_sources(model)
-    if wanted != "auto":
-        if not available.get(wanted, False):
-            have = ", ".join(k for k, v in available.items() if v)
-            raise CountInputError(f"the run's model has no '{wanted}' output to count fruit from (it has: {have})")
-        return wanted, "asked for"
-    for source in SOURCE_ORDER:
-        if available[source]:
-            if source == "rgb":
-                return source, "the run has no thermal output (trained without thermal frames): fruit colour in RGB"
-            return source, f"the run's first thermal output ({', '.join(SOURCE_ORDER[:3])})"
-    raise CountInputError("the run's model has none of the outputs fruit are counted from")
 
 
 def field_features(
