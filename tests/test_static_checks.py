@@ -108,12 +108,8 @@ def test_no_source_file_is_over_500_lines():
     assert not long, f"source files over {MAX_LINES} lines: {long}"
 
 
-def test_the_import_graph_has_no_circle():
-    """Module-level imports (what runs when a module is imported) between the package's modules form no cycle."""
-    import ast
-
-    modules = _modules()
-    graph = {name: _imports(ast.parse(path.read_text()), modules, module_level=True) for name, path in modules.items()}
+def _first_circle(graph: dict) -> list:
+    """A cycle of ``graph`` (module -> the modules it imports) as a path that ends where it starts; [] when none."""
     state: dict = {}
     stack: list = []
 
@@ -130,9 +126,52 @@ def test_the_import_graph_has_no_circle():
         return []
 
     for name in sorted(graph):
-        if name not in state:
-            cycle = visit(name)
-            assert not cycle, "import cycle: " + " -> ".join(cycle)
+        if name not in state and (cycle := visit(name)):
+            return cycle
+    return []
+
+
+def _import_graph(module_level: bool, modules: dict | None = None) -> dict:
+    import ast
+
+    modules = _modules() if modules is None else modules
+    return {name: _imports(ast.parse(path.read_text()), modules, module_level) for name, path in modules.items()}
+
+
+def test_the_import_graph_has_no_circle():
+    """Module-level imports (what runs when a module is imported) between the package's modules form no cycle."""
+    cycle = _first_circle(_import_graph(module_level=True))
+    assert not cycle, "import cycle: " + " -> ".join(cycle)
+
+
+def _outside_the_model(graph: dict) -> dict:
+    inside = lambda name: name == "agrinerf_ns.model" or name.startswith("agrinerf_ns.model.")  # noqa: E731
+    return {name: {m for m in imported if not inside(m)} for name, imported in graph.items() if not inside(name)}
+
+
+def test_no_import_circle_outside_the_model():
+    """Counting imports inside functions and under ``if TYPE_CHECKING`` too (a reader follows them all), the modules
+    outside agrinerf_ns/model/ form no cycle. (The model's own circle is being taken apart: once it is, the test
+    above counts these imports for the whole package and this one goes.)"""
+    cycle = _first_circle(_outside_the_model(_import_graph(module_level=False)))
+    assert not cycle, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_circle_check_finds_a_planted_circle():
+    """The check above sees a circle made only of a function-level and a type-only import."""
+    import ast
+
+    modules = _modules()
+    graph = _outside_the_model(_import_graph(False, modules))
+    planted = {"agrinerf_ns.count.sources": "def f():\n    from agrinerf_ns.count import plan\n",
+               "agrinerf_ns.count.plan": "if TYPE_CHECKING:\n    from agrinerf_ns.count.sources import RunOutputs\n"}  # fmt: skip
+    for name, code in planted.items():
+        graph[name] = graph[name] | _imports(ast.parse(code), modules, module_level=False)
+        assert not _imports(ast.parse(code), modules, module_level=True)  # invisible to the module-level check
+    assert _first_circle(graph) in (
+        ["agrinerf_ns.count.plan", "agrinerf_ns.count.sources", "agrinerf_ns.count.plan"],
+        ["agrinerf_ns.count.sources", "agrinerf_ns.count.plan", "agrinerf_ns.count.sources"],
+    )
 
 
 def test_the_data_stage_imports_nothing_of_the_model():
