@@ -40,7 +40,7 @@ def _blur(k: int) -> Tuple[str, ...]:
 def _events(pixels: int, weight: float = 0.1) -> Tuple[str, ...]:
     """The event loss on `pixels` event pixels per batch at `weight`, in any light (the rows measure it)."""
     return (
-        f"{MODEL}event-rays-per-batch", str(pixels), f"{MODEL}loss-coefficients.event-loss", str(weight),
+        f"{MODEL}event-supervision", "stream", f"{MODEL}event-rays-per-batch", str(pixels), f"{MODEL}loss-coefficients.event-loss", str(weight),
         f"{MODEL}low-light-event-loss", "True",
     )  # fmt: skip
 

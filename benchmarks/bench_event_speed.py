@@ -28,7 +28,11 @@ from agrinerf_ns.machine import device_name
 from agrinerf_ns.run_order import rotated
 
 EVENTS: Dict[str, Any] = dict(
-    modalities=("rgb", "events"), cross_spectral_output=False, event_loss_weighting="noise", low_light_event_loss=True
+    modalities=("rgb", "events"),
+    cross_spectral_output=False,
+    event_supervision="stream",
+    event_loss_weighting="noise",
+    low_light_event_loss=True,
 )
 PARTS: Dict[str, Dict[str, Any]] = {
     "RGB TensoRF": dict(modalities=("rgb",)),

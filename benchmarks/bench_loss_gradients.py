@@ -27,7 +27,7 @@ import tyro
 from agrinerf_ns.bench.stepper import MethodStepper
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.model.gradients import parameter_groups, term_gradients
-from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES
+from agrinerf_ns.model.loss_routing import PAPER_DENSITY_GRADIENT_SCALES
 
 CAMERA_SCALES = {**PAPER_DENSITY_GRADIENT_SCALES, "thermal_loss": 0.0, "reg_rgb_loss": 0.0, "reg_event_loss": 0.0}
 ROUTINGS: Dict[str, Dict[str, object]] = {

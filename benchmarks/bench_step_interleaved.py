@@ -8,7 +8,7 @@ A run is ``[TREE:]METHOD[@STEP][%FIELD=VALUE...]``: an ``agrinerf-bench`` method
 training step STEP (default 0, the grids a preset starts with; e.g. ``agrinerf@7000``: the paper preset at its final
 300^3 grids, blur model and event loss on as from step 1200), from the checkout TREE (a name given in ``--trees``;
 default this one, as installed; a TREE is imported through a layout of links under OUT/trees), so that a change can be timed against the code before it in one run, with model config fields set
-(``%event_rays_per_batch=0``: no event loss; VALUE is JSON). Every run's pipeline
+(``%event_supervision="off"``: no event loss; VALUE is JSON). Every run's pipeline
 (Nerfstudio's own, built from its registered method config, the same rays per batch) lives in a worker process
 (``benchmarks/step_worker.py``); the driver asks one worker at a time for one step, rotating the order every round,
 so the runs share the machine's state step by step and the paired ratio of each round is close to what a quiet

@@ -106,7 +106,7 @@ def main(args: Args) -> Dict:
 
     run = load_run(args.config)
     model = run.pipeline.model
-    if not getattr(model, "has_temperature", False):
+    if not getattr(getattr(model, "plan", model), "has_temperature", False):
         sys.exit(f"{args.config}: the model has no temperature output (its dataset has no radiometric calibration)")
     dataset = run.pipeline.datamanager.eval_dataset
     data_dir = dataset_folder(Path(run.pipeline.datamanager.config.dataparser.data))

@@ -29,7 +29,8 @@ import tyro
 
 from agrinerf_ns.dataparsers.event_stream import EventStream, event_rays, sample_windows
 from agrinerf_ns.machine import device_name
-from agrinerf_ns.model import blur_renders, losses
+from agrinerf_ns.model import losses
+from agrinerf_ns.model.blur_term import render_at
 from agrinerf_ns.model.timed_rays import camera_rows
 
 
@@ -133,7 +134,7 @@ def main(args: Args) -> None:
         for label, camera in (("frames, RGB rays", {}), ("frames, event-camera rays", metadata.get("event_camera"))):
             if camera is None:
                 continue
-            renders = blur_renders.render_at(model, bundle, win, "event_loss", **camera)
+            renders = render_at(model.render_rays, model.rig, bundle, win, "event_loss", **camera)
             logs = losses.log_luminance(renders, eps)
             rows.append((label, _stats((logs[:, 1] - logs[:, 0])[inside], target[inside])))
         # stream: random event pixels, whole frame windows and random sub-windows

@@ -22,7 +22,14 @@ def prepare(stepper, at_step: int) -> dict:
     """Grids and step-dependent terms of training step `at_step` (an AgriNeRF model; others are left as built)."""
     model = stepper.pipeline.model
     info: dict = {}
-    if at_step > 0 and hasattr(model, "resolution_at_step"):
+    if at_step > 0 and hasattr(model, "grid"):  # the grid schedule as a part (today's tree)
+        from agrinerf_ns.model.grid_schedule import sync_optimizers
+
+        model.grid.fit_box(model.surface_points, stepper.pipeline.datamanager.train_dataset.cameras, 0)
+        model.grid.upsample(model.grid.resolution_at_step(at_step))
+        sync_optimizers(model.get_param_groups(), stepper.optimizers)
+        model.step = at_step
+    elif at_step > 0 and hasattr(model, "resolution_at_step"):  # an older checkout's model methods
         if hasattr(model, "fit_box"):  # a checkout whose grids follow a fitted box: fit it as training would
             model.fit_box(stepper.pipeline.datamanager.train_dataset.cameras, 0)
         model.upsample_volumes(model.resolution_at_step(at_step))

@@ -197,6 +197,7 @@ LITE: Dict[str, Any] = dict(
 equal wall time, results/sample-budget-walltime), 2k steps, no blur model, no event loss."""
 
 PAPER_EVENTS: Dict[str, Any] = dict(
+    event_supervision="stream",
     event_rays_per_batch=512,
     event_loss_weighting="noise",
     loss_coefficients={**AgriNeRFModelConfig().loss_coefficients, "event_loss": 1.0},
@@ -264,7 +265,12 @@ evdeblurnerf_lite = MethodSpecification(
 
 evdeblurnerf_windowed = MethodSpecification(
     config=agrinerf_trainer_config(
-        "evdeblurnerf-windowed", max_num_iterations=30000, event_rays_per_batch=1024, **PAPER_BLUR, **EVDEBLURNERF
+        "evdeblurnerf-windowed",
+        max_num_iterations=30000,
+        event_supervision="stream",
+        event_rays_per_batch=1024,
+        **PAPER_BLUR,
+        **EVDEBLURNERF,
     ),
     description="The earlier EvDeblurNeRF port: the RGB TensoRF with the windowed event loss at weight 0.1 and the "
     "known-trajectory blur model, no thermal head.",
@@ -272,7 +278,12 @@ evdeblurnerf_windowed = MethodSpecification(
 
 evdeblurnerf_windowed_lite = MethodSpecification(
     config=agrinerf_trainer_config(
-        "evdeblurnerf-windowed-lite", blur_samples=3, event_rays_per_batch=256, **LITE, **EVDEBLURNERF
+        "evdeblurnerf-windowed-lite",
+        blur_samples=3,
+        event_supervision="stream",
+        event_rays_per_batch=256,
+        **LITE,
+        **EVDEBLURNERF,
     ),
     description="The earlier EvDeblurNeRF port, CPU preset: AgriNeRF-lite's RGB module with the windowed event loss "
     "and a 3-ray known-trajectory blur model, no thermal head.",

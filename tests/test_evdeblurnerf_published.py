@@ -152,7 +152,7 @@ def test_the_model_renders_a_sample_at_the_events_two_times_and_weighs_its_loss_
 
 def test_the_learnt_kernel_starts_as_the_sharp_ray_and_its_parameters_learn(tmp_path: Path) -> None:
     camera = _camera(tmp_path, _hand_stream())
-    model = _model(camera, event_rays_per_batch=0, edi_prior=False)
+    model = _model(camera, event_supervision="off", edi_prior=False)
     assert model.blur_kernel is not None and model.blur_kernel.num_motions == 9
     bundle = _rays()
     rotation, translation, weights = model.blur_kernel(bundle.camera_indices[:, 0])
@@ -178,7 +178,7 @@ def test_the_learnt_kernel_starts_as_the_sharp_ray_and_its_parameters_learn(tmp_
 
 
 def test_the_kernels_translations_learn_through_the_sample_positions(tmp_path: Path) -> None:
-    model = _model(_camera(tmp_path, _hand_stream()), event_rays_per_batch=0, edi_prior=False)
+    model = _model(_camera(tmp_path, _hand_stream()), event_supervision="off", edi_prior=False)
     assert model.blur_kernel is not None
     _, _, loss_dict = _step(model)
     loss_dict["rgb_loss"].backward()
@@ -210,14 +210,14 @@ def test_the_event_response_is_the_identity_before_its_start_and_learns_after(tm
     assert float(error.mean()) < 0.03 and float(error.max()) < 0.06  # the identity fit, as published (not exact)
     camera = _camera(tmp_path, _hand_stream())
     model = _model(camera, blur_samples=1, edi_prior=False, event_crf=True, event_crf_start_step=5)
-    assert model.event_crf is not None and "event_crf" in model.get_param_groups()
+    assert model.events is not None and model.events.crf is not None and "event_crf" in model.get_param_groups()
     _, _, loss_dict = _step(model)
     loss_dict["event_loss"].backward()
-    assert all(p.grad is None for p in model.event_crf.parameters())  # not used before its start step
+    assert all(p.grad is None for p in model.events.crf.parameters())  # not used before its start step
     model.step = 5
     _, _, loss_dict = _step(model)
     loss_dict["event_loss"].backward()
-    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.event_crf.parameters())
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in model.events.crf.parameters())
 
 
 # ------------------------------------------------------------------------------------------------- the EDI prior
@@ -242,7 +242,7 @@ def test_rgb_pixels_map_to_the_event_pixel_that_sees_the_same_point(tmp_path: Pa
 
 def test_the_edi_prior_trains_with_its_decayed_weight(tmp_path: Path) -> None:
     camera = _camera(tmp_path, _hand_stream())
-    model = _model(camera, blur_samples=1, event_rays_per_batch=0, edi_prior=True)
+    model = _model(camera, blur_samples=1, event_supervision="off", edi_prior=True)
     outputs, metrics, loss_dict = _step(model)
     assert "edi_factor" in outputs and "edi_prior_loss" in metrics
     assert float(loss_dict["edi_prior_loss"]) == pytest.approx(0.01 * float(metrics["edi_prior_loss"]), rel=1e-6)

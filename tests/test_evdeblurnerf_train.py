@@ -45,7 +45,9 @@ def test_evdeblurnerf_trains_with_the_event_loss_and_blur_model_and_ns_eval_rend
     checkpoint = torch.load(sorted((run / "nerfstudio_models").glob("*.ckpt"))[-1], weights_only=False)
     names = list(checkpoint["pipeline"])
     assert not any("thermal" in n for n in names)  # no thermal head: the scene's thermal frames are not modelled
-    assert any(n.startswith("_model.blur_kernel.") for n in names) and any("event_crf" in n for n in names)
+    assert any(n.startswith("_model.blur_kernel.") for n in names) and any(
+        n.startswith("_model.events.crf.") for n in names
+    )
 
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

@@ -21,7 +21,13 @@ from agrinerf_ns.trajectory import CameraTrajectory
 
 C = 0.2
 
-SMALL = {**SMALL_MODEL, "density_shift": 0.0, "event_threshold": C, "event_rays_per_batch": 16}
+SMALL = {
+    **SMALL_MODEL,
+    "density_shift": 0.0,
+    "event_threshold": C,
+    "event_rays_per_batch": 16,
+    "event_supervision": "frames",
+}
 
 
 # ----------------------------------------------------------------------------- the loss on hand-made cases
@@ -152,8 +158,8 @@ def _losses(model: AgriNeRFModel, batch: Dict[str, torch.Tensor], seed: int = 3)
 
 def test_one_blur_sample_is_the_sharp_path_bit_for_bit() -> None:
     sharp = _losses(_model({"modalities": ("rgb", "events")}), _batch())  # no timing metadata at all
-    k1 = _model(_metadata(), blur_samples=1, event_rays_per_batch=0)
-    assert not k1.use_blur
+    k1 = _model(_metadata(), blur_samples=1, event_supervision="off")
+    assert not k1.plan.use_blur
     one = _losses(k1, _batch())
     assert set(one) == set(sharp)
     for key in sharp:
@@ -161,12 +167,12 @@ def test_one_blur_sample_is_the_sharp_path_bit_for_bit() -> None:
 
 
 def test_the_blur_model_renders_across_the_exposure_and_zero_exposure_is_the_sharp_render() -> None:
-    blurred = _model(_metadata(exposure_s=0.04), blur_samples=3, event_rays_per_batch=0)
+    blurred = _model(_metadata(exposure_s=0.04), blur_samples=3, event_supervision="off")
     torch.manual_seed(3)
     out = blurred(_rays())
     assert "rgb_blurred" in out and out["rgb_blurred"].shape == out["rgb"].shape
     assert not torch.allclose(out["rgb_blurred"], out["rgb"], atol=1e-5)  # the camera moved during the exposure
-    instant = _model(_metadata(exposure_s=0.0), blur_samples=3, event_rays_per_batch=0)
+    instant = _model(_metadata(exposure_s=0.0), blur_samples=3, event_supervision="off")
     torch.manual_seed(3)
     out = instant(_rays())
     assert torch.isfinite(out["rgb_blurred"]).all()
@@ -185,26 +191,28 @@ def test_the_blur_model_renders_across_the_exposure_and_zero_exposure_is_the_sha
 def test_the_blur_model_reuses_the_frames_render_at_mid_exposure(samples: int, stamp: str, rendered: int) -> None:
     """An odd number of blur samples puts the middle one at the exposure's centre: where frames are stamped there it
     is the frame's own render (`sharp_rgb`), blended as the other renders are, and not rendered again."""
-    from agrinerf_ns.model.blur_renders import blurred_rgb, render_at
+    from agrinerf_ns.model.blur_term import render_at
     from agrinerf_ns.model.timed_rays import camera_rows, exposure_times
 
     metadata = _metadata(exposure_s=0.04)
     if stamp == "start":  # the frame's time stamp at the exposure's start: the middle pose is not the frame's
         times = metadata["times"]
         metadata["exposure"] = torch.stack([times, times + 0.04], -1)  # type: ignore[operator]
-    model = _model(metadata, blur_samples=samples, event_rays_per_batch=0)
+    model = _model(metadata, blur_samples=samples, event_supervision="off")
     bundle, n = _rays(), 48
     counts, render = [], model.render
     model.render = lambda rays, **kw: counts.append(len(rays)) or render(rays, **kw)  # type: ignore[method-assign]
     planted = torch.full((n, 3), 0.25)
     torch.manual_seed(7)
-    out = blurred_rgb(model, bundle, planted)
+    assert model.blur is not None
+    out = model.blur.blurred_rgb(model.render_rays, bundle, planted)
     assert counts == [rendered * n]
     if rendered == samples - 1:  # the expected blend of the other renders (same draws) and the planted frame render
-        all_times = exposure_times(model.exposure[camera_rows(bundle)], samples)  # type: ignore[index]
+        all_times = exposure_times(model.rig.exposure[camera_rows(bundle)], samples)  # type: ignore[index]
         middle = samples // 2
         torch.manual_seed(7)
-        others = render_at(model, bundle, torch.cat([all_times[:, :middle], all_times[:, middle + 1 :]], 1), "rgb_loss")
+        others_times = torch.cat([all_times[:, :middle], all_times[:, middle + 1 :]], 1)
+        others = render_at(model.render_rays, model.rig, bundle, others_times, "rgb_loss")
         blend = torch.cat([others[:, :middle], planted[:, None], others[:, middle:]], 1)
         expected = colour.linear_to_srgb(colour.srgb_to_linear(blend).mean(dim=1))
         assert torch.allclose(out, expected, atol=1e-6)
@@ -212,7 +220,7 @@ def test_the_blur_model_reuses_the_frames_render_at_mid_exposure(samples: int, s
 
 def test_the_event_loss_reaches_the_density_and_the_rgb_appearance() -> None:
     model = _model(_metadata(), event_rays_per_batch=16)
-    assert model.use_event_loss
+    assert model.plan.use_event_loss
     loss_dict = _losses(model, _batch())
     assert "event_loss" in loss_dict
     norms = term_gradient_norms({"event_loss": loss_dict["event_loss"]}, parameter_groups(model))["event_loss"]
@@ -240,9 +248,9 @@ def test_no_nan_or_inf_at_the_extremes(case: str) -> None:
 def test_a_scene_without_event_sums_or_timing_has_no_event_loss() -> None:
     meta = _metadata()
     del meta["event_windows"]
-    assert not _model(meta).use_event_loss
+    assert not _model(meta).plan.use_event_loss
     assert "event_loss" not in _losses(_model(meta), _batch())
-    assert not _model({"modalities": ("rgb", "events")}, blur_samples=5).use_blur
+    assert not _model({"modalities": ("rgb", "events")}, blur_samples=5).plan.use_blur
 
 
 def test_the_evdeblurnerf_configuration_has_no_thermal_head() -> None:
@@ -275,7 +283,7 @@ def test_the_blur_and_event_renders_follow_their_terms_density_scale(term: str) 
     """`density_gradient_scales` of L_rgb (through the blur model's renders) and of the event term hold there too:
     at 0 the term trains the RGB appearance only."""
     metadata = _metadata(exposure_s=0.04)
-    blur_events = {"blur_samples": 3, "event_rays_per_batch": 16}
+    blur_events = {"blur_samples": 3, "event_rays_per_batch": 16, "event_supervision": "frames"}
     full = _model(metadata, **blur_events)
     off = _model(metadata, **blur_events, density_gradient_scales={term: 0.0})
     groups = [term_gradient_norms({term: _losses(m, _batch())[term]}, parameter_groups(m))[term] for m in (full, off)]
@@ -287,18 +295,19 @@ def test_the_blur_and_event_renders_leave_the_global_random_stream_as_it_was() -
     """Common random numbers: a step with the blur model and the event loss draws the next batch's randomness exactly
     as a step without them does, so their ablation rows stay paired with the RGB-only row."""
     draws = []
-    for kw in ({"blur_samples": 1, "event_rays_per_batch": 0}, {"blur_samples": 3, "event_rays_per_batch": 16}):
+    for kw in ({"blur_samples": 1, "event_supervision": "off"}, {"blur_samples": 3, "event_supervision": "frames"}):
         model = _model(_metadata(exposure_s=0.04), **kw)
-        assert model.use_blur == (kw["blur_samples"] > 1) and model.use_event_loss == (kw["event_rays_per_batch"] > 0)
+        plan = model.plan
+        assert plan.use_blur == (kw["blur_samples"] > 1) and plan.use_event_loss == (kw["event_supervision"] != "off")
         outputs = _losses(model, _batch(), seed=5)
-        assert ("event_loss" in outputs) == model.use_event_loss
+        assert ("event_loss" in outputs) == model.plan.use_event_loss
         draws.append(torch.rand(4))
     assert torch.equal(draws[0], draws[1])
 
 
 def test_the_event_loss_is_off_in_low_light_unless_kept() -> None:
     dark = {**_metadata(), "rgb_level": 0.012}
-    assert not _model(dark, event_rays_per_batch=16).use_event_loss
-    assert _model(dark, event_rays_per_batch=16, low_light_event_loss=True).use_event_loss
-    assert _model({**_metadata(), "rgb_level": 0.3}, event_rays_per_batch=16).use_event_loss
-    assert _model(dark, event_rays_per_batch=16, low_light_level=0.0).use_event_loss  # the rule switched off
+    assert not _model(dark, event_rays_per_batch=16).plan.use_event_loss
+    assert _model(dark, event_rays_per_batch=16, low_light_event_loss=True).plan.use_event_loss
+    assert _model({**_metadata(), "rgb_level": 0.3}, event_rays_per_batch=16).plan.use_event_loss
+    assert _model(dark, event_rays_per_batch=16, low_light_level=0.0).plan.use_event_loss  # the rule switched off

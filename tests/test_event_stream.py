@@ -135,7 +135,8 @@ def _stream_model(outputs, **kw):
     from agrinerf_ns.model.model import AgriNeRFModelConfig
 
     torch.manual_seed(0)
-    config = AgriNeRFModelConfig(modalities=("rgb", "events"), cross_spectral_output=False, event_rays_per_batch=64,
+    config = AgriNeRFModelConfig(modalities=("rgb", "events"), cross_spectral_output=False, event_supervision="stream",
+                                 event_rays_per_batch=64,
                                  **{**SMALL_MODEL, **kw})  # fmt: skip
     model = config.setup(scene_box=outputs.scene_box, num_train_data=len(outputs.image_filenames),
                          metadata=outputs.metadata)  # fmt: skip
@@ -156,7 +157,7 @@ def test_the_stream_event_loss_renders_event_pixels_and_trains_density_and_rgb(d
 
     outputs = AgriNeRFDataParserConfig(data=dusk_capture[2]).setup().get_dataparser_outputs("train")
     model = _stream_model(outputs)
-    assert model.event_stream is not None and model.event_stream.num_events > 0
+    assert model.events is not None and model.events.stream is not None and model.events.stream.num_events > 0
     out, metrics, loss_dict = _step(model, outputs)
     assert out["event_on"].shape == out["event_log_start"].shape == (64, 1)
     assert float((out["event_on"] + out["event_off"]).sum()) > 0  # the dusk capture's events were found
@@ -173,17 +174,17 @@ def test_the_noise_weighting_balances_the_event_term_by_the_running_losses(dusk_
     # the first step's running means are its own losses: weight (64 event pixels / 128 rays) x rgb / event, at most 1
     want = event * 0.5 * min(rgb / event, 1.0)
     assert float(loss_dict["event_loss"]) == pytest.approx(want, rel=1e-5)
-    first = model.event_weight
+    first = float(model.events.weight)
     _, metrics2, _ = _step(model, outputs)
     assert metrics2["event_loss_weight"] == pytest.approx(first)  # logged: the weight of the step before
-    assert 0 < model.event_weight <= 0.5
+    assert 0 < float(model.events.weight) <= 0.5
 
 
 def test_learnt_thresholds_are_trained_by_the_event_loss_and_absent_unless_asked(dusk_capture) -> None:
     outputs = AgriNeRFDataParserConfig(data=dusk_capture[2]).setup().get_dataparser_outputs("train")
-    assert _stream_model(outputs).log_event_threshold is None
+    assert _stream_model(outputs).events.log_threshold is None
     model = _stream_model(outputs, event_threshold_learnt=True, event_threshold=0.25)
-    threshold = model.log_event_threshold
+    threshold = model.events.log_threshold
     assert threshold is not None and any(p is threshold for p in model.get_param_groups()["fields"])
     _, metrics, loss_dict = _step(model, outputs)
     assert float(metrics["event_threshold_on"]) == pytest.approx(0.25)

@@ -196,7 +196,7 @@ def test_the_model_fits_its_box_to_the_dense_region_it_renders() -> None:
     model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8, metadata={})
     dense = torch.tensor([[-0.5, -0.3, -0.2], [0.3, 0.5, 0.4]])  # world box of the only dense matter
     _fill_density(model, dense)
-    box = model.fit_box(_ring_cameras(), step=0)
+    box = model.grid.fit_box(model.surface_points, _ring_cameras(), step=0)
     assert box is not None
     torch.testing.assert_close(model.field.full_resolution_box(), box)
     margin = 0.1 * float((dense[1] - dense[0]).max())
@@ -222,15 +222,15 @@ def test_later_fits_only_shrink_the_box() -> None:
     cfg = AgriNeRFModelConfig(modalities=("rgb",), box_fit_iters=(10, 20), **small)
     model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8, metadata={})
     _fill_density(model, torch.tensor([[-0.3, -0.3, -0.3], [0.3, 0.3, 0.3]]))
-    first = model.fit_box(_ring_cameras(), step=10)
+    first = model.grid.fit_box(model.surface_points, _ring_cameras(), step=10)
     assert first is not None
     wider = torch.tensor([[-0.7, -0.6, -0.5], [0.6, 0.7, 0.5]])  # floaters grown around the matter
     _fill_density(model, wider)
-    later = model.fit_box(_ring_cameras(), step=20)
+    later = model.grid.fit_box(model.surface_points, _ring_cameras(), step=20)
     assert later is not None
     assert bool((later[0] >= first[0] - 1e-6).all() and (later[1] <= first[1] + 1e-6).all())  # shrink only
     _fill_density(model, torch.tensor([[-0.2, -0.1, -0.2], [0.1, 0.2, 0.2]]))
-    smaller = model.fit_box(_ring_cameras(), step=30)
+    smaller = model.grid.fit_box(model.surface_points, _ring_cameras(), step=30)
     assert smaller is not None and float((smaller[1] - smaller[0]).prod()) < 0.5 * float((later[1] - later[0]).prod())
 
 
@@ -283,27 +283,25 @@ def test_the_voxel_target_applies_where_the_scale_is_metric() -> None:
     from helpers.small_model import SMALL_MODEL
     from nerfstudio.data.scene_box import SceneBox
 
-    from agrinerf_ns.model.grid_schedule import fine_enough
     from agrinerf_ns.model.model import AgriNeRFModelConfig
 
     aabb = SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3]))
     cfg = AgriNeRFModelConfig(modalities=("rgb",), **{**SMALL_MODEL, "final_resolution": 100})
-    assert fine_enough(cfg.setup(scene_box=aabb, num_train_data=8, metadata={})) is None  # no scale: share only
+    assert cfg.setup(scene_box=aabb, num_train_data=8, metadata={}).grid.fine_enough() is None  # no scale: share only
     metric = cfg.setup(scene_box=aabb, num_train_data=8, metadata={"metres_per_unit": 0.5})
-    check = fine_enough(metric)
+    check = metric.grid.fine_enough()
     assert check is not None
     # a 1-unit cube at 100^3 over 0.8 of the grid: cells of 1 / (0.8 * 99) units, 6.3 mm
     assert check(torch.tensor([[0.0] * 3, [1.0] * 3]))
     assert not check(torch.tensor([[0.0] * 3, [4.0] * 3]))  # 25 mm
     off = AgriNeRFModelConfig(modalities=("rgb",), box_voxel_target_m=0.0, **SMALL_MODEL)
-    assert fine_enough(off.setup(scene_box=aabb, num_train_data=8, metadata={"metres_per_unit": 0.5})) is None
+    assert off.setup(scene_box=aabb, num_train_data=8, metadata={"metres_per_unit": 0.5}).grid.fine_enough() is None
 
 
 def test_a_voxel_target_the_grids_cannot_reach_keeps_the_surface_share() -> None:
     from helpers.small_model import SMALL_MODEL
     from nerfstudio.data.scene_box import SceneBox
 
-    from agrinerf_ns.model.grid_schedule import fine_enough
     from agrinerf_ns.model.model import AgriNeRFModelConfig
 
     dense = torch.tensor([[-0.5, -0.3, -0.2], [0.3, 0.5, 0.4]])
@@ -317,8 +315,8 @@ def test_a_voxel_target_the_grids_cannot_reach_keeps_the_surface_share() -> None
         model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8,
                           metadata=metadata)  # fmt: skip
         _fill_density(model, dense)
-        boxes[name] = model.fit_box(_ring_cameras(), step=0)
-        check = fine_enough(model)
+        boxes[name] = model.grid.fit_box(model.surface_points, _ring_cameras(), step=0)
+        check = model.grid.fine_enough()
         assert (check is None) == (name == "no scale")
         if check is not None:
             assert check(boxes[name]) == (name == "reachable")

@@ -18,8 +18,9 @@ from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import SceneBox
 
 from agrinerf_ns.model.gradients import parameter_groups, term_gradient_norms
+from agrinerf_ns.model.loss_routing import PAPER_DENSITY_GRADIENT_SCALES
 from agrinerf_ns.model.losses import scale_gradient
-from agrinerf_ns.model.model import PAPER_DENSITY_GRADIENT_SCALES, AgriNeRFModel, AgriNeRFModelConfig
+from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
 
 SMALL = {**SMALL_MODEL, "density_shift": 0.0}  # dense enough at initialisation that every ray has weight to route
 
@@ -101,7 +102,7 @@ def test_low_light_routing_needs_thermal_frames_and_a_recorded_level() -> None:
     reached = _reached(_norms(_model(rgb_level=float("nan"), low_light_level=0.04)))
     assert "density" not in reached["thermal_camera_loss"]  # no level recorded: the configured routing
     model = _model(modalities=("rgb", "events"), rgb_level=0.01, low_light_level=0.04)
-    assert not model.low_light  # no thermal frames: nothing to route
+    assert not model.plan.low_light  # no thermal frames: nothing to route
 
 
 def test_paper_routing_sends_every_term_into_the_density() -> None:

@@ -58,7 +58,7 @@ def _batch(n: int = 32, rgb: float = 0.3, thermal: float = 0.6, event: float = 0
 
 def test_rgb_only_scene_has_no_thermal_parameters() -> None:
     rgb_scene = _model(dataset=("rgb",))  # the config asks for all three; the dataset has RGB only
-    assert rgb_scene.modalities == ("rgb",)
+    assert rgb_scene.plan.modalities == ("rgb",)
     names = set(_counts(rgb_scene))
     assert not any("thermal" in n for n in names)
     assert rgb_scene.field.thermal_head is None
@@ -87,9 +87,9 @@ def test_adding_thermal_adds_exactly_the_thermal_volume_and_mlp() -> None:
 
 def test_config_modalities_are_intersected_with_the_dataset() -> None:
     model = _model(modalities=("rgb", "thermal"), dataset=("rgb", "thermal", "events"))
-    assert model.modalities == ("rgb", "thermal") and not model.use_events
+    assert model.plan.modalities == ("rgb", "thermal") and not model.plan.use_events
     model = _model(modalities=("rgb", "thermal", "events"), dataset=("rgb", "events"))
-    assert model.modalities == ("rgb", "events") and model.field.thermal_head is not None  # Table IV RGB+Events
+    assert model.plan.modalities == ("rgb", "events") and model.field.thermal_head is not None  # Table IV RGB+Events
     model = _model(modalities=("thermal",))
     assert model.field.rgb_head is None and "rgb" not in model(_rays())
     with pytest.raises(ValueError, match="needs RGB or thermal"):
@@ -97,7 +97,7 @@ def test_config_modalities_are_intersected_with_the_dataset() -> None:
     no_metadata = AgriNeRFModelConfig(**SMALL).setup(
         scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1, -1], [1, 1, 1]])), num_train_data=2
     )
-    assert no_metadata.modalities == ("rgb",)
+    assert no_metadata.plan.modalities == ("rgb",)
 
 
 @pytest.mark.parametrize("name", sorted(TABLE_IV_ABLATIONS))

@@ -89,9 +89,11 @@ def test_a_supervision_the_data_cannot_give_is_said_not_guessed(scene: Path) -> 
 
 def test_low_light_turns_the_event_loss_off_and_the_thermal_camera_up() -> None:
     """The dark rules, on metadata alone: the plan is a pure function of config and metadata."""
-    from agrinerf_ns.model.model_config import AgriNeRFModelConfig
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
 
-    config = AgriNeRFModelConfig(event_rays_per_batch=64, loss_coefficients={"rgb_loss": 1.0, "event_loss": 0.1})
+    config = AgriNeRFModelConfig(
+        event_supervision="frames", event_rays_per_batch=64, loss_coefficients={"rgb_loss": 1.0, "event_loss": 0.1}
+    )
     metadata = {"modalities": ALL, "rgb_level": 0.01, "times": object(), "trajectory": object(),
                 "event_windows": object()}  # fmt: skip
     dark = resolve_plan(config, metadata)
@@ -116,3 +118,37 @@ def test_a_training_step_computes_exactly_the_planned_terms(scene: Path, preset:
     stepper = MethodStepper(preset, scene, 128, model_overrides=small)
     model = stepper.pipeline.model
     assert set(stepper.loss_dict(0)) == set(model.plan.terms)
+
+
+@pytest.mark.parametrize(
+    ("settings", "reason"),
+    [({"event_rays_per_batch": 0}, "event_rays_per_batch is 0"),
+     ({"loss_coefficients": {"rgb_loss": 1.0, "event_loss": 0.0}}, r"loss_coefficients\['event_loss'\] is 0.0")],
+)  # fmt: skip
+def test_the_event_loss_has_one_switch_and_a_count_or_weight_of_zero_is_refused(settings: dict, reason: str) -> None:
+    """`event_supervision` alone turns the event loss on or off; 0 rays or a zero weight under it is an error that
+    names the switch, not a second, silent switch."""
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    metadata = {"modalities": ALL, "times": object(), "trajectory": object(), "event_windows": object()}
+    with pytest.raises(ValueError, match=reason + ".*event-supervision off"):
+        resolve_plan(AgriNeRFModelConfig(event_supervision="frames", **settings), metadata)
+    assert resolve_plan(AgriNeRFModelConfig(event_supervision="off", **settings), metadata).event_supervision == "off"
+    assert resolve_plan(AgriNeRFModelConfig(event_supervision="frames"), metadata).event_supervision == "frames"
+
+
+def test_only_the_plan_reads_the_event_switch() -> None:
+    """The event loss's on/off is checked in one place: no other module of the package reads the config's
+    `event_supervision` (the parts read the plan's)."""
+    import ast
+
+    root = Path(__file__).resolve().parent.parent
+    readers = []
+    for path in sorted([*(root / "agrinerf_ns").rglob("*.py"), *(root / "dataparsers").rglob("*.py")]):
+        if path.name in ("plan.py", "model_config.py") and path.parent.name == "model":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr == "event_supervision":
+                if not (isinstance(node.value, ast.Name) and node.value.id == "plan"):
+                    readers.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert not readers, readers

@@ -55,7 +55,7 @@ def trained(tmp_path_factory) -> Dict:
 
 def test_twenty_trainer_steps_lower_the_loss(trained: Dict) -> None:
     model = trained["trainer"].pipeline.model
-    assert isinstance(model, AgriNeRFModel) and model.modalities == ("rgb", "thermal", "events")
+    assert isinstance(model, AgriNeRFModel) and model.plan.modalities == ("rgb", "thermal", "events")
     assert trained["after"] < 0.9 * trained["before"], (trained["before"], trained["after"])  # 0.187 -> 0.159 seen
     assert {"psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim"} <= set(trained["metrics"])
     assert 0.0 < model.field.occupancy.float().mean().item() <= 1.0

@@ -146,7 +146,7 @@ def _temperature_parameters(model) -> Dict[str, torch.Size]:
 def test_a_trained_model_renders_finite_temperatures_and_reports_the_mae(dataset: Path, tmp_path: Path) -> None:
     trainer = _trainer(dataset, tmp_path, steps=40)
     model = trainer.pipeline.model
-    assert model.has_temperature and _temperature_parameters(model)
+    assert model.plan.has_temperature and _temperature_parameters(model)
     assert all(name.startswith("field.temperature_head.") for name in _temperature_parameters(model))
     fields = {id(p) for p in trainer.optimizers.parameters["fields"]}
     assert all(id(p) in fields for p in model.field.temperature_head.parameters())  # the optimiser trains it
@@ -190,7 +190,7 @@ def test_a_capture_without_calibration_gets_no_temperature_outputs_or_parameters
     trainer = _trainer(data, tmp_path, steps=3)
     model = trainer.pipeline.model
     assert "temperature_stats" not in trainer.pipeline.datamanager.train_dataset.metadata
-    assert model.use_thermal and not model.has_temperature and model.field.temperature_head is None
+    assert model.plan.use_thermal and not model.plan.has_temperature and model.field.temperature_head is None
     trainer.train()
     assert _temperature_parameters(model) == {}
     assert not any("temperature" in key for key in model.state_dict())

@@ -196,9 +196,6 @@ def test_the_held_out_thermal_metrics_render_the_thermal_cameras_view() -> None:
     camera's centre: the thermal outputs the metrics read are that camera's render; the RGB stays the camera's own."""
     from nerfstudio.cameras.cameras import Cameras
 
-    from agrinerf_ns.model.eval_metrics import image_metrics_and_images
-    from agrinerf_ns.model.thermal_view import eval_outputs
-
     camera_centre = torch.tensor(CENTRE, dtype=torch.float64)
     model = _model(_metadata(camera_centre=camera_centre, plane_depth=math.inf), thermal_rays_per_batch=32)
     model.eval()
@@ -216,12 +213,14 @@ def test_the_held_out_thermal_metrics_render_the_thermal_cameras_view() -> None:
     with torch.no_grad():
         from_thermal = model.get_outputs_for_camera(camera(moved))
         own = model.get_outputs_for_camera(camera(c2w))
-        seen = eval_outputs(model, own)
+        assert model.thermal_view is not None
+        seen = model.thermal_view.eval_outputs(model.get_outputs_for_camera_ray_bundle, camera(c2w), own)
     assert torch.allclose(seen["thermal_camera"], from_thermal["thermal_camera"], atol=1e-5)
     assert torch.allclose(seen["temperature"], from_thermal["temperature"], atol=1e-4)
     assert not torch.allclose(own["thermal_camera"], from_thermal["thermal_camera"], atol=1e-3)  # the test can tell
     assert torch.equal(seen["rgb"], own["rgb"])
     batch = {"image": torch.rand(12, 16, 3), "thermal": from_thermal["thermal_camera"].clone(),
              "temperature": from_thermal["temperature"].clone()}  # fmt: skip
-    metrics, _ = image_metrics_and_images(model, own, batch)
+    model.eval_camera = camera(c2w)
+    metrics, _ = model.get_image_metrics_and_images(own, batch)
     assert metrics["thermal_camera_psnr"] > 60.0 and metrics["temperature_mae"] < 1e-3

@@ -72,7 +72,7 @@ def _load_at_step(step: int) -> Callable:
 
 
 GRID_METRICS = ("fine_region_weight", "voxel_size_m", "voxel_size_final_m")
-"""How the grids fit the scene (`AgriNeRFModel.grid_diagnostics`): the share of the held-out rendering weight at full
+"""How the grids fit the scene (`eval_metrics.grid_diagnostics`): the share of the held-out rendering weight at full
 resolution, the voxel size at the median rendered depth now and at the preset's final grids (metres)."""
 
 

@@ -3,50 +3,68 @@ the thermal mask, the temperature error, and where the rendering weight falls on
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Dict, Tuple
+from typing import Any, Callable, Dict, Optional, Protocol, Tuple, runtime_checkable
 
 import torch
 from jaxtyping import Float
 from nerfstudio.utils import colormaps
 from torch import Tensor
 
-from agrinerf_ns.model import losses, thermal_view
+from agrinerf_ns.model import losses
 from agrinerf_ns.model.fruit_head import fruit_iou
+from agrinerf_ns.model.plan import ModelPlan
 
-if TYPE_CHECKING:
-    from agrinerf_ns.model.model import AgriNeRFModel
+
+@runtime_checkable
+class Evaluated(Protocol):
+    """What the held-out metrics read of a model."""
+
+    plan: ModelPlan
+    psnr: Callable[..., Tensor]
+    ssim: Callable[..., Any]
+    metres_per_unit: Optional[float]
+    camera_optimizer: Any
+
+    @property
+    def device(self) -> torch.device: ...
+
+    def temperature_unit(self, celsius: Tensor) -> Tensor: ...
+
+    def lpips(self) -> torch.nn.Module: ...
 
 
 def image_metrics_and_images(
-    model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str, Any]
+    model: Evaluated, outputs: Dict[str, Tensor], thermal_outputs: Dict[str, Tensor], batch: Dict[str, Any]
 ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
     """RGB: psnr, ssim, lpips; thermal (and thermal_camera): <output>_psnr, <output>_ssim against the rescaled
-    thermal frames, over the thermal mask. Images side by side."""
+    thermal frames, over the thermal mask (read from `thermal_outputs`: the outputs with their thermal ones as the
+    thermal camera saw them, where training used that camera). Images side by side."""
     metrics: Dict[str, float] = {}
     images: Dict[str, Tensor] = {
         "accumulation": colormaps.apply_colormap(outputs["accumulation"]),
         "depth": colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"]),
     }
-    metrics.update(grid_diagnostics(model, outputs))
-    if model.use_rgb:
+    metrics.update(grid_diagnostics(model.metres_per_unit, outputs))
+    plan = model.plan
+    if plan.use_rgb:
         gt = batch["image"][..., :3].to(model.device).float()
         pred = outputs["rgb"]
         images["img"] = torch.cat([gt, pred], dim=1)
         gt_c, pred_c = gt.permute(2, 0, 1)[None], pred.permute(2, 0, 1)[None]
         metrics["psnr"] = float(model.psnr(pred_c, gt_c).item())
         metrics["ssim"] = float(model.ssim(pred_c, gt_c).item())  # type: ignore[union-attr]
-        metrics["lpips"] = float(lpips(model)(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
+        metrics["lpips"] = float(model.lpips()(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
     if "fruit" in outputs and "fruit" in batch:  # the fruit head against the held-out frame's mask
         known = batch["fruit_known"].to(model.device)
         metrics["fruit_iou"] = fruit_iou(outputs["fruit"], batch["fruit"].to(model.device), known)
         images["fruit"] = torch.cat([batch["fruit"].to(model.device) * known, outputs["fruit"]], dim=1).expand(
             -1, -1, 3
         )
-    outputs = thermal_view.eval_outputs(model, outputs)  # thermal outputs as the thermal camera saw them
-    if model.has_thermal_head:
+    outputs = thermal_outputs
+    if plan.has_thermal_head:
         pred_th = outputs["thermal"]
         images["thermal"] = pred_th.expand(*pred_th.shape[:-1], 3)
-        if model.use_thermal and "thermal" in batch:
+        if plan.use_thermal and "thermal" in batch:
             gt_th = batch["thermal"].to(model.device).float()
             mask = batch.get("thermal_mask")
             mask = torch.ones_like(gt_th) if mask is None else (mask.to(model.device).float() > 0.5).float()
@@ -67,17 +85,7 @@ def image_metrics_and_images(
     return metrics, images
 
 
-def lpips(model: AgriNeRFModel) -> torch.nn.Module:
-    """LPIPS (torchmetrics), built on first use: construction loads (or tries to fetch) AlexNet weights, which
-    training never needs. Kept out of the module tree, so checkpoints do not carry its weights."""
-    if "lpips" not in model._lazy_metrics:
-        from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
-
-        model._lazy_metrics["lpips"] = LearnedPerceptualImagePatchSimilarity(normalize=True).to(model.device)
-    return model._lazy_metrics["lpips"]
-
-
-def grid_diagnostics(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[str, float]:
+def grid_diagnostics(metres_per_unit: Optional[float], outputs: Dict[str, Tensor]) -> Dict[str, float]:
     """How well the grids fit the scene in a rendered image: `fine_region_weight`, the share of its rendering
     weight inside the full-resolution box, and `voxel_size_m`, the median over the rays that hit something
     (accumulation > 0.5) of the largest side of the grid cell at the ray's median depth, in metres (NaN where the
@@ -88,7 +96,7 @@ def grid_diagnostics(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[s
     acc = outputs["accumulation"]
     share = outputs["full_resolution_weight"].sum() / acc.sum().clamp(min=1e-12)
     hits = acc[..., 0] > 0.5
-    scale = float("nan") if model.metres_per_unit is None else float(model.metres_per_unit)
+    scale = float("nan") if metres_per_unit is None else float(metres_per_unit)
     metrics = {"fine_region_weight": float(share)}
     for key in ("voxel_size", "voxel_size_final"):
         sizes = outputs[key][..., 0][hits] if bool(hits.any()) else outputs[key].reshape(-1)
@@ -98,7 +106,7 @@ def grid_diagnostics(model: AgriNeRFModel, outputs: Dict[str, Tensor]) -> Dict[s
 
 
 def thermal_metrics(
-    model: AgriNeRFModel,
+    model: Evaluated,
     name: str,
     pred: Float[Tensor, "h w 1"],
     gt: Float[Tensor, "h w 1"],

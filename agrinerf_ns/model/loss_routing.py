@@ -4,18 +4,19 @@ TensoRF regularisers."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Dict, Tuple, cast
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple, cast
 
+import torch
 from jaxtyping import Float
 from torch import Tensor
 
 from agrinerf_ns import colour
-from agrinerf_ns.model import event_supervision, losses, thermal_view
+from agrinerf_ns.model import losses, thermal_view
+from agrinerf_ns.model.event_term import EventTerm
+from agrinerf_ns.model.field import AgriNeRFField, TemperatureHead
 from agrinerf_ns.model.fruit_head import fruit_loss
+from agrinerf_ns.model.plan import ModelPlan
 from agrinerf_ns.model.plane_tv import plane_tv
-
-if TYPE_CHECKING:
-    from agrinerf_ns.model.model import AgriNeRFModel
 
 TERM_OUTPUTS: Dict[str, str] = {
     "rgb_loss": "rgb",
@@ -34,122 +35,112 @@ PAPER_DENSITY_GRADIENT_SCALES: Dict[str, float] = {term: 1.0 for term in TERM_OU
 
 
 def routed_outputs(
-    model: AgriNeRFModel, weights: Float[Tensor, "rays samples 1"], dense: Dict[str, Tensor]
+    scales: Mapping[str, float],
+    weights: Float[Tensor, "rays samples 1"],
+    dense: Dict[str, Tensor],
+    composite: Callable[[Tensor, Tensor, Tensor], Tensor],
 ) -> Dict[str, Tensor]:
-    """Training only: for each data term whose density gradient scale is not 1, its output composited with weights
-    whose gradient is scaled (same values), under the key "<output>/<term>"."""
+    """Training only: for each data term whose density gradient scale (`scales`, 1 where absent) is not 1, its output
+    composited (`composite(weights, accumulation, values)`) with weights whose gradient is scaled (same values),
+    under the key "<output>/<term>"."""
     routed: Dict[str, Tensor] = {}
     scaled: Dict[float, Tuple[Tensor, Tensor]] = {}  # scale -> (weights, their accumulation)
     composites: Dict[Tuple[str, float], Tensor] = {}
     for term, name in TERM_OUTPUTS.items():
-        scale = model.density_gradient_scale(term)
+        scale = scales.get(term, 1.0)
         if name not in dense or scale == 1.0:
             continue
         if scale not in scaled:
             w = losses.scale_gradient(weights, scale)
-            scaled[scale] = (w, model.renderer_accumulation(w).clamp(0.0, 1.0))
+            scaled[scale] = (w, w.sum(dim=-2).clamp(0.0, 1.0))  # Nerfstudio's AccumulationRenderer, clamped
         if (name, scale) not in composites:
-            composites[(name, scale)] = model.composite(*scaled[scale], dense[name])
+            composites[(name, scale)] = composite(*scaled[scale], dense[name])
         routed[f"{name}/{term}"] = composites[(name, scale)]
     return routed
 
 
-def data_terms(model: AgriNeRFModel, outputs: Dict[str, Tensor], batch: Dict[str, Any]) -> Dict[str, Tensor]:
-    """Raw (unweighted) data loss terms for the modalities this model uses and the batch carries; each term reads
-    its routed output ("<output>/<term>", training) where there is one."""
-    coef = model.config.loss_coefficients
+class DataTerms:
+    """The raw (unweighted) data loss terms of one model's plan, in a fixed order (the loss sums them in it), each
+    reading its routed output ("<output>/<term>", training) where there is one."""
 
-    def pred(term: str, prefix: str = "") -> Tensor:
-        name = prefix + TERM_OUTPUTS[term]
-        return outputs.get(f"{name}/{term}", outputs[name])
+    def __init__(
+        self,
+        plan: ModelPlan,
+        coefficients: Mapping[str, float],
+        events: Optional[EventTerm] = None,
+        temperature_head: Optional[TemperatureHead] = None,
+    ) -> None:
+        self.plan, self.coefficients, self.events, self.temperature_head = plan, coefficients, events, temperature_head
 
-    def optional(key: str) -> Any:
-        value = batch.get(key)
-        return None if value is None else value.to(model.device)
+    def __call__(self, outputs: Dict[str, Tensor], batch: Dict[str, Any], device: torch.device) -> Dict[str, Tensor]:
+        plan, coef = self.plan, self.coefficients
 
-    terms: Dict[str, Tensor] = {}
-    image = batch["image"][..., :3].to(model.device) if "image" in batch else None
-    if model.use_rgb and image is not None:
-        terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", pred("rgb_loss")), image)
-    if "edi_factor" in outputs and image is not None:  # EvDeblurNeRF's EDI prior on the frame ray
-        sharp = colour.linear_to_srgb(colour.srgb_to_linear(image) / outputs["edi_factor"])
-        terms["edi_prior_loss"] = losses.masked_mse(pred("edi_prior_loss"), sharp, outputs["edi_valid"])
-    mode = model.plan.event_supervision
-    if mode == "pairs" and "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples (none: no pair)
-        terms["event_loss"] = losses.event_pair_loss(
-            outputs["event_log_start"], outputs["event_log_end"], outputs["event_target"]
-        )
-    elif mode == "stream" and "event_on" in outputs:  # the stream's event pixels carry their own counts
-        terms["event_loss"] = losses.event_loss(
-            outputs["event_log_start"],
-            outputs["event_log_end"],
-            outputs["event_on"],
-            outputs["event_off"],
-            *event_supervision.event_thresholds(model),
-            lower_bound=model.config.event_loss_bound,
-        )
-    elif mode == "frames" and "event_log_start" in outputs and "event_on" in batch:
-        m = outputs["event_log_start"].shape[0]
-        mask = optional("event_mask")
-        terms["event_loss"] = losses.event_loss(
-            outputs["event_log_start"],
-            outputs["event_log_end"],
-            batch["event_on"][:m].to(model.device),
-            batch["event_off"][:m].to(model.device),
-            *event_supervision.event_thresholds(model),
-            None if mask is None else mask[:m],
-            lower_bound=model.config.event_loss_bound,
-        )
-    if "fruit" in outputs and "fruit" in batch:  # the fruit head against the frames' masks (fruit_head.py)
-        terms["fruit_loss"] = fruit_loss(outputs["fruit"], optional("fruit"), optional("fruit_known"))
-    if not model.has_thermal_head:
-        return terms
-    # the thermal frames' terms: on the first rays of the batch seen from the thermal camera, where training rendered
-    # them so (thermal_view.py), else on the RGB rays
-    view = thermal_view.PREFIX if thermal_view.PREFIX + "thermal" in outputs else ""
-    rows = outputs[view + "thermal"].shape[0] if view else None
+        def pred(term: str, prefix: str = "") -> Tensor:
+            name = prefix + TERM_OUTPUTS[term]
+            return outputs.get(f"{name}/{term}", outputs[name])
 
-    def thermal_pred(term: str) -> Tensor:
-        return pred(term, view)
+        def optional(key: str) -> Any:
+            value = batch.get(key)
+            return None if value is None else value.to(device)
 
-    def thermal_target(key: str) -> Any:
-        value = optional(key)
-        return None if value is None else value[:rows]
+        terms: Dict[str, Tensor] = {}
+        image = batch["image"][..., :3].to(device) if "image" in batch else None
+        if plan.use_rgb and image is not None:
+            terms["rgb_loss"] = losses.rgb_loss(outputs.get("rgb_blurred", pred("rgb_loss")), image)
+        if "edi_factor" in outputs and image is not None:  # EvDeblurNeRF's EDI prior on the frame ray
+            sharp = colour.linear_to_srgb(colour.srgb_to_linear(image) / outputs["edi_factor"])
+            terms["edi_prior_loss"] = losses.masked_mse(pred("edi_prior_loss"), sharp, outputs["edi_valid"])
+        if self.events is not None:
+            terms.update(self.events.loss(outputs, batch, device))
+        if "fruit" in outputs and "fruit" in batch:  # the fruit head against the frames' masks (fruit_head.py)
+            terms["fruit_loss"] = fruit_loss(outputs["fruit"], optional("fruit"), optional("fruit_known"))
+        if not plan.has_thermal_head:
+            return terms
+        # the thermal frames' terms: on the first rays of the batch seen from the thermal camera, where training
+        # rendered them so (thermal_view.py), else on the RGB rays
+        view = thermal_view.PREFIX if thermal_view.PREFIX + "thermal" in outputs else ""
+        rows = outputs[view + "thermal"].shape[0] if view else None
 
-    if model.use_thermal and "thermal" in batch:
-        thermal, thermal_mask = thermal_target("thermal"), thermal_target("thermal_mask")
-        terms["thermal_loss"] = losses.thermal_loss(thermal_pred("thermal_loss"), thermal, thermal_mask)
-        if model.has_thermal_camera:
-            terms["thermal_camera_loss"] = losses.thermal_loss(
-                thermal_pred("thermal_camera_loss"), thermal, thermal_mask
+        def thermal_pred(term: str) -> Tensor:
+            return pred(term, view)
+
+        def thermal_target(key: str) -> Any:
+            value = optional(key)
+            return None if value is None else value[:rows]
+
+        if plan.use_thermal and "thermal" in batch:
+            thermal, thermal_mask = thermal_target("thermal"), thermal_target("thermal_mask")
+            terms["thermal_loss"] = losses.thermal_loss(thermal_pred("thermal_loss"), thermal, thermal_mask)
+            if plan.has_thermal_camera:
+                terms["thermal_camera_loss"] = losses.thermal_loss(
+                    thermal_pred("thermal_camera_loss"), thermal, thermal_mask
+                )
+        if plan.has_temperature and "temperature" in batch:
+            head = self.temperature_head
+            assert head is not None
+            terms["temperature_loss"] = losses.thermal_loss(
+                head.normalise(thermal_pred("temperature_loss")),
+                head.normalise(thermal_target("temperature")),
+                thermal_target("temperature_mask"),
             )
-    if model.has_temperature and "temperature" in batch:
-        head = model.field.temperature_head
-        assert head is not None
-        terms["temperature_loss"] = losses.thermal_loss(
-            head.normalise(thermal_pred("temperature_loss")),
-            head.normalise(thermal_target("temperature")),
-            thermal_target("temperature_mask"),
-        )
-    if model.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
-        terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)
-    if model.use_events and "event" in batch and coef.get("reg_event_loss", 0.0) > 0:
-        terms["reg_event_loss"] = losses.cross_spectral_event_term(
-            pred("reg_event_loss"), batch["event"].to(model.device), optional("event_mask")
-        )
-    return terms
+        if plan.use_rgb and image is not None and coef.get("reg_rgb_loss", 0.0) > 0:
+            terms["reg_rgb_loss"] = losses.cross_spectral_rgb_term(pred("reg_rgb_loss"), image)
+        if plan.use_events and "event" in batch and coef.get("reg_event_loss", 0.0) > 0:
+            terms["reg_event_loss"] = losses.cross_spectral_event_term(
+                pred("reg_event_loss"), batch["event"].to(device), optional("event_mask")
+            )
+        return terms
 
 
-def regularisers(model: AgriNeRFModel) -> Dict[str, Tensor]:
+def regularisers(field: AgriNeRFField, coefficients: Mapping[str, float]) -> Dict[str, Tensor]:
     """TensoRF L1 (density volume) and TV (density / appearance planes) for the terms with a weight."""
-    coef = model.config.loss_coefficients
     terms: Dict[str, Tensor] = {}
-    volumes = model.field.volumes()
-    if coef.get("l1_reg", 0.0) > 0:
+    volumes = field.volumes()
+    if coefficients.get("l1_reg", 0.0) > 0:
         density = volumes["density"]
         terms["l1_reg"] = losses.l1_volume_loss(density.plane_table, density.line_table)
-    if coef.get("tv_reg_density", 0.0) > 0:
+    if coefficients.get("tv_reg_density", 0.0) > 0:
         terms["tv_reg_density"] = plane_tv(volumes["density"])
-    if coef.get("tv_reg_appearance", 0.0) > 0:
+    if coefficients.get("tv_reg_appearance", 0.0) > 0:
         terms["tv_reg_appearance"] = cast(Tensor, sum(plane_tv(v) for name, v in volumes.items() if name != "density"))
     return terms

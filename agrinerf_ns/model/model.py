@@ -2,14 +2,14 @@
 
 Paper: ../shared/paper/agrinerf_paper.tex (Method; Implementation Details). Losses: L = L_rgb + L_th + L_reg
 (+ TensoRF L1 and TV regularisers), weights in `loss_coefficients`, raw terms in the metrics (as `depth_nerfacto`).
-Its parts: settings `model_config`, grid schedule `grid_schedule`, blur renders `blur_renders`, event supervision
-`event_supervision`, loss terms and routing `loss_routing`, held-out metrics `eval_metrics`.
+Its settings are `model_config.AgriNeRFSettings`; `AgriNeRFModelConfig` (below) adds the model they build. Its parts
+are listed on the class.
 """
 
 from __future__ import annotations
 
-import math
-from typing import Any, Dict, List, Optional, Tuple
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional, Tuple, Type
 
 import torch
 from jaxtyping import Float
@@ -17,8 +17,7 @@ from nerfstudio.cameras.camera_optimizers import CameraOptimizer
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.scene_box import OrientedBox
-from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes
-from nerfstudio.engine.optimizers import Optimizers
+from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.model_components.ray_samplers import PDFSampler, UniformLinDispPiecewiseSampler, UniformSampler
 from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer
@@ -30,32 +29,23 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from agrinerf_ns import cpu_memory
-from agrinerf_ns.dataparsers.event_stream import EventCamera, EventStream
-from agrinerf_ns.model import (
-    blur_renders,
-    edi_prior,
-    eval_metrics,
-    event_supervision,
-    grid_schedule,
-    loss_routing,
-    losses,
-    thermal_view,
-)
+from agrinerf_ns.model import edi_prior, eval_metrics, losses
+from agrinerf_ns.model.blur_term import BlurTerm
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
 from agrinerf_ns.model.device_sync import prune_on
 from agrinerf_ns.model.event_crf import EventCRF
-from agrinerf_ns.model.event_pairs import EventPairs
+from agrinerf_ns.model.event_term import EventTerm
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.fruit_head import FruitHead
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
-from agrinerf_ns.model.loss_routing import PAPER_DENSITY_GRADIENT_SCALES, TERM_OUTPUTS
-from agrinerf_ns.model.model_config import SIDE_STREAM_SEED, AgriNeRFModelConfig
+from agrinerf_ns.model.grid_schedule import GridSchedule
+from agrinerf_ns.model.loss_routing import DataTerms, regularisers, routed_outputs
+from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.plan import ModelPlan, resolve_plan
+from agrinerf_ns.model.rig import SIDE_STREAM_SEED, Rig, side_stream
 from agrinerf_ns.model.rigid_blur import RigidBlurKernel
-
-__all__ = ["PAPER_DENSITY_GRADIENT_SCALES", "TERM_OUTPUTS", "AgriNeRFModel", "AgriNeRFModelConfig"]
-"""`AgriNeRFModelConfig` and the term tables are re-exported: the ``config.yml`` of older runs names them here."""
+from agrinerf_ns.model.thermal_view import ThermalView
 
 DENSE_HEADS_FRACTION = 0.85
 """When at least this fraction of the fine samples passes the weight threshold (usual: the PDF samples sit where the
@@ -63,8 +53,18 @@ weights are), the heads run on every sample and the others are masked: gathering
 their lookup corners and a second transposed lookup for the backward pass, more than the few extra samples."""
 
 
+OLD_STATE_NAMES = {"log_event_threshold": "events.log_threshold", "event_crf.": "events.crf."}
+"""State-dict names of runs before the event term became a part (old prefix -> new)."""
+
+
 class AgriNeRFModel(Model):
     """AgriNeRF: shared TensoRF geometry, RGB and cross-spectral thermal heads, built for the scene's modalities.
+
+    Its optional terms are parts built from the plan (`plan.py`), each given the render call (`render_rays`) and the
+    field, not the model: the blur model (`blur_term.BlurTerm`), the event loss and EDI prior
+    (`event_term.EventTerm`), the thermal camera's view (`thermal_view.ThermalView`), the fruit head
+    (`fruit_head.FruitHead`), the grid schedule (`grid_schedule.GridSchedule`) and the data terms
+    (`loss_routing.DataTerms`).
 
     Args:
         config: model config.
@@ -72,77 +72,41 @@ class AgriNeRFModel(Model):
             `config.modalities`. Without it the dataset is taken to be RGB only.
     """
 
-    config: AgriNeRFModelConfig
+    config: AgriNeRFSettings
     collider: SceneCollider
 
-    def __init__(self, config: AgriNeRFModelConfig, **kwargs) -> None:
+    def __init__(self, config: AgriNeRFSettings, **kwargs) -> None:
         metadata = kwargs.get("metadata") or {}
         self.plan: ModelPlan = resolve_plan(config, metadata)  # every on/off decision, made once (plan.py)
         for note in self.plan.notes:
             CONSOLE.print(note)
-        plan = self.plan
-        self.modalities: Tuple[str, ...] = plan.modalities
-        self.density_gradient_scales: Dict[str, float] = dict(plan.density_gradient_scales)
         # dataset temperatures in degrees C (mean_c, std_c, min_c, max_c): only with a radiometric calibration
         self.temperature_stats: Optional[Dict[str, float]] = metadata.get("temperature_stats")
         # metres per scene unit, where the dataset's poses are metric (dataparser metadata; None: unknown scale)
         self.metres_per_unit: Optional[float] = metadata.get("metres_per_unit")
-        # timing of the training frames (dataparser metadata): what the blur model and the event loss need
-        self.frame_times: Optional[Tensor] = metadata.get("times")
-        self.exposure: Optional[Tensor] = metadata.get("exposure")
-        self.trajectory = metadata.get("trajectory")
-        self.event_windows: Optional[Tensor] = metadata.get("event_windows")
-        self.event_camera: Dict[str, Any] = metadata.get("event_camera") or {}  # its centre (timed_rays.py)
-        self.event_camera_native: Optional[EventCamera] = metadata.get("event_stream")
-        self.thermal_camera: Dict[str, Any] = metadata.get("thermal_camera") or {}  # its centre (thermal_view.py)
+        self.rig = Rig.from_metadata(metadata)  # the frames' timing and the rig's other cameras
         self.eval_camera: Optional[Cameras] = None
-        native = self.event_camera_native
-        self.event_stream: Optional[EventStream] = None
-        if plan.event_supervision == "stream" and native is not None:
-            self.event_stream = native.stream()
-        self.event_pairs: Optional[EventPairs] = None
-        if plan.event_supervision == "pairs" and native is not None:
-            self.event_pairs = EventPairs.from_h5(native.path, native.width, native.height)
-        # the EDI prior's counts at the event pixels (EventStream), where its inputs are all there
-        self.edi_stream: Optional[EventStream] = None
-        if plan.edi_prior and native is not None:
-            self.edi_stream = self.event_stream or native.stream()
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
-        self.loss_means: Optional[Tuple[float, float]] = None  # running RGB and event losses (`noise` weighting)
-        self.event_weight = 0.0  # the `noise` weighting's last factor, logged as a metric
-        self.upsampling_resolutions: List[int] = grid_schedule.upsampling_resolutions(
-            config.init_resolution, config.final_resolution, config.upsampling_iters
-        )
         super().__init__(config=config, **kwargs)
-
-    # the plan's decisions, under the names the model's parts read
-    use_rgb = property(lambda self: self.plan.use_rgb)
-    use_thermal = property(lambda self: self.plan.use_thermal)
-    use_events = property(lambda self: self.plan.use_events)
-    has_thermal_head = property(lambda self: self.plan.has_thermal_head)
-    has_thermal_camera = property(lambda self: self.plan.has_thermal_camera)
-    has_temperature = property(lambda self: self.plan.has_temperature)
-    low_light = property(lambda self: self.plan.low_light)
-    use_blur = property(lambda self: self.plan.use_blur)
-    use_event_loss = property(lambda self: self.plan.use_event_loss)
+        self._register_load_state_dict_pre_hook(_load_old_state, with_module=True)
 
     # ------------------------------------------------------------------ setup
     def populate_modules(self) -> None:
-        """Fields, samplers, renderers, colliders, metrics."""
+        """Fields, samplers, renderers, colliders, metrics, and the parts the plan switches on."""
         super().populate_modules()
-        cfg = self.config
+        cfg, plan = self.config, self.plan
 
-        self.log_event_threshold: Optional[Parameter] = None  # ON, OFF (config `event_threshold_learnt`)
-        if self.use_event_loss and cfg.event_threshold_learnt:
-            self.log_event_threshold = Parameter(torch.full((2,), math.log(cfg.event_threshold)))
         self.blur_kernel: Optional[RigidBlurKernel] = None  # EvDeblurNeRF's learnt kernel (config `blur_kernel`)
-        self.event_crf: Optional[EventCRF] = None  # EvDeblurNeRF's learnt event response (config `event_crf`)
+        crf: Optional[EventCRF] = None  # EvDeblurNeRF's learnt event response (config `event_crf`)
         with torch.random.fork_rng(devices=[]):  # optional parts leave the field's (and the batches') draws alone
             torch.manual_seed(SIDE_STREAM_SEED)
-            if self.use_blur and cfg.blur_kernel == "learnt":
+            if plan.blur == "learnt":
                 self.blur_kernel = RigidBlurKernel(self.num_train_data, num_motions=cfg.blur_samples - 1)
-            if self.event_pairs is not None and cfg.event_crf:
-                self.event_crf = EventCRF()
+            if plan.event_supervision == "pairs" and cfg.event_crf:
+                crf = EventCRF()
+        self.events: Optional[EventTerm] = None
+        if plan.use_event_loss or plan.edi_prior:
+            self.events = EventTerm(cfg, plan, self.rig, crf)
 
         # fields
         self.field = AgriNeRFField(
@@ -150,16 +114,16 @@ class AgriNeRFModel(Model):
             contraction=cfg.scene_contraction,
             resolution=cfg.init_resolution,
             num_density_components=cfg.num_density_components,
-            with_rgb=self.use_rgb,
-            with_thermal=self.has_thermal_head,
+            with_rgb=plan.use_rgb,
+            with_thermal=plan.has_thermal_head,
             num_rgb_components=cfg.num_rgb_components,
             rgb_appearance_dim=cfg.rgb_appearance_dim,
             num_thermal_components=cfg.num_thermal_components,
             thermal_appearance_dim=cfg.thermal_appearance_dim,
             thermal_view_dependent=cfg.thermal_view_dependent,
-            thermal_channels=2 if self.has_thermal_camera else 1,
+            thermal_channels=2 if plan.has_thermal_camera else 1,
             temperature_stats=(self.temperature_stats["mean_c"], self.temperature_stats["std_c"])
-            if self.has_temperature and self.temperature_stats is not None
+            if plan.has_temperature and self.temperature_stats is not None
             else None,
             temperature_mlp_width=cfg.temperature_mlp_width,
             mlp_width=cfg.mlp_width,
@@ -171,7 +135,7 @@ class AgriNeRFModel(Model):
         )
 
         self.fruit_head: Optional[FruitHead] = None  # where the frames have fruit masks (fruit_head.py)
-        if self.plan.has_fruit_head:
+        if plan.has_fruit_head:
             # an optional part leaves the field's (and the batches') draws alone
             with torch.random.fork_rng(devices=[]):
                 torch.manual_seed(SIDE_STREAM_SEED)
@@ -186,6 +150,14 @@ class AgriNeRFModel(Model):
             box = fit_box_to_points(torch.as_tensor(points, dtype=torch.float32))
             if box is not None:
                 self.field.refit_box(box, cfg.box_grid_fraction, cfg.init_resolution)
+
+        # the parts that are no modules: each given the field or the render call, not the model
+        self.grid = GridSchedule(cfg, self.field, self.metres_per_unit)
+        self.blur = (
+            None if not plan.use_blur else BlurTerm(self.rig, cfg.blur_samples, cfg.blur_start_step, self.blur_kernel)
+        )
+        self.thermal_view = ThermalView(self.rig, cfg.thermal_rays_per_batch) if plan.thermal_camera_rays else None
+        self.data_terms = DataTerms(plan, cfg.loss_coefficients, self.events, self.field.temperature_head)
 
         # samplers
         if cfg.scene_contraction and cfg.coarse_sampler == "box":
@@ -230,43 +202,29 @@ class AgriNeRFModel(Model):
             + (list(self.field.temperature_head.parameters()) if self.field.temperature_head is not None else []),
             "encodings": [p for vol in self.field.volumes().values() for p in vol.parameters()],
         }
-        if self.log_event_threshold is not None:
-            groups["fields"].append(self.log_event_threshold)
+        if self.events is not None and self.events.log_threshold is not None:
+            groups["fields"].append(self.events.log_threshold)
         if self.fruit_head is not None:
             groups["fields"] += list(self.fruit_head.parameters())
         if self.blur_kernel is not None:
             groups["blur_kernel"] = list(self.blur_kernel.parameters())
-        if self.event_crf is not None:
-            groups["event_crf"] = list(self.event_crf.parameters())
+        if self.events is not None and self.events.crf is not None:
+            groups["event_crf"] = list(self.events.crf.parameters())
         self.camera_optimizer.get_param_groups(param_groups=groups)
         return groups
-
-    # --------------------------------------------------- resolution schedule (grid_schedule.py)
-    def resolution_at_step(self, step: int) -> int:
-        """Grid resolution after training step `step` has run (upsampling happens after its iteration)."""
-        return grid_schedule.resolution_at_step(self, step)
-
-    def upsample_volumes(self, resolution: int) -> None:
-        """Resample every volume to the per-axis resolution of a `resolution`^3 budget (new Parameters)."""
-        grid_schedule.upsample_volumes(self, resolution)
-
-    def fit_box(self, cameras: Any, step: int) -> Optional[Tensor]:
-        """Fit the full-resolution box to the scene seen by `cameras` (`grid_schedule.fit_box`); None: box kept."""
-        return grid_schedule.fit_box(self, cameras, step)
-
-    def occupancy_updated(self, step: int) -> bool:
-        """Whether the occupancy grid has been computed after training step `step` (an update step has run)."""
-        return grid_schedule.occupancy_updated(self, step)
-
-    def sync_optimizers(self, optimizers: Optimizers, keep_moments: bool = True) -> int:
-        """Point every optimizer at the current Parameters (`grid_schedule.sync_optimizers`); returns how many."""
-        return grid_schedule.sync_optimizers(self, optimizers, keep_moments)
 
     def get_training_callbacks(
         self, training_callback_attributes: TrainingCallbackAttributes
     ) -> List[TrainingCallback]:
-        """Step keeping, upsampling, box fits and occupancy updates (`grid_schedule.training_callbacks`)."""
-        return grid_schedule.training_callbacks(self, training_callback_attributes)
+        """The step kept for the parts that start late, then the grid schedule's upsampling, box fits and occupancy
+        updates (`GridSchedule.callbacks`)."""
+
+        def keep_step(step: int) -> None:
+            self.step = step
+
+        before = [TrainingCallbackLocation.BEFORE_TRAIN_ITERATION]
+        keep = TrainingCallback(where_to_run=before, update_every_num_iters=1, func=keep_step)
+        return [keep, *self.grid.callbacks(training_callback_attributes, self.get_param_groups, self.surface_points)]
 
     # -------------------------------------------------------------- forward
     def _background(self, values: Float[Tensor, "rays samples c"]) -> Float[Tensor, "rays c"]:
@@ -276,33 +234,55 @@ class AgriNeRFModel(Model):
         return torch.full_like(values[:, -1, :], fill)
 
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, Tensor]:
-        """Renders the rays; in training also the blur model's and the event loss's renders of the same pixels at other
-        times ("rgb_blurred", "event_log_start", "event_log_end") where they are on."""
+        """Renders the rays; in training also the parts' renders of the same pixels at other times or from other
+        cameras ("rgb_blurred", "thermal_view/...", "event_log_start", "event_log_end") where they are on."""
         if self.training:
             self.camera_optimizer.apply_to_raybundle(ray_bundle)
             if self.config.keep_freed_memory:
                 cpu_memory.keep_freed_memory(ray_bundle.origins.device)
-        outputs = self.render(ray_bundle, heads=thermal_view.main_render_heads(self))
-        if self.training and torch.is_grad_enabled():
-            with blur_renders.side_stream(self):
-                if self.use_blur and self.step >= self.config.blur_start_step:
+        training = self.training and torch.is_grad_enabled()
+        heads = None  # all; where the thermal camera's rays carry the temperature term, the RGB rays skip it
+        if training and self.plan.thermal_view:
+            heads = ("rgb", "thermal", "fruit") if self.fruit_head is not None else ("rgb", "thermal")
+        outputs = self.render(ray_bundle, heads=heads)
+        if training:
+            with side_stream(self.device, self.step):
+                if self.blur is not None:
                     sharp = outputs.get("rgb/rgb_loss", outputs["rgb"])  # the frame ray's render for the RGB loss
-                    blur = blur_renders.kernel_rgb if self.blur_kernel is not None else blur_renders.blurred_rgb
-                    outputs["rgb_blurred"] = blur(self, ray_bundle, sharp)
-                if thermal_view.uses_thermal_view(self):
-                    outputs.update(thermal_view.thermal_view_outputs(self, ray_bundle))
-                if self.edi_stream is not None:
-                    outputs.update(event_supervision.edi_outputs(self, ray_bundle))
-                mode = self.plan.event_supervision
-                if mode == "pairs":
-                    outputs.update(event_supervision.pair_event_logs(self, ray_bundle))
-                elif mode == "stream":
-                    outputs.update(event_supervision.stream_event_logs(self, ray_bundle))
-                elif mode == "frames":
-                    outputs["event_log_start"], outputs["event_log_end"] = event_supervision.event_window_logs(
-                        self, ray_bundle
-                    )
+                    outputs.update(self.blur.outputs(self.render_rays, ray_bundle, sharp, self.step))
+                if self.thermal_view is not None and self.plan.thermal_view:
+                    outputs.update(self.thermal_view.outputs(self.render_rays, ray_bundle))
+                if self.events is not None:
+                    outputs.update(self.events.outputs(self.render_rays, ray_bundle, self.step))
         return outputs
+
+    def render_rays(self, bundle: RayBundle, heads: Tuple[str, ...], term: Optional[str] = None) -> Dict[str, Tensor]:
+        """A part's render of a side bundle (`rig.RenderRays`): collided, then rendered with `term`'s density
+        gradient scale and no routed copies, or (term None) at full scale with them."""
+        if term is None:
+            return self.render(self.collider(bundle), heads=heads)
+        scale = self.density_gradient_scale(term)
+        return self.render(self.collider(bundle), routed=False, density_scale=scale, heads=heads)
+
+    @torch.no_grad()
+    def surface_points(self, bundle: RayBundle) -> Tuple[Tensor, Tensor, Tensor]:
+        """Median-depth points, accumulations and origins of `bundle`'s rays rendered as in evaluation, in chunks
+        (the grid schedule's box fits: `grid_schedule.SurfaceRender`)."""
+        bundle = bundle.to(self.device)
+        chunk = self.config.eval_num_rays_per_chunk
+        points, weights, origins = [], [], []
+        was_training = self.training
+        self.eval()
+        try:
+            for start in range(0, bundle.shape[0], chunk):
+                part = self.collider(bundle[start : start + chunk])
+                out = self.render(part, routed=False, heads=())
+                points.append(part.origins + part.directions * out["depth"])
+                weights.append(out["accumulation"][:, 0])
+                origins.append(part.origins)
+        finally:
+            self.train(was_training)
+        return torch.cat(points), torch.cat(weights), torch.cat(origins)
 
     def render(
         self,
@@ -358,7 +338,7 @@ class AgriNeRFModel(Model):
                 dense["temperature"] = self.field.temperature_head.to_celsius(full)
             else:
                 dense["thermal"] = full[..., :1]
-                if self.has_thermal_camera:
+                if self.plan.has_thermal_camera:
                     dense["thermal_camera"] = full[..., 1:2]
 
         accumulation = self.renderer_accumulation(weights).clamp(0.0, 1.0)
@@ -381,7 +361,7 @@ class AgriNeRFModel(Model):
             final = self.field.axis_resolution(self.config.final_resolution)
             outputs["voxel_size_final"] = self.field.voxel_size(surface, final).amax(dim=-1, keepdim=True)
         if routed and self.training and torch.is_grad_enabled():
-            outputs.update(loss_routing.routed_outputs(self, weights, dense))
+            outputs.update(routed_outputs(self.plan.density_gradient_scales, weights, dense, self.composite))
         if not self.training:
             for name in dense:
                 if name != "temperature":
@@ -401,59 +381,69 @@ class AgriNeRFModel(Model):
     def density_gradient_scale(self, term: str) -> float:
         """The scale of `term`'s gradient into the density (1 when not configured; `low_light_level` raises the
         thermal-camera term's to 1 in low light)."""
-        return self.density_gradient_scales.get(term, 1.0)
+        return self.plan.density_gradient_scales.get(term, 1.0)
 
     # --------------------------------------------------------------- losses (loss_routing.py)
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
         """PSNR of RGB (and thermal) plus the raw loss terms (weighted only in `get_loss_dict`)."""
         metrics: Dict[str, Tensor] = {}
-        if self.use_rgb and "image" in batch:
+        if self.plan.use_rgb and "image" in batch:
             metrics["psnr"] = self.psnr(outputs["rgb"].detach(), batch["image"][..., :3].to(self.device).float())
-        metrics.update(loss_routing.data_terms(self, outputs, batch))
+        metrics.update(self.data_terms(outputs, batch, self.device))
         for term, name in (("thermal_loss", "thermal_psnr"), ("thermal_camera_loss", "thermal_camera_psnr")):
             if term in metrics:
                 metrics[name] = -10.0 * torch.log10(metrics[term].detach().clamp(min=1e-10))
         if self.training:
-            metrics.update(loss_routing.regularisers(self))
-        if self.training and self.loss_means is not None:
-            metrics["event_loss_weight"] = self.event_weight
-        if self.log_event_threshold is not None:
-            metrics["event_threshold_on"], metrics["event_threshold_off"] = self.log_event_threshold.detach().exp()
+            metrics.update(regularisers(self.field, self.config.loss_coefficients))
+        if self.events is not None:
+            metrics.update(self.events.metrics(self.training))
         self.camera_optimizer.get_metrics_dict(metrics)
         return metrics
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
-        """Weighted loss terms: loss_coefficients x raw terms (from `metrics_dict` when given)."""
+        """Weighted loss terms: loss_coefficients x raw terms (from `metrics_dict` when given), with the EDI prior's
+        decay and the event term's `noise` weighting."""
         raw = dict(metrics_dict) if metrics_dict is not None else {}
         if not any(k in raw for k in ("rgb_loss", "thermal_loss")):
-            raw.update(loss_routing.data_terms(self, outputs, batch))
+            raw.update(self.data_terms(outputs, batch, self.device))
             if self.training:
-                raw.update(loss_routing.regularisers(self))
+                raw.update(regularisers(self.field, self.config.loss_coefficients))
         coef = self.config.loss_coefficients  # out of place below: misc.scale_dict would scale the raw metrics too
         loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
         if "edi_prior_loss" in loss_dict:  # EvDeblurNeRF's cosine-decayed weight
             loss_dict["edi_prior_loss"] = loss_dict["edi_prior_loss"] * edi_prior.cosine_weight(self.step)
         if "event_loss" in loss_dict and "rgb_loss" in raw and self.config.event_loss_weighting == "noise":
-            loss_dict["event_loss"] = loss_dict["event_loss"] * event_supervision.event_noise_weight(self, raw, outputs)
+            assert self.events is not None
+            loss_dict["event_loss"] = loss_dict["event_loss"] * self.events.noise_weight(raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
         return loss_dict
 
     # ----------------------------------------------------------- evaluation (eval_metrics.py)
     def get_outputs_for_camera(self, camera: Cameras, obb_box: Optional[OrientedBox] = None) -> Dict[str, Tensor]:
         """Nerfstudio's render of `camera`, which is kept: the thermal metrics that follow read the thermal camera's
-        view of it (`thermal_view.eval_outputs`)."""
+        view of it (`ThermalView.eval_outputs`)."""
         self.eval_camera = camera
         return super().get_outputs_for_camera(camera, obb_box)
 
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Any]
     ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
-        """Held-out metrics and side-by-side images (`eval_metrics.image_metrics_and_images`)."""
-        return eval_metrics.image_metrics_and_images(self, outputs, batch)
+        """Held-out metrics and side-by-side images (`eval_metrics.image_metrics_and_images`), the thermal ones as
+        the thermal camera saw the held-out view where training used that camera."""
+        thermal_outputs = outputs
+        if self.thermal_view is not None and self.eval_camera is not None:
+            render = self.get_outputs_for_camera_ray_bundle
+            thermal_outputs = self.thermal_view.eval_outputs(render, self.eval_camera, outputs)
+        return eval_metrics.image_metrics_and_images(self, outputs, thermal_outputs, batch)
 
-    def grid_diagnostics(self, outputs: Dict[str, Tensor]) -> Dict[str, float]:
-        """`fine_region_weight` and `voxel_size_m` of a rendered image (`eval_metrics.grid_diagnostics`)."""
-        return eval_metrics.grid_diagnostics(self, outputs)
+    def lpips(self) -> torch.nn.Module:
+        """LPIPS (torchmetrics), built on first use: construction loads (or tries to fetch) AlexNet weights, which
+        training never needs. Kept out of the module tree, so checkpoints do not carry its weights."""
+        if "lpips" not in self._lazy_metrics:
+            from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity
+
+            self._lazy_metrics["lpips"] = LearnedPerceptualImagePatchSimilarity(normalize=True).to(self.device)
+        return self._lazy_metrics["lpips"]
 
     def temperature_unit(self, celsius: Tensor) -> Tensor:
         """Degrees C -> [0, 1] over the dataset's temperature range (colours of the `temperature` output)."""
@@ -477,3 +467,24 @@ class AgriNeRFModel(Model):
             raise ValueError(f"Output '{output_name}' has {image.shape[-1]} channels; an RGBA export needs 1 or 3")
         colours = colormaps.apply_colormap(image.clamp(0.0, 1.0))
         return torch.cat([colours, outputs["accumulation"].to(colours.dtype)], dim=-1)
+
+
+def _load_old_state(model: AgriNeRFModel, state_dict: Dict[str, Any], prefix: str, *args: Any) -> None:
+    """Load the checkpoint of a run before the event term became a part: its learnt thresholds and event response
+    under their new names, and the `noise` weighting's running means (not saved then) at their start."""
+    for key in list(state_dict):
+        for old, new in OLD_STATE_NAMES.items():
+            if key.startswith(prefix + old):
+                state_dict[prefix + new + key[len(prefix + old) :]] = state_dict.pop(key)
+    if model.events is not None:
+        for name, buffer in model.events.named_buffers():
+            state_dict.setdefault(f"{prefix}events.{name}", buffer.clone())
+
+
+@dataclass
+class AgriNeRFModelConfig(AgriNeRFSettings):
+    """AgriNeRF model config: the settings (`model_config.AgriNeRFSettings`, defaults: the paper's) and the model
+    they build."""
+
+    _target: Type = field(default_factory=lambda: AgriNeRFModel)
+    """target class to instantiate"""

@@ -3,8 +3,8 @@ them without building one."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Dict, Literal, Tuple, Type
+from dataclasses import dataclass, field, fields
+from typing import Any, Dict, Literal, Tuple, Type
 
 from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.config_utils import to_immutable_dict
@@ -13,22 +13,21 @@ from nerfstudio.models.base_model import ModelConfig
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.model.vm_encoding import VMLookup
 
-SIDE_STREAM_SEED = 20_261_202
-"""Seed of the blur and event renders' random stream at step 0 (`blur_renders.side_stream`)."""
 
-
-def _model_class() -> Type:
-    from agrinerf_ns.model.model import AgriNeRFModel  # the model imports this module
-
-    return AgriNeRFModel
+class _SettingsBuildNoModel:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        raise TypeError(
+            "AgriNeRFSettings are the model's settings and build no model: use agrinerf_ns.model.AgriNeRFModelConfig"
+        )
 
 
 @dataclass
-class AgriNeRFModelConfig(ModelConfig):
-    """AgriNeRF model config (defaults: the paper's settings)."""
+class AgriNeRFSettings(ModelConfig):
+    """AgriNeRF model settings (defaults: the paper's). `agrinerf_ns.model.AgriNeRFModelConfig` adds the model they
+    build; the model's parts read these."""
 
-    _target: Type = field(default_factory=_model_class)
-    """target class to instantiate"""
+    _target: Type = field(default_factory=lambda: _SettingsBuildNoModel)
+    """What `setup()` builds: nothing here (`AgriNeRFModelConfig` builds the model)."""
     modalities: Tuple[Modality, ...] = ALL_MODALITIES
     """Modalities to model; intersected with the dataset's. "rgb" builds the RGB head and L_rgb; "thermal" builds the
     thermal head and L_th; "events" adds the event term of L_reg. The thermal (cross-spectral) head is also built for
@@ -205,14 +204,15 @@ class AgriNeRFModelConfig(ModelConfig):
     own pose only (no blur model). Evaluation always renders the sharp frame pose."""
     blur_start_step: int = 0
     """Training step from which the blur model runs (EvDeblurNeRF starts it after about 1200 steps)."""
-    event_rays_per_batch: int = 0
+    event_rays_per_batch: int = 512
     """Event samples per batch for the event loss (`event_supervision`), each rendered at the start and end of its
-    window; 0: no event loss (the default; the `agrinerf` and `evdeblurnerf` presets turn it on)."""
+    window."""
     event_threshold: float = 0.2
     """Contrast threshold C (ON and OFF) of the event loss: 0.2 is the synthetic camera's mean (and EvDeblurNeRF's
     synthetic setting); real Prophesee/DAVIS captures are nearer 0.25."""
-    event_supervision: Literal["pairs", "stream", "frames"] = "stream"
-    """What the event loss reads. pairs: EvDeblurNeRF's event-to-event samples: an event that has a successor at its
+    event_supervision: Literal["off", "pairs", "stream", "frames"] = "off"
+    """The event loss's one switch, and what it reads (`plan.resolve_plan` checks it against the data). off: no event
+    loss (the default; the `agrinerf` and `evdeblurnerf` presets turn it on). pairs: EvDeblurNeRF's event-to-event samples: an event that has a successor at its
     pixel, drawn uniformly over the stream, rendered along the event pixel's ray at both events' times, target C times
     the successor's polarity, response log(BT.601 luma of the linear render (after the learnt `event_crf`) + eps)
     (`model/event_pairs.py`). stream: the events at the event camera's own pixels in random sub-windows of the frames'
@@ -257,3 +257,28 @@ class AgriNeRFModelConfig(ModelConfig):
     events at the event camera's pixel that sees the RGB pixel on the alignment plane, 9 times across the exposure),
     weight 0.01 decayed on a cosine to 1e-5 over 10k steps (times `loss_coefficients.edi_prior_loss`), from step 0.
     Needs the event stream, its calibration and the frames' exposures."""
+
+    def __setstate__(self, state: Dict[str, Any]) -> None:
+        """Load the settings of an older run's ``config.yml`` (PyYAML calls this): fields added since take their
+        defaults, and the event loss's old switches (0 event rays, a zero `event_loss` coefficient, the mode's
+        absence before pairs and stream existed) become `event_supervision`."""
+        state = dict(state)
+        coefficients = state.get("loss_coefficients") or {}
+        old_switch_off = state.get("event_rays_per_batch", 1) <= 0 or coefficients.get("event_loss", 1.0) <= 0
+        if "event_supervision" not in state:  # before the stream and pairs supervisions: the frames' windows
+            state["event_supervision"] = "off" if state.get("event_rays_per_batch", 0) <= 0 else "frames"
+        elif old_switch_off:
+            state["event_supervision"] = "off"
+        if state["event_supervision"] == "off" and state.get("event_rays_per_batch", 1) <= 0:
+            state.pop("event_rays_per_batch")  # today's default: the count is not a switch any more
+        fresh = type(self)()
+        defaults = {f.name: getattr(fresh, f.name) for f in fields(self) if f.name not in state}
+        self.__dict__.update({**defaults, **state})
+
+
+def __getattr__(name: str) -> Any:
+    """Older runs' ``config.yml`` name the settings ``model_config.AgriNeRFModelConfig`` (their `_target` names the
+    model)."""
+    if name == "AgriNeRFModelConfig":
+        return AgriNeRFSettings
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

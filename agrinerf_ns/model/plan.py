@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, FrozenSet, Literal, Mapping, Tuple
 from agrinerf_ns.modalities import normalise_modalities
 
 if TYPE_CHECKING:
-    from agrinerf_ns.model.model_config import AgriNeRFModelConfig
+    from agrinerf_ns.model.model_config import AgriNeRFSettings
 
 EventSupervision = Literal["off", "pairs", "stream", "frames"]
 """How the event loss is supervised: off; EvDeblurNeRF's event-to-event pairs; the stream's event pixels in random
@@ -75,7 +75,7 @@ class ModelPlan:
         return self.event_supervision != "off"
 
 
-def resolve_plan(config: AgriNeRFModelConfig, metadata: Mapping[str, Any]) -> ModelPlan:
+def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> ModelPlan:
     """The plan of a model with `config` on a dataset with `metadata` (the dataparser's; empty: RGB only).
 
     Raises:
@@ -115,14 +115,20 @@ def resolve_plan(config: AgriNeRFModelConfig, metadata: Mapping[str, Any]) -> Mo
         blur = config.blur_kernel
 
     coefficients = config.loss_coefficients
-    event_loss = (
-        use_rgb
-        and use_events
-        and timed
-        and metadata.get("event_windows") is not None
-        and config.event_rays_per_batch > 0
-        and coefficients.get("event_loss", 0.0) > 0
-    )
+    event_loss = config.event_supervision != "off"  # the event loss's one switch, checked here alone
+    if event_loss and (config.event_rays_per_batch <= 0 or coefficients.get("event_loss", 0.0) <= 0):
+        raise ValueError(
+            f"event_supervision {config.event_supervision!r} turns the event loss on, but event_rays_per_batch is "
+            f"{config.event_rays_per_batch} and loss_coefficients['event_loss'] is "
+            f"{coefficients.get('event_loss', 0.0)}: give both a positive value, or switch the loss off with "
+            "--pipeline.model.event-supervision off."
+        )
+    if event_loss and not (use_rgb and use_events and timed and metadata.get("event_windows") is not None):
+        event_loss = False
+        notes.append(
+            "Events: the event loss needs RGB frames, events with their windows and the frames' times and trajectory; "
+            f"this dataset and config leave modalities {modalities} (timed: {timed}), so it is off."
+        )
     if event_loss and dark and not config.low_light_event_loss:
         event_loss = False
         notes.append(

@@ -1,0 +1,95 @@
+"""The blur model's term: a training pixel rendered at other poses across its frame's exposure (the rig's
+trajectory) or along the learnt rigid blur kernel's rays, blended in linear radiance, for the RGB loss."""
+
+from __future__ import annotations
+
+from typing import Any, Dict, Optional
+
+import torch
+from jaxtyping import Float
+from nerfstudio.cameras.rays import RayBundle
+from torch import Tensor
+
+from agrinerf_ns import colour
+from agrinerf_ns.model.rig import RenderRays, Rig
+from agrinerf_ns.model.rigid_blur import RigidBlurKernel, blend, warp_rays
+from agrinerf_ns.model.timed_rays import camera_rows, exposure_times, reposed_rays
+
+FRAME_TIME_ATOL_S = 1e-6
+"""A blur sample this close (seconds) to its frame's time is at the frame's pose."""
+
+
+def render_at(
+    render: RenderRays, rig: Rig, bundle: RayBundle, times: Tensor, term: str, **camera: Any
+) -> Float[Tensor, "n k 3"]:
+    """RGB of `bundle`'s pixels rendered from the trajectory's poses at `times` [n, k] for the loss `term` (its
+    density gradient scale; `camera`: the `camera_centre` and `plane_depth` of another rig camera whose frames
+    were warped onto these pixels)."""
+    assert rig.trajectory is not None and rig.frame_times is not None
+    frame_times = rig.frame_times[camera_rows(bundle)]
+    moved = reposed_rays(bundle, rig.trajectory, frame_times, times, **camera)
+    n, k = times.shape
+    return render(moved, ("rgb",), term)["rgb"].reshape(n, k, 3)
+
+
+class BlurTerm:
+    """The blurred render of a training pixel that the RGB loss compares with the blurred frame, from
+    `start_step`: the trajectory's sub-poses across the exposure, or the learnt kernel's rays (`kernel`, a module
+    the model owns and optimises)."""
+
+    def __init__(self, rig: Rig, samples: int, start_step: int, kernel: Optional[RigidBlurKernel] = None) -> None:
+        self.rig, self.samples, self.start_step, self.kernel = rig, samples, start_step, kernel
+
+    def outputs(
+        self, render: RenderRays, bundle: RayBundle, sharp_rgb: Float[Tensor, "n 3"], step: int
+    ) -> Dict[str, Tensor]:
+        """`rgb_blurred` of the training rays `bundle` (`sharp_rgb`: their frame rays' render), from `start_step`."""
+        if step < self.start_step:
+            return {}
+        if self.kernel is not None:
+            return {"rgb_blurred": self.kernel_rgb(render, bundle, sharp_rgb)}
+        return {"rgb_blurred": self.blurred_rgb(render, bundle, sharp_rgb)}
+
+    def blurred_rgb(
+        self, render: RenderRays, bundle: RayBundle, sharp_rgb: Optional[Float[Tensor, "n 3"]] = None
+    ) -> Float[Tensor, "n 3"]:
+        """The mean in linear radiance of `samples` renders across each frame's exposure.
+
+        `sharp_rgb`: the frame ray's own render (for the RGB loss). An odd number of samples puts the middle one at
+        the exposure's centre; where that is the frame's time (mid-exposure time stamps), the middle pose is the
+        frame's pose and its render is `sharp_rgb`, another draw of the same samplers: it is reused, not rendered
+        again."""
+        rig = self.rig
+        assert rig.exposure is not None and rig.frame_times is not None
+        rows = camera_rows(bundle)
+        times = exposure_times(rig.exposure[rows], self.samples)
+        middle = times.shape[1] // 2
+        at_frame = times.shape[1] % 2 == 1 and torch.allclose(
+            times[:, middle], rig.frame_times[rows].double(), rtol=0.0, atol=FRAME_TIME_ATOL_S
+        )
+        if sharp_rgb is not None and at_frame:
+            others = torch.cat([times[:, :middle], times[:, middle + 1 :]], dim=1)
+            others_rgb = render_at(render, rig, bundle, others, "rgb_loss")
+            renders = torch.cat([others_rgb[:, :middle], sharp_rgb[:, None, :], others_rgb[:, middle:]], dim=1)
+        else:
+            renders = render_at(render, rig, bundle, times, "rgb_loss")
+        return colour.linear_to_srgb(colour.srgb_to_linear(renders).mean(dim=1))
+
+    def kernel_rgb(
+        self, render: RenderRays, bundle: RayBundle, frame_rgb: Float[Tensor, "n 3"]
+    ) -> Float[Tensor, "n 3"]:
+        """The frame ray's colour and the renders of its learnt rigid motions, blended in linear radiance with the
+        learnt weights (`model/rigid_blur.py`)."""
+        assert self.kernel is not None and bundle.camera_indices is not None
+        rotation, translation, weights = self.kernel(camera_rows(bundle).to(frame_rgb.device))
+        origins, directions = warp_rays(bundle.origins, bundle.directions, rotation, translation)
+        n, m = origins.shape[:2]
+        moved = RayBundle(
+            origins=origins.reshape(n * m, 3),
+            directions=directions.reshape(n * m, 3),
+            pixel_area=bundle.pixel_area.repeat_interleave(m, dim=0),
+            camera_indices=bundle.camera_indices.repeat_interleave(m, dim=0),
+        )
+        renders = render(moved, ("rgb",), "rgb_loss")["rgb"].reshape(n, m, 3)
+        linear = colour.srgb_to_linear(torch.cat([frame_rgb[:, None, :], renders], dim=1))
+        return colour.linear_to_srgb(blend(linear, weights))

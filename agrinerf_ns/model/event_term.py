@@ -1,0 +1,226 @@
+"""The event term: the event loss behind one interface for its three supervisions (EvDeblurNeRF's event pairs, the
+stream's event pixels, the frames' event windows), its contrast thresholds, its `noise` weighting with running means
+kept as buffers, and EvDeblurNeRF's EDI prior, which reads the same stream and thresholds."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Dict, Optional, Tuple
+
+import torch
+from jaxtyping import Float, Int
+from nerfstudio.cameras.rays import RayBundle
+from torch import Tensor, nn
+from torch.nn import Parameter
+
+from agrinerf_ns import colour
+from agrinerf_ns.dataparsers import event_stream
+from agrinerf_ns.dataparsers.event_stream import EventStream, sample_windows
+from agrinerf_ns.model import edi_prior, losses
+from agrinerf_ns.model.blur_term import render_at
+from agrinerf_ns.model.event_crf import EventCRF, event_log_luma
+from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_features
+from agrinerf_ns.model.model_config import AgriNeRFSettings
+from agrinerf_ns.model.plan import ModelPlan
+from agrinerf_ns.model.rig import RenderRays, Rig
+from agrinerf_ns.model.timed_rays import camera_rows
+
+
+class EventTerm(nn.Module):
+    """The event loss (`plan.event_supervision`) and the EDI prior (`plan.edi_prior`) of one model.
+
+    Its learnt state is its own: the learnt thresholds (`log_threshold`, config `event_threshold_learnt`), the learnt
+    event response (`crf`, built by the model with its other optional weights) and the `noise` weighting's running
+    means of the RGB and event losses (buffers, so a resumed run goes on with them).
+    """
+
+    loss_means: Tensor
+    weight: Tensor
+
+    def __init__(self, config: AgriNeRFSettings, plan: ModelPlan, rig: Rig, crf: Optional[EventCRF] = None) -> None:
+        super().__init__()
+        self.config, self.rig, self.mode = config, rig, plan.event_supervision
+        native = rig.event_stream
+        self.stream: Optional[EventStream] = None
+        if self.mode == "stream" and native is not None:
+            self.stream = native.stream()
+        self.pairs: Optional[EventPairs] = None
+        if self.mode == "pairs" and native is not None:
+            self.pairs = EventPairs.from_h5(native.path, native.width, native.height)
+        self.edi_stream: Optional[EventStream] = None  # the EDI prior's counts at the event pixels
+        if plan.edi_prior and native is not None:
+            self.edi_stream = self.stream or native.stream()
+        self.log_threshold: Optional[Parameter] = None  # ON, OFF
+        if self.mode != "off" and config.event_threshold_learnt:
+            self.log_threshold = Parameter(torch.full((2,), math.log(config.event_threshold)))
+        self.crf = crf
+        self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
+        self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
+
+    # ------------------------------------------------------------------ renders
+    def outputs(self, render: RenderRays, bundle: RayBundle, step: int) -> Dict[str, Tensor]:
+        """The EDI prior's factors and the event samples' renders at both ends of their windows, with their targets
+        (training, in the side stream)."""
+        outputs: Dict[str, Tensor] = {}
+        if self.edi_stream is not None:
+            outputs.update(self.edi_outputs(bundle))
+        if self.mode == "pairs":
+            outputs.update(self.pair_logs(render, bundle, step))
+        elif self.mode == "stream":
+            outputs.update(self.stream_logs(render, bundle))
+        elif self.mode == "frames":
+            outputs["event_log_start"], outputs["event_log_end"] = self.window_logs(render, bundle)
+        return outputs
+
+    def edi_outputs(self, bundle: RayBundle) -> Dict[str, Tensor]:
+        """The EDI prior's per-ray factor (the blurred value over it is the sharp mid-exposure value) and where the
+        event camera sees the pixel (`model/edi_prior.py`)."""
+        rig = self.rig
+        assert self.edi_stream is not None and rig.event_stream is not None
+        assert rig.trajectory is not None and rig.frame_times is not None and rig.exposure is not None
+        rows = camera_rows(bundle)
+        pose = rig.trajectory.poses_at_tensor(rig.frame_times[rows].double(), dtype=torch.float64)
+        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double().cpu()[..., None])[..., 0]
+        depth = float(rig.event_camera.get("plane_depth", math.inf))
+        pixel, inside = edi_prior.event_pixels(rig.event_stream, local, depth)
+        c_on, c_off = (float(c) for c in self.thresholds())
+        factor = edi_prior.edi_factors(self.edi_stream, pixel, rig.exposure[rows], c_on, c_off)
+        device = bundle.origins.device
+        return {"edi_factor": factor.to(device), "edi_valid": inside.float()[:, None].to(device)}
+
+    def _render_event_rays(
+        self,
+        render: RenderRays,
+        like: RayBundle,
+        origins: Float[Tensor, "m 2 3"],
+        directions: Float[Tensor, "m 2 3"],
+        frames: Int[Tensor, " m"],
+    ) -> Float[Tensor, "m 2 3"]:
+        """RGB of `m` event samples' rays at both their times (the device, dtype and pixel area of `like`; camera
+        index: the training frame `frames` [m] of each), with the event loss's density gradient scale."""
+        m = int(origins.shape[0])
+        device, dtype = like.origins.device, like.origins.dtype
+        bundle = RayBundle(
+            origins=origins.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            directions=directions.reshape(2 * m, 3).to(device=device, dtype=dtype),
+            pixel_area=like.pixel_area[:1].expand(2 * m, 1).contiguous(),
+            camera_indices=frames.repeat_interleave(2)[:, None].to(device),
+        )
+        return render(bundle, ("rgb",), "event_loss")["rgb"].reshape(m, 2, 3)
+
+    def pair_logs(self, render: RenderRays, like: RayBundle, step: int) -> Dict[str, Tensor]:
+        """`event_rays_per_batch` EvDeblurNeRF event samples (`model/event_pairs.py`) rendered along the event
+        camera's rays at both events' times: their log luma (after the learnt response, from its start step) and
+        targets."""
+        rig = self.rig
+        assert self.pairs is not None and rig.trajectory is not None and rig.frame_times is not None
+        assert rig.event_stream is not None
+        pixel, t0, t1, polarity = self.pairs.sample(self.config.event_rays_per_batch)
+        m = int(pixel.shape[0])
+        if m == 0:  # a stream without two events at any pixel: no sample, no loss
+            return {}
+        times = torch.stack([t0, t1], -1).double() * 1e-6
+        origins, directions = event_stream.event_rays(rig.trajectory, rig.event_stream, pixel, times)
+        frames = (times[:, :1] - rig.frame_times.double()[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
+        rgb = self._render_event_rays(render, like, origins, directions, frames)
+        device = like.origins.device
+        crf = self.crf if step >= self.config.event_crf_start_step else None
+        features = polarity_features(polarity).to(device)
+        logs = event_log_luma(colour.srgb_to_linear(rgb), self.config.event_log_eps, crf, features)
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1],
+                "event_target": pair_targets(polarity, *self.thresholds()).to(device)}  # fmt: skip
+
+    def stream_logs(self, render: RenderRays, like: RayBundle) -> Dict[str, Tensor]:
+        """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
+        rendered along the event camera's rays at both ends: their log luminance and their ON / OFF counts."""
+        rig, stream = self.rig, self.stream
+        assert stream is not None and rig.event_windows is not None and rig.trajectory is not None
+        assert rig.event_stream is not None
+        m = self.config.event_rays_per_batch
+        frames = torch.randint(0, rig.event_windows.shape[0], (m,))  # cpu: the windows and the stream are on the CPU
+        t0, t1 = sample_windows(rig.event_windows, frames, self.config.event_window_min_fraction, None)
+        pixel = torch.randint(0, stream.width * stream.height, (m,))  # cpu: as above
+        on, off = stream.counts(pixel, t0, t1)
+        origins, directions = event_stream.event_rays(
+            rig.trajectory, rig.event_stream, pixel, torch.stack([t0, t1], -1).double() * 1e-6
+        )
+        rgb = self._render_event_rays(render, like, origins, directions, frames)
+        device = like.origins.device
+        logs = losses.log_luminance(rgb, self.config.event_log_eps)
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
+                "event_off": off.to(device)}  # fmt: skip
+
+    def window_logs(self, render: RenderRays, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
+        """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows,
+        seen from the event camera (its centre and the alignment plane from the dataset's calibration, where
+        recorded)."""
+        rig = self.rig
+        assert rig.event_windows is not None
+        m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
+        head = bundle[:m]
+        windows = rig.event_windows[camera_rows(head)].double()
+        renders = render_at(render, rig, head, windows, "event_loss", **rig.event_camera)
+        logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
+        return logs[:, 0], logs[:, 1]
+
+    # ------------------------------------------------------------------ loss
+    def thresholds(self) -> Tuple[Any, Any]:
+        """C_on, C_off: learnt (config `event_threshold_learnt`) or the configured one."""
+        if self.log_threshold is None:
+            return self.config.event_threshold, self.config.event_threshold
+        c = self.log_threshold.exp()
+        return c[0], c[1]
+
+    def loss(self, outputs: Dict[str, Tensor], batch: Dict[str, Any], device: torch.device) -> Dict[str, Tensor]:
+        """The raw event loss of a training step, under its supervision ({} where the step has no event sample)."""
+        if self.mode == "pairs" and "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples
+            loss = losses.event_pair_loss(outputs["event_log_start"], outputs["event_log_end"], outputs["event_target"])
+        elif self.mode == "stream" and "event_on" in outputs:  # the stream's event pixels carry their own counts
+            loss = losses.event_loss(
+                outputs["event_log_start"],
+                outputs["event_log_end"],
+                outputs["event_on"],
+                outputs["event_off"],
+                *self.thresholds(),
+                lower_bound=self.config.event_loss_bound,
+            )
+        elif self.mode == "frames" and "event_log_start" in outputs and "event_on" in batch:
+            m = outputs["event_log_start"].shape[0]
+            mask = batch.get("event_mask")
+            loss = losses.event_loss(
+                outputs["event_log_start"],
+                outputs["event_log_end"],
+                batch["event_on"][:m].to(device),
+                batch["event_off"][:m].to(device),
+                *self.thresholds(),
+                None if mask is None else mask.to(device)[:m],
+                lower_bound=self.config.event_loss_bound,
+            )
+        else:
+            return {}
+        return {"event_loss": loss}
+
+    def noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
+        """The `noise` weighting's factor (config `event_loss_weighting`): the event samples' share of the batch
+        times the ratio of the running RGB and event losses, never above an RGB ray's (means updated in training)."""
+        rgb, event = float(raw["rgb_loss"].detach()), float(raw["event_loss"].detach())
+        means = self.loss_means.tolist()
+        if self.training and math.isfinite(rgb) and math.isfinite(event):
+            old = (rgb, event) if math.isnan(means[0]) else means
+            means = [0.99 * old[0] + 0.01 * rgb, 0.99 * old[1] + 0.01 * event]  # 0.99 a step
+            self.loss_means.copy_(torch.tensor(means, dtype=torch.float64, device=self.loss_means.device))
+        if math.isnan(means[0]):
+            return 0.0
+        samples = outputs["event_log_start"].shape[0] / outputs["rgb"].shape[0]
+        weight = samples * min(means[0] / max(means[1], 1e-12), 1.0)
+        self.weight.fill_(weight)
+        return weight
+
+    def metrics(self, training: bool) -> Dict[str, Any]:
+        """`event_loss_weight` (training, once the `noise` weighting has means) and the learnt thresholds."""
+        metrics: Dict[str, Any] = {}
+        if training and not math.isnan(float(self.loss_means[0])):
+            metrics["event_loss_weight"] = float(self.weight)
+        if self.log_threshold is not None:
+            metrics["event_threshold_on"], metrics["event_threshold_off"] = self.log_threshold.detach().exp()
+        return metrics
