@@ -35,7 +35,7 @@ def choose_plan(model: Any) -> CountPlan:
     """The plan for a loaded run's ``model`` (an AgriNeRF model, or a stock one such as Nerfacto: views)."""
     outputs = field_outputs(model)
     thermal_field = outputs.thermal_any
-    if thermal_field and not getattr(model, "use_rgb", True):
+    if thermal_field and not outputs.rgb:
         return CountPlan("field", "the run has no RGB head (trained without RGB frames): its field's thermal output")
     if thermal_field and outputs.dark:
         return CountPlan(

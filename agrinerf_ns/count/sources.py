@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Literal, Optional, Tuple
 
 from agrinerf_ns.count.errors import CountInputError
+from agrinerf_ns.model.plan import ModelPlan
 
 CountSource = Literal["auto", "fruit", "temperature", "thermal_camera", "thermal", "rgb"]
 """``fruit``: the fruit head's probability (learnt from the frames' fruit masks); ``temperature``: degrees C (a
@@ -60,22 +61,30 @@ class RunOutputs:
         return self.temperature or self.thermal_camera or self.thermal
 
 
+def model_plan(model: Any) -> Optional[ModelPlan]:
+    """The plan an AgriNeRF model was built from (`agrinerf_ns.model.plan`); None for a stock Nerfstudio model."""
+    plan = getattr(model, "plan", None)
+    return plan if isinstance(plan, ModelPlan) else None
+
+
 def rgb_frames_dark(model: Any) -> bool:
     """Whether the model's low-light rule called its RGB frames dark (a stock model has no such rule: False)."""
-    return bool(getattr(model, "low_light", False))
+    plan = model_plan(model)
+    return plan is not None and plan.low_light
 
 
 def field_outputs(model: Any) -> RunOutputs:
     """What the field of ``model`` (an AgriNeRF model; a stock one has none of these heads) can be sampled for."""
-    field = getattr(model, "field", None)
-    has_thermal = getattr(field, "thermal_head", None) is not None
+    plan = model_plan(model)
+    if plan is None:
+        return RunOutputs(dark=False)
     return RunOutputs(
-        fruit=getattr(model, "fruit_head", None) is not None,
-        temperature=getattr(field, "temperature_head", None) is not None,
-        thermal_camera=has_thermal and bool(getattr(model, "has_thermal_camera", False)),
-        thermal=has_thermal,
-        rgb=getattr(field, "rgb_head", None) is not None,
-        dark=rgb_frames_dark(model),
+        fruit=plan.has_fruit_head,
+        temperature=plan.has_temperature,
+        thermal_camera=plan.has_thermal_camera,
+        thermal=plan.has_thermal_head,
+        rgb=plan.use_rgb,
+        dark=plan.low_light,
     )
 
 
