@@ -12,6 +12,7 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, detect_blobs
+from agrinerf_ns.count.fruit_regions import fruit_regions
 from agrinerf_ns.count.render import RenderedView
 from agrinerf_ns.count.sources import CountSource, resolve_source
 from agrinerf_ns.images import to_uint8
@@ -27,8 +28,9 @@ class DetectorConfig:
     """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
     e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
     source: CountSource = "auto"
-    """The output fruit are found in: ``temperature`` (degrees C, where the run has one: fruit differ from leaves in
-    temperature), the cross-spectral ``thermal`` or ``rgb``; ``auto``: rgb on a run whose RGB frames are lit, else the
+    """The output fruit are found in: ``fruit`` (the fruit head's probability, a run trained with fruit masks; its
+    regions), ``temperature`` (degrees C, where the run has one: fruit differ from leaves in temperature), the
+    cross-spectral ``thermal`` or ``rgb``; ``auto``: rgb on a run whose RGB frames are lit, else the
     first of temperature, thermal, rgb the renders have (YOLO: thermal, rgb), as :mod:`agrinerf_ns.count.sources`
     resolves it."""
     weights: Optional[Path] = None
@@ -48,7 +50,14 @@ def make_detector(config: DetectorConfig) -> Detector:
     light not known (:func:`agrinerf_ns.count.pipeline.run_count` resolves it for the whole run first)."""
     if config.detector == "yolo":
         return yolo_detector(config)
-    return lambda view, scale: detect_blobs(view, view_source(config, view), scale, config.blobs)
+
+    def detect(view: RenderedView, scale: float) -> List[Detection]:
+        source = view_source(config, view)
+        if source == "fruit":  # the fruit head's probability: its regions, not contrast blobs
+            return fruit_regions(view, scale, config.blobs)
+        return detect_blobs(view, source, scale, config.blobs)
+
+    return detect
 
 
 def view_source(config: DetectorConfig, view: RenderedView) -> str:

@@ -27,8 +27,8 @@ if TYPE_CHECKING:
     from agrinerf_ns.detect.render import LoadedRun
 
 RENDERS_JSON = "renders.json"
-OPTIONAL_OUTPUTS = ("thermal", "temperature")
-"""Outputs kept when the run renders them (the cross-spectral channel, degrees C)."""
+OPTIONAL_OUTPUTS = ("thermal", "temperature", "fruit")
+"""Outputs kept when the run renders them (the cross-spectral channel, degrees C, the fruit head's probability)."""
 
 
 @dataclass(frozen=True)
@@ -84,13 +84,18 @@ class RenderedView:
     """Focal length in pixels at this resolution (mean of fx, fy)."""
     thermal: Optional[Float[np.ndarray, "h w"]] = None
     temperature: Optional[Float[np.ndarray, "h w"]] = None
+    fruit: Optional[Float[np.ndarray, "h w"]] = None
+    """The fruit head's rendered probability (a run trained with fruit masks)."""
 
     def optional_output(self, name: str) -> Float[np.ndarray, "h w *channels"]:
-        """The ``rgb``, ``thermal`` or ``temperature`` image; ValueError naming the view where the run renders none."""
+        """The ``rgb``, ``thermal``, ``temperature`` or ``fruit`` image; ValueError naming the view where the run
+        renders none."""
         image = getattr(self, name)
         if image is None:
-            what = {"rgb": "'rgb'", "thermal": "cross-spectral 'thermal'", "temperature": "'temperature'"}[name]
-            whys = {"temperature": " (no radiometric thermal camera)", "rgb": " (trained without RGB frames)"}
+            what = {"rgb": "'rgb'", "thermal": "cross-spectral 'thermal'", "temperature": "'temperature'",
+                    "fruit": "'fruit'"}[name]  # fmt: skip
+            whys = {"temperature": " (no radiometric thermal camera)", "rgb": " (trained without RGB frames)",
+                    "fruit": " (trained without fruit masks)"}  # fmt: skip
             why = whys.get(name, "")
             raise ValueError(f"view {self.name}: the run renders no {what} output{why}")
         return image
@@ -98,8 +103,8 @@ class RenderedView:
     def outputs(self, dark: Optional[bool] = None) -> RunOutputs:
         """The sources this view holds (:func:`agrinerf_ns.count.sources.resolve_source`); ``dark``: whether the
         run's RGB frames are dark (None: not known)."""
-        return RunOutputs(temperature=self.temperature is not None, thermal=self.thermal is not None,
-                          rgb=self.rgb is not None, dark=dark)  # fmt: skip
+        return RunOutputs(fruit=self.fruit is not None, temperature=self.temperature is not None,
+                          thermal=self.thermal is not None, rgb=self.rgb is not None, dark=dark)  # fmt: skip
 
     def points(self) -> Float[np.ndarray, "h w 3"]:
         """The surface point of every pixel: origin + direction x depth."""
@@ -118,6 +123,7 @@ class RenderedView:
             "directions": self.directions.astype(np.float32),
             "thermal": None if self.thermal is None else self.thermal.astype(np.float16),
             "temperature": None if self.temperature is None else self.temperature.astype(np.float32),
+            "fruit": None if self.fruit is None else self.fruit.astype(np.float16),
         }
 
 
@@ -241,6 +247,7 @@ def _view_from_outputs(
         focal=float((camera.fx[0, 0] + camera.fy[0, 0]).item() / 2),
         thermal=array("thermal")[..., 0] if "thermal" in outputs else None,
         temperature=array("temperature")[..., 0] if "temperature" in outputs else None,
+        fruit=array("fruit")[..., 0] if "fruit" in outputs else None,
     )
 
 
@@ -300,6 +307,7 @@ def load_renders(folder: Path) -> RenderSet:
                     focal=float(data["focal"]),
                     thermal=data["thermal"].astype(np.float32) if "thermal" in data else None,
                     temperature=data["temperature"].astype(np.float32) if "temperature" in data else None,
+                    fruit=data["fruit"].astype(np.float32) if "fruit" in data else None,
                 )
             )
     dataset = Path(meta["dataset"]) if meta.get("dataset") else None
