@@ -19,6 +19,7 @@ from agrinerf_ns.dataparsers.event_stream import EventStream, sample_windows
 from agrinerf_ns.model import edi_prior, losses
 from agrinerf_ns.model.blur_term import render_at
 from agrinerf_ns.model.event_crf import EventCRF, event_log_luma
+from agrinerf_ns.model.event_gate import EventGate
 from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_features
 from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.plan import ModelPlan
@@ -54,6 +55,9 @@ class EventTerm(nn.Module):
         if self.mode != "off" and config.event_threshold_learnt:
             self.log_threshold = Parameter(torch.full((2,), math.log(config.event_threshold)))
         self.crf = crf
+        self.gate: Optional[EventGate] = None  # config `event_gate`: held-out event samples that set the weight
+        if self.mode != "off" and config.event_gate and native is not None and rig.event_windows is not None:
+            self.gate = EventGate(config, rig, self.stream or native.stream())
         self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
@@ -64,13 +68,28 @@ class EventTerm(nn.Module):
         outputs: Dict[str, Tensor] = {}
         if self.edi_stream is not None:
             outputs.update(self.edi_outputs(bundle))
+        if step < self.config.event_start_step:  # the event term's warm-up: no sample, no loss
+            return outputs
         if self.mode == "pairs":
             outputs.update(self.pair_logs(render, bundle, step))
         elif self.mode == "stream":
             outputs.update(self.stream_logs(render, bundle))
         elif self.mode == "frames":
             outputs["event_log_start"], outputs["event_log_end"] = self.window_logs(render, bundle)
+        if self.gate is not None and self.gate.due(step):
+            self.gate.check(step, lambda o, d, f: self._held_out_logs(render, bundle, o, d, f), self.fixed_thresholds())
         return outputs
+
+    def _held_out_logs(self, render: RenderRays, like: RayBundle, origins: Tensor, directions: Tensor,
+                       frames: Tensor) -> Tensor:  # fmt: skip
+        """The gate's held-out samples rendered as the stream supervision renders its samples (no gradient)."""
+        with torch.no_grad():
+            rgb = self._render_event_rays(render, like, origins, directions, frames)
+        return losses.log_luminance(rgb, self.config.event_log_eps)
+
+    def fixed_thresholds(self) -> Tuple[float, float]:
+        c_on, c_off = self.thresholds()
+        return float(c_on), float(c_off)
 
     def edi_outputs(self, bundle: RayBundle) -> Dict[str, Tensor]:
         """The EDI prior's per-ray factor (the blurred value over it is the sharp mid-exposure value) and where the
@@ -139,7 +158,10 @@ class EventTerm(nn.Module):
         m = self.config.event_rays_per_batch
         frames = torch.randint(0, rig.event_windows.shape[0], (m,))  # cpu: the windows and the stream are on the CPU
         t0, t1 = sample_windows(rig.event_windows, frames, self.config.event_window_min_fraction, None)
-        pixel = torch.randint(0, stream.width * stream.height, (m,))  # cpu: as above
+        if self.gate is None:
+            pixel = torch.randint(0, stream.width * stream.height, (m,))  # cpu: as above
+        else:  # the gate's held-out pixels are never trained on
+            pixel = self.gate.training_pixels(m)
         on, off = stream.counts(pixel, t0, t1)
         origins, directions = event_stream.event_rays(
             rig.trajectory, rig.event_stream, pixel, torch.stack([t0, t1], -1).double() * 1e-6
@@ -216,11 +238,21 @@ class EventTerm(nn.Module):
         self.weight.fill_(weight)
         return weight
 
+    def loss_factor(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
+        """The event term's factor on its coefficient: the `noise` weighting's (where configured) times the gate's."""
+        factor = 1.0
+        if self.config.event_loss_weighting == "noise" and "rgb_loss" in raw:
+            factor = self.noise_weight(raw, outputs)
+        return factor * (1.0 if self.gate is None else float(self.gate.factor))
+
     def metrics(self, training: bool) -> Dict[str, Any]:
         """`event_loss_weight` (training, once the `noise` weighting has means) and the learnt thresholds."""
         metrics: Dict[str, Any] = {}
         if training and not math.isnan(float(self.loss_means[0])):
             metrics["event_loss_weight"] = float(self.weight)
+        if self.gate is not None and training:
+            metrics["event_gate"] = float(self.gate.factor)
+            metrics["event_gate_residual"] = float(self.gate.residual)
         if self.log_threshold is not None:
             metrics["event_threshold_on"], metrics["event_threshold_off"] = self.log_threshold.detach().exp()
         return metrics

@@ -412,9 +412,8 @@ class AgriNeRFModel(Model):
         loss_dict = {k: v * coef[k] for k, v in raw.items() if coef.get(k, 0.0) > 0}
         if "edi_prior_loss" in loss_dict:  # EvDeblurNeRF's cosine-decayed weight
             loss_dict["edi_prior_loss"] = loss_dict["edi_prior_loss"] * edi_prior.cosine_weight(self.step)
-        if "event_loss" in loss_dict and "rgb_loss" in raw and self.config.event_loss_weighting == "noise":
-            assert self.events is not None
-            loss_dict["event_loss"] = loss_dict["event_loss"] * self.events.noise_weight(raw, outputs)
+        if "event_loss" in loss_dict and self.events is not None:  # the `noise` weighting and the data gate
+            loss_dict["event_loss"] = loss_dict["event_loss"] * self.events.loss_factor(raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
         return loss_dict
 

@@ -239,6 +239,17 @@ class AgriNeRFSettings(ModelConfig):
     less."""
     event_log_eps: float = 1.0e-4
     """Offset of the event response log(Y + eps), in the linear units of the rendered colour."""
+    event_start_step: int = 0
+    """Training step from which the event term renders and weighs its samples (a warm-up: 0 from the start)."""
+    event_gate: bool = False
+    """The event term's data gate (`event_term.EventGate`): a fixed held-out share of the event samples (drawn once,
+    never trained on) is scored every `event_gate_every` steps without gradient; while its residual is not below the
+    smaller of its value at the gate's first check and its 'no change' loss, the term's weight is halved (to 0 below
+    1/64), and it doubles back (from 1/16) once the residual is below. Metric `event_gate`."""
+    event_gate_every: int = 50
+    """Steps between the gate's checks of its held-out event samples."""
+    event_gate_samples: int = 1024
+    """Held-out event samples of the gate (stream and pairs: their pixels are never drawn for training)."""
     camera_optimizer: CameraOptimizerConfig = field(default_factory=lambda: CameraOptimizerConfig(mode="off"))
     """Camera pose refinement (off by default)."""
     blur_kernel: Literal["trajectory", "learnt"] = "trajectory"
