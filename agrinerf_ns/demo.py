@@ -1,7 +1,7 @@
 """``agrinerf-demo``: the whole product on a built-in scene, as a user runs it.
 
 Synthesise a dark orchard capture, process it into a tri-modal dataset, train ``agrinerf-lite`` with ``ns-train``,
-score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.bench.evaluate.evaluate_checkpoint`: against
+score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.bench.checkpoint_eval.evaluate_checkpoint`: against
 the captured frames, against the clean truth after exposure alignment, and the thermal outputs against the rescaled
 thermal frames), draw a labelled contact sheet of those views, and print the commands that open the run in
 Nerfstudio's viewer and render a video of it.
@@ -62,7 +62,7 @@ class Metric:
     """One number of the demo, with what it compares."""
 
     key: str
-    """Key in :func:`agrinerf_ns.bench.evaluate.evaluate_checkpoint`'s result."""
+    """Key in :func:`agrinerf_ns.bench.checkpoint_eval.evaluate_checkpoint`'s result."""
     name: str
     compares: str
     unit: str
@@ -179,8 +179,8 @@ def sheet_columns(views: Sequence[HeldOutView], found: Optional[Mapping[str, Seq
 def render_held_out(config_path: Path, raw: Path, max_views: int) -> List[HeldOutView]:
     """Render ``max_views`` evenly spaced eval views of a trained run with every output its model has, beside the
     captured frames and the clean truth."""
-    from agrinerf_ns.bench.evaluate import TruthImages
-    from agrinerf_ns.detect.render import load_run, render_camera
+    from agrinerf_ns.bench.checkpoint_eval import TruthImages
+    from agrinerf_ns.detect.render_views import load_run, render_camera
     from agrinerf_ns.views import evenly_spaced
 
     run = load_run(config_path)
@@ -273,7 +273,7 @@ def _caption(metrics: List[Metric], steps: int, device: str) -> str:
 
 def main(config: DemoConfig) -> DemoResult:
     from agrinerf_ns import compat
-    from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
+    from agrinerf_ns.bench.checkpoint_eval import TruthImages, evaluate_checkpoint
     from agrinerf_ns.bench.methods import METHODS
     from agrinerf_ns.bench.ns_commands import ns_train
     from agrinerf_ns.contact_sheet import write_contact_sheet

@@ -7,7 +7,7 @@ frame's data are singular, ``event``: the per-frame keys of ``transforms.json`` 
 ``event_mask_path``, ``event_sums_path``), the dataparser metadata (``event_filenames``, ``event_mask_filenames``)
 and the training batch (``batch["event"]``, ``batch["event_mask"]``), as ``thermal`` / ``thermal_mask`` and
 ``image`` are one frame's data of the other two. :func:`normalise_modalities` accepts ``"event"`` for ``"events"``.
-The detector's input (RGB or thermal) is a different notion: ``agrinerf_ns.detect.plan.DetectorInput``.
+The detector's input (RGB or thermal) is a different notion: ``agrinerf_ns.detect.eval_plan.DetectorInput``.
 """
 
 from __future__ import annotations

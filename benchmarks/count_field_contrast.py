@@ -17,9 +17,9 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
+from agrinerf_ns.count.fruit_score import align_to_capture, read_truth_fruit, visible_fruit
 from agrinerf_ns.count.pipeline import raw_training_frames
 from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
-from agrinerf_ns.count.score import align_to_capture, read_truth_fruit, visible_fruit
 from agrinerf_ns.count.volume import field_density, field_features
 
 
@@ -33,7 +33,7 @@ class Args:
 
 
 def main(args: Args) -> str:
-    from agrinerf_ns.detect.render import load_run
+    from agrinerf_ns.detect.render_views import load_run
 
     config = trained_run_config(args.run)
     frame = WorldFrame.read(config.parent / "dataparser_transforms.json")

@@ -172,7 +172,7 @@ def score_checkpoint(args: Args, run: TrainRun, step: int, raw: Path, samples: D
     from nerfstudio.cameras.rays import RayBundle
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from agrinerf_ns.bench.evaluate import TruthImages, _load_at_step
+    from agrinerf_ns.bench.checkpoint_eval import TruthImages, _load_at_step
     from agrinerf_ns.dataparsers.event_stream import event_rays
     from agrinerf_ns.model import losses
 

@@ -4,7 +4,7 @@
 
 Each run's checkpoints load with whatever ``agrinerf_ns`` the interpreter imports (so runs made by another checkout
 load with its model code, through PYTHONPATH), while the metrics come from this file's checkout
-(``agrinerf_ns/bench/evaluate.py`` beside it, loaded by path): a metric added after the runs were made (e.g.
+(``agrinerf_ns/bench/checkpoint_eval.py`` beside it, loaded by path): a metric added after the runs were made (e.g.
 ``psnr_fruit``) is then measured for them too. Writes the results rows (``agrinerf-bench``'s columns) to ``--out``.
 """
 

@@ -12,7 +12,7 @@ from agrinerf_ns.bench.layout import BenchLayout, checkpoints, machine_note, run
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.bench.profiles import PROFILES
 from agrinerf_ns.bench.runs import run_method
-from agrinerf_ns.detect.plan import plan_from_bench
+from agrinerf_ns.detect.eval_plan import plan_from_bench
 
 
 def _fake_ns_train(name: str, args: Sequence[str], log_path=None, timeout=None) -> ns_commands.CommandResult:
@@ -28,7 +28,7 @@ def _fake_ns_train(name: str, args: Sequence[str], log_path=None, timeout=None) 
 
 def test_a_run_folder_the_bench_writes_is_found_by_detect(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(ns_commands, "run_ns", _fake_ns_train)
-    monkeypatch.setattr("agrinerf_ns.bench.evaluate.evaluate_checkpoint", lambda *args, **kwargs: {})
+    monkeypatch.setattr("agrinerf_ns.bench.checkpoint_eval.evaluate_checkpoint", lambda *args, **kwargs: {})
     layout = BenchLayout(tmp_path / "bench")
     raw, data = layout.scene("garden-dark")
     data.mkdir(parents=True)

@@ -18,6 +18,13 @@ from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
 from agrinerf_ns.count.detectors import DetectorConfig, view_source
 from agrinerf_ns.count.diagnose import diagnose
+from agrinerf_ns.count.fruit_score import (
+    TruthFruit,
+    align_to_capture,
+    read_truth_fruit,
+    score_fruit,
+    visible_fruit,
+)
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig
@@ -30,13 +37,6 @@ from agrinerf_ns.count.render import (
     load_renders,
     require_depth,
     save_renders,
-)
-from agrinerf_ns.count.score import (
-    TruthFruit,
-    align_to_capture,
-    read_truth_fruit,
-    score_fruit,
-    visible_fruit,
 )
 from agrinerf_ns.count.support import keep_supported, views_showing
 from agrinerf_ns.process.readers import CameraCalib, read_calibration

@@ -14,8 +14,8 @@ from helpers.tiny_run import train_saved_run
 
 from agrinerf_ns.bench.cli import BenchConfig, main
 from agrinerf_ns.count.bench import ORACLE_METHOD, VIEW_PLACEMENTS, count_run_rows
+from agrinerf_ns.count.count_tables import read_rows
 from agrinerf_ns.count.field_count import FieldCountConfig
-from agrinerf_ns.count.tables import read_rows
 from agrinerf_ns.count.volume import VolumeConfig
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture

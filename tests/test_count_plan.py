@@ -11,7 +11,7 @@ import torch
 from helpers.small_model import SMALL_MODEL
 from nerfstudio.data.scene_box import SceneBox
 
-from agrinerf_ns.count.plan import choose_plan
+from agrinerf_ns.count.auto_path import choose_plan
 from agrinerf_ns.count.sources import field_outputs, resolve_source
 from agrinerf_ns.model.model import AgriNeRFModelConfig
 

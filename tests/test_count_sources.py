@@ -12,9 +12,9 @@ import torch
 from helpers.small_model import SMALL_MODEL
 from nerfstudio.data.scene_box import SceneBox
 
+from agrinerf_ns.count.auto_path import choose_plan
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.errors import CountInputError
-from agrinerf_ns.count.plan import choose_plan
 from agrinerf_ns.count.render import RenderedView, RenderSet, WorldFrame, load_renders, save_renders
 from agrinerf_ns.count.sources import RunOutputs, field_outputs, resolve_source, rgb_frames_dark
 from agrinerf_ns.model.model import AgriNeRFModelConfig

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from agrinerf_ns.detect.bootstrap import BootstrapMaps, Interval, MatchedImages, bootstrap_maps, resample_counts
-from agrinerf_ns.detect.scoring import ImageBoxes, mean_average_precision
+from agrinerf_ns.detect.box_metrics import ImageBoxes, mean_average_precision
 
 
 def _image(rng: np.random.Generator, hit_rate: float = 0.6) -> ImageBoxes:
@@ -108,9 +108,9 @@ def test_interval_format() -> None:
 def test_tables_print_intervals_and_paired_differences(tmp_path) -> None:
     import csv
 
+    from agrinerf_ns.detect.box_metrics import score_detections
     from agrinerf_ns.detect.merge import merge_evaluations
-    from agrinerf_ns.detect.scoring import score_detections
-    from agrinerf_ns.detect.tables import ResultRow, write_tables
+    from agrinerf_ns.detect.paper_tables import ResultRow, write_tables
 
     frames = [f"{i:06d}" for i in range(40)]
     good, poor = _images(40, 5, hit_rate=0.9), _images(40, 6, hit_rate=0.3)

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from agrinerf_ns.bench.methods import ABLATIONS
-from agrinerf_ns.detect.plan import load_plan, plan_from_bench
-from agrinerf_ns.detect.tables import TABLE_IV_ORDER
+from agrinerf_ns.detect.eval_plan import load_plan, plan_from_bench
+from agrinerf_ns.detect.paper_tables import TABLE_IV_ORDER
 from agrinerf_ns.detect.training import trained_scene_detectors
 
 

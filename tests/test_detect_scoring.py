@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agrinerf_ns.detect.scoring import (
+from agrinerf_ns.detect.box_metrics import (
     ImageBoxes,
     average_precision,
     box_iou,

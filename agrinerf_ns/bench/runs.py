@@ -26,7 +26,7 @@ def run_method(
     """Train one method on one scene and evaluate its checkpoints; returns the result rows.
 
     ``runs``: the output folder's ``runs/`` (:mod:`agrinerf_ns.bench.layout`)."""
-    from agrinerf_ns.bench.evaluate import TruthImages, evaluate_checkpoint
+    from agrinerf_ns.bench.checkpoint_eval import TruthImages, evaluate_checkpoint
 
     # an ablation or a sample budget: its method's budget (scaled to about equal wall time)
     steps = profile.steps.get(method_key, round(profile.steps[method.ns_method] * method.step_scale))

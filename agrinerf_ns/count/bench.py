@@ -19,6 +19,8 @@ from agrinerf_ns.bench.layout import BenchLayout, split_scene
 from agrinerf_ns.bench.methods import METHODS
 from agrinerf_ns.bench.results import seed_base
 from agrinerf_ns.count.cluster import ClusterConfig
+from agrinerf_ns.count.count_tables import append_rows, markdown, read_rows
+from agrinerf_ns.count.fruit_score import read_frames
 from agrinerf_ns.count.pipeline import (
     CONSOLE,
     CountConfig,
@@ -32,13 +34,11 @@ from agrinerf_ns.count.pipeline import (
     surface_points,
 )
 from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
-from agrinerf_ns.count.score import read_frames
 from agrinerf_ns.count.sources import VIEW_ORDER, CountSource
-from agrinerf_ns.count.tables import append_rows, markdown, read_rows
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.field_count import FieldCountConfig
-    from agrinerf_ns.detect.render import LoadedRun
+    from agrinerf_ns.detect.render_views import LoadedRun
 
 VIEW_SOURCES: Tuple[CountSource, ...] = VIEW_ORDER
 VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
@@ -126,7 +126,7 @@ def count_run_rows(
     ``field_config``: the field path's `FieldCountConfig` (None: its defaults)."""
     from agrinerf_ns.count.field_count import FieldCountConfig, trained_run_config
     from agrinerf_ns.count.sources import field_outputs
-    from agrinerf_ns.detect.render import load_run
+    from agrinerf_ns.detect.render_views import load_run
 
     config = trained_run_config(config)
     frame = WorldFrame.read(config.parent / "dataparser_transforms.json")

@@ -27,11 +27,7 @@ from jaxtyping import Int
 
 from agrinerf_ns.count.cluster import cluster_labels, merge_distance
 from agrinerf_ns.count.detectors import make_detector
-from agrinerf_ns.count.lift import lift_detection
-from agrinerf_ns.count.oracle import undistort_maps, with_true_depth
-from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
-from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders
-from agrinerf_ns.count.score import (
+from agrinerf_ns.count.fruit_score import (
     FRUIT_IDS_DIR,
     align_to_capture,
     dataset_frames,
@@ -40,6 +36,10 @@ from agrinerf_ns.count.score import (
     score_fruit,
     visible_fruit,
 )
+from agrinerf_ns.count.lift import lift_detection
+from agrinerf_ns.count.oracle import undistort_maps, with_true_depth
+from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
+from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders
 from agrinerf_ns.process.readers import read_calibration
 
 

@@ -14,14 +14,14 @@ import tyro
 
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.components import ComponentConfig, find_fruit
+from agrinerf_ns.count.fruit_score import read_truth_fruit
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, raw_training_frames, score_result, write_count
 from agrinerf_ns.count.render import CountInputError, WorldFrame, dataset_folder, relative_path
-from agrinerf_ns.count.score import read_truth_fruit
 from agrinerf_ns.count.sources import CountSource, field_outputs, resolve_source
 from agrinerf_ns.count.volume import SampledField, VolumeConfig, render_depth_views, sample_field
 
 if TYPE_CHECKING:
-    from agrinerf_ns.detect.render import LoadedRun
+    from agrinerf_ns.detect.render_views import LoadedRun
 
 
 @dataclass(frozen=True)
@@ -116,7 +116,7 @@ def run_field_count(
     """Count the fruit of the trained run at ``run`` (folder or config.yml) in 3D and write ``out`` atomically; with
     ``truth`` (a synthetic capture) also score it (``score``: match distance, alignment, visibility); ``loaded``: the
     run already loaded (``agrinerf_ns.detect.render.load_run``)."""
-    from agrinerf_ns.detect.render import load_run
+    from agrinerf_ns.detect.render_views import load_run
 
     config_path = trained_run_config(run)
     out = Path(out)

@@ -27,8 +27,8 @@ import numpy as np
 import tyro
 from jaxtyping import Float
 
+from agrinerf_ns.count.fruit_score import read_frames, read_split
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
-from agrinerf_ns.count.score import read_frames, read_split
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
 
 ThermalMode = Literal["reprojected", "captured", "true"]

@@ -17,8 +17,15 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.count.components import ComponentConfig, find_fruit
+from agrinerf_ns.count.fruit_score import (
+    CountScore,
+    Similarity,
+    align_to_capture,
+    read_split,
+    score_fruit,
+    visible_fruit,
+)
 from agrinerf_ns.count.render import CountInputError, RenderSet, WorldFrame
-from agrinerf_ns.count.score import CountScore, Similarity, align_to_capture, read_split, score_fruit, visible_fruit
 from agrinerf_ns.count.volume import DepthView, SampledField, VolumeConfig, VoxelGrid, occupied_box, views_seeing
 
 GROUND_LAYER = 0.03
@@ -145,8 +152,8 @@ class OracleFieldArgs:
 
 
 def main(args: OracleFieldArgs) -> CountScore:
+    from agrinerf_ns.count.fruit_score import read_truth_fruit
     from agrinerf_ns.count.pipeline import raw_training_frames
-    from agrinerf_ns.count.score import read_truth_fruit
 
     truth = read_truth_fruit(args.raw)
     if not (args.raw / "truth" / "scene.json").is_file():

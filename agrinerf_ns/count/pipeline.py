@@ -18,16 +18,7 @@ from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector
-from agrinerf_ns.count.lift import LiftedDetection, lift_detection
-from agrinerf_ns.count.render import (
-    CountInputError,
-    RenderSet,
-    WorldFrame,
-    load_renders,
-    render_loaded_run,
-    render_run,
-)
-from agrinerf_ns.count.score import (
+from agrinerf_ns.count.fruit_score import (
     Align,
     CountScore,
     Similarity,
@@ -41,12 +32,21 @@ from agrinerf_ns.count.score import (
     score_fruit,
     visible_fruit,
 )
+from agrinerf_ns.count.lift import LiftedDetection, lift_detection
+from agrinerf_ns.count.render import (
+    CountInputError,
+    RenderSet,
+    WorldFrame,
+    load_renders,
+    render_loaded_run,
+    render_run,
+)
 from agrinerf_ns.count.sources import resolve_source
 from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
 
 if TYPE_CHECKING:
-    from agrinerf_ns.detect.render import LoadedRun
+    from agrinerf_ns.detect.render_views import LoadedRun
 
 CONSOLE = Console()
 FLAT_DEPTH = 0.02

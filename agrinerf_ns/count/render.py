@@ -24,7 +24,7 @@ from agrinerf_ns.count.errors import CountInputError
 from agrinerf_ns.count.sources import RunOutputs, rgb_frames_dark
 
 if TYPE_CHECKING:
-    from agrinerf_ns.detect.render import LoadedRun
+    from agrinerf_ns.detect.render_views import LoadedRun
 
 RENDERS_JSON = "renders.json"
 OPTIONAL_OUTPUTS = ("thermal", "temperature", "fruit")
@@ -156,7 +156,7 @@ def render_run(
     Raises :class:`CountInputError` naming the config when the model renders no ``depth`` (checked on the first
     view) or the run folder lacks ``dataparser_transforms.json``.
     """
-    from agrinerf_ns.detect.render import load_run
+    from agrinerf_ns.detect.render_views import load_run
 
     config_path = Path(config_path)
     transforms = config_path.parent / "dataparser_transforms.json"

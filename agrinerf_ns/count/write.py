@@ -12,7 +12,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.count.cluster import Fruit
-from agrinerf_ns.count.score import CountScore, Similarity, TruthFruit
+from agrinerf_ns.count.fruit_score import CountScore, Similarity, TruthFruit
 
 CSV_COLUMNS = (
     "id", "x", "y", "z", "x_ns", "y_ns", "z_ns", "diameter", "views", "detections", "temperature_c", "score",

@@ -3,8 +3,8 @@
 The images are the unit that is resampled (with replacement, ``BOOTSTRAP_RESAMPLES`` times, from a generator seeded
 with ``BOOTSTRAP_SEED``): a resample is a multiset of frames, and its mAPs are those of the detections of those frames
 counted as often as the frame was drawn. Every detection is matched once per image and IoU threshold
-(:func:`~agrinerf_ns.detect.scoring.match_outcomes`); a resample only re-weights the matched detections, so the mAP of
-the resample that draws every image once equals :func:`~agrinerf_ns.detect.scoring.mean_average_precision`. The draws
+(:func:`~agrinerf_ns.detect.box_metrics.match_outcomes`); a resample only re-weights the matched detections, so the mAP of
+the resample that draws every image once equals :func:`~agrinerf_ns.detect.box_metrics.mean_average_precision`. The draws
 depend only on the sorted frame names, the seed and the number of resamples: two rows scored on the same frames see
 the same resamples, so their difference is a paired bootstrap (a row minus itself is exactly 0 in every resample).
 Intervals are percentile intervals (2.5th and 97.5th percentiles of the resampled values); resamples whose mAP is
@@ -19,7 +19,13 @@ from typing import Any, Dict, FrozenSet, List, Sequence, Tuple
 import numpy as np
 from jaxtyping import Float, Int, Int8, Real
 
-from agrinerf_ns.detect.scoring import IOU_THRESHOLDS, ImageBoxes, Interpolation, interpolated_precision, match_outcomes
+from agrinerf_ns.detect.box_metrics import (
+    IOU_THRESHOLDS,
+    ImageBoxes,
+    Interpolation,
+    interpolated_precision,
+    match_outcomes,
+)
 
 BOOTSTRAP_RESAMPLES = 1000
 BOOTSTRAP_SEED = 0

@@ -47,8 +47,8 @@ class EvaluateCommand:
     def main(self) -> None:
         from rich.console import Console
 
-        from agrinerf_ns.detect.evaluate import evaluate_plan
-        from agrinerf_ns.detect.plan import load_plan, plan_from_bench
+        from agrinerf_ns.detect.eval_plan import load_plan, plan_from_bench
+        from agrinerf_ns.detect.paper_eval import evaluate_plan
 
         if (self.plan is None) == (self.bench is None):
             raise ValueError("give exactly one of --plan PLAN.json or --bench AGRINERF_BENCH_OUT")
@@ -78,7 +78,7 @@ class RenderCommand:
     rays_per_chunk: RaysPerChunk = None
 
     def main(self) -> None:
-        from agrinerf_ns.detect.render import render_views
+        from agrinerf_ns.detect.render_views import render_views
 
         written = render_views(self.config, self.output, self.out, self.split, self.max_views, self.rays_per_chunk)
         print(f"wrote {len(written)} views to {self.out}")
@@ -106,7 +106,7 @@ class TrainCommand:
 
     def main(self) -> None:
         from agrinerf_ns.detect.boxes import list_images
-        from agrinerf_ns.detect.plan import MethodSpec, SceneSpec
+        from agrinerf_ns.detect.eval_plan import MethodSpec, SceneSpec
         from agrinerf_ns.detect.training import train_scene_detector
 
         if self.modality == "thermal" and self.dataset is None:
@@ -141,7 +141,7 @@ class ScoreCommand:
 
     def main(self) -> None:
         from agrinerf_ns.detect.bootstrap import bootstrap_maps
-        from agrinerf_ns.detect.score_views import score_render_folder
+        from agrinerf_ns.detect.score_folder import score_render_folder
 
         scored = score_render_folder(
             self.raw, self.renders, self.weights, self.conf_threshold, self.min_box_pixels, imgsz=self.imgsz
@@ -185,7 +185,7 @@ COMMANDS = {
 def entrypoint(args: Optional[List[str]] = None) -> None:
     """Console script entry point: errors in the input are reported in one line, exit status 2."""
     from agrinerf_ns.detect.boxes import MissingTruthError
-    from agrinerf_ns.detect.render import MissingOutputError
+    from agrinerf_ns.detect.render_views import MissingOutputError
 
     command = tyro.extras.subcommand_cli_from_dict(COMMANDS, args=args, description=__doc__)
     try:

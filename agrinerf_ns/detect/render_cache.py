@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Dict
 
 from agrinerf_ns.detect.boxes import list_images
-from agrinerf_ns.detect.plan import MethodSpec
-from agrinerf_ns.detect.render import LoadedRun, Split, load_run, render_pipeline_views
+from agrinerf_ns.detect.eval_plan import MethodSpec
+from agrinerf_ns.detect.render_views import LoadedRun, Split, load_run, render_pipeline_views
 from agrinerf_ns.detect.settings import EvalSettings
 
 

@@ -16,7 +16,7 @@ from typing import Dict, List, Optional, Set
 
 from agrinerf_ns.detect.boxes import SceneTruth
 from agrinerf_ns.detect.detector import train_detector, trained_weights
-from agrinerf_ns.detect.plan import DetectorInput, SceneSpec
+from agrinerf_ns.detect.eval_plan import DetectorInput, SceneSpec
 from agrinerf_ns.detect.settings import EvalSettings
 from agrinerf_ns.detect.yolo_data import (
     LabelledImage,

@@ -124,9 +124,9 @@ def train_step(folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Di
 
 def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Dict[str, Any]:
     """Job: count the trained run's fruit (scored against ``raw``'s truth where it has one), with intervals."""
+    from agrinerf_ns.count.fruit_score import FRUITS_JSON
     from agrinerf_ns.count.pipeline import run_count
     from agrinerf_ns.count.render import load_renders
-    from agrinerf_ns.count.score import FRUITS_JSON
     from agrinerf_ns.survey.intervals import count_interval, finite_or_none, mean_temperature
 
     start = time.perf_counter()

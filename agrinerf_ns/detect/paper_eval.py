@@ -4,7 +4,7 @@ Per scene: every method's held-out (eval split) views are rendered (or taken fro
 RGB detector is trained on the clean RGB truth views and a thermal detector on the dataset's thermal frames plus some
 cross-spectral renders of training views, as the paper does, both without the held-out frames (:mod:`.training`);
 each method's renders go through the detector of its modality and are scored against the true boxes
-(:mod:`.score_views`). What is evaluated comes from :mod:`.plan`, how from :class:`.settings.EvalSettings`.
+(:mod:`.score_folder`). What is evaluated comes from :mod:`.eval_plan`, how from :class:`.settings.EvalSettings`.
 """
 
 from __future__ import annotations
@@ -15,13 +15,13 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 from agrinerf_ns.detect.boxes import list_images
+from agrinerf_ns.detect.eval_plan import SceneSpec, check_scene
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
-from agrinerf_ns.detect.plan import SceneSpec, check_scene
-from agrinerf_ns.detect.render import LoadedRun
+from agrinerf_ns.detect.paper_tables import ResultRow, machine_note, write_tables
 from agrinerf_ns.detect.render_cache import cached_render, slug
-from agrinerf_ns.detect.score_views import score_render_folder
+from agrinerf_ns.detect.render_views import LoadedRun
+from agrinerf_ns.detect.score_folder import score_render_folder
 from agrinerf_ns.detect.settings import EvalSettings
-from agrinerf_ns.detect.tables import ResultRow, machine_note, write_tables
 from agrinerf_ns.detect.training import train_scene_detectors, trained_scene_detectors
 
 
@@ -34,10 +34,10 @@ class SceneResult:
 def evaluate_scene(
     scene: SceneSpec, work: Path, settings: EvalSettings, runs: Optional[Dict[Path, LoadedRun]] = None
 ) -> SceneResult:
-    """Check the scene (:func:`~agrinerf_ns.detect.plan.check_scene`), then render, train detectors, detect and
+    """Check the scene (:func:`~agrinerf_ns.detect.eval_plan.check_scene`), then render, train detectors, detect and
     score every method.
 
-    ``runs``: runs already loaded (:func:`~agrinerf_ns.detect.render.load_run`) by config path; others are loaded
+    ``runs``: runs already loaded (:func:`~agrinerf_ns.detect.render_views.load_run`) by config path; others are loaded
     here. Each is released once its views are rendered (one pipeline in memory at a time).
     """
     check_scene(scene, settings.min_box_pixels)

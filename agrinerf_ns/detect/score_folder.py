@@ -7,10 +7,10 @@ from pathlib import Path
 from typing import Dict, Optional
 
 from agrinerf_ns.detect.bootstrap import MatchedImages
+from agrinerf_ns.detect.box_metrics import DetectionMetrics, ImageBoxes, score_detections
 from agrinerf_ns.detect.boxes import SceneTruth, list_images, yolo_to_xyxy
 from agrinerf_ns.detect.detector import predict_folder
 from agrinerf_ns.detect.figure import PanelBoxes
-from agrinerf_ns.detect.scoring import DetectionMetrics, ImageBoxes, score_detections
 
 
 @dataclass(frozen=True, eq=False)

@@ -20,7 +20,7 @@ from agrinerf_ns.detect.bootstrap import (
     MatchedImages,
     bootstrap_maps,
 )
-from agrinerf_ns.detect.scoring import DetectionMetrics, metrics_table_row
+from agrinerf_ns.detect.box_metrics import DetectionMetrics, metrics_table_row
 
 METRIC_HEADERS = ["mAP50", "mAP50-95", "Precision", "Recall", "F1-Score"]
 TABLE_IV_ORDER = (

@@ -15,7 +15,7 @@ from typing import Dict, List, Literal, Optional, Tuple
 from agrinerf_ns.bench.layout import BenchLayout, split_scene
 from agrinerf_ns.bench.methods import ABLATIONS, METHODS
 from agrinerf_ns.detect.boxes import SceneTruth, list_images
-from agrinerf_ns.detect.render import MissingOutputError, Output
+from agrinerf_ns.detect.render_views import MissingOutputError, Output
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
 DetectorInput = Literal["rgb", "thermal"]
