@@ -53,6 +53,8 @@ class BlobConfig:
     """Of the four sides (quadrants around its centre) of a ring around a blob, how many must be lower in contrast
     than the blob's own pixels by half their median (an edge between two surfaces is lower on one side only;
     0: no test)."""
+    fruit_probability: float = 0.5
+    """``fruit``: a pixel whose rendered fruit probability reaches this is fruit (0.5: the head's BCE boundary)."""
     min_hue_deg: float = -20.0
     """``rgb``: fruit hues span ``min_hue_deg`` .. ``max_hue_deg`` (0 = red, 60 = yellow, 120 = green)."""
     max_hue_deg: float = 70.0

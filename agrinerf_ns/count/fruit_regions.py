@@ -14,18 +14,14 @@ from skimage.segmentation import watershed
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, blob_diameter, elongation
 from agrinerf_ns.count.render import RenderedView
 
-FRUIT_PROBABILITY = 0.5
-"""A pixel whose rendered fruit probability reaches this is fruit (the head's BCE boundary)."""
 
-
-def fruit_regions(
-    view: RenderedView, scale: float, config: BlobConfig = BlobConfig(), probability: float = FRUIT_PROBABILITY
-) -> List[Detection]:
+def fruit_regions(view: RenderedView, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
     """The fruit of ``view`` from its ``fruit`` output; ``scale`` is the dataparser scale (Nerfstudio units per
-    dataset unit), so that sizes are compared in the dataset's units (``config``'s diameters and elongation)."""
+    dataset unit), so that sizes are compared in the dataset's units (``config``'s diameters and elongation; its
+    ``fruit_probability`` makes a pixel fruit)."""
     fruit = view.optional_output("fruit").astype(np.float32)
     valid = (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(fruit)
-    above = (fruit >= probability) & valid
+    above = (fruit >= config.fruit_probability) & valid
     labels, count = ndimage.label(above, structure=np.ones((3, 3), bool))
     detections: List[Detection] = []
     for index, box in enumerate(ndimage.find_objects(labels), start=1):

@@ -348,8 +348,11 @@ class AgriNeRFModel(Model):
         }
         if self.fruit_head is not None and (heads is None or "fruit" in heads):
             features = self.field.density_encoding.features(corners)
-            in_box = self.field.full_resolution(samples.frustums.get_positions())  # fruit grow in the scene's box
-            outputs["fruit"] = self.fruit_head.render(features, coords.reshape(-1, 3), weights * in_box[..., None])
+            fruit_weights = weights
+            if self.config.fruit_in_box_only:  # fruit only where the grids have their full resolution
+                in_box = self.field.full_resolution(samples.frustums.get_positions())
+                fruit_weights = weights * in_box[..., None]
+            outputs["fruit"] = self.fruit_head.render(features, coords.reshape(-1, 3), fruit_weights)
         outputs["depth"] = self.renderer_depth(weights, samples)
         outputs["accumulation"] = accumulation
         if not self.training:  # where the weight falls and how fine the grid is there (`grid_diagnostics`)
