@@ -55,6 +55,12 @@ def test_the_orders_and_asking_by_name() -> None:
     assert resolve_source("auto", "views", RunOutputs(rgb=True, temperature=True), "yolo")[0] == "rgb"
     assert resolve_source("auto", "field", RunOutputs(rgb=True, dark=False))[1].startswith("the run has no thermal")
     assert resolve_source("fruit", "field", RunOutputs(fruit=True)) == ("fruit", "asked for")
+    # a fruit head: its rendered regions on the view path, lit or dark; the field path takes it only by name
+    for dark in (False, True):
+        assert (
+            resolve_source("auto", "views", RunOutputs(fruit=True, rgb=True, temperature=True, dark=dark))[0] == "fruit"
+        )
+    assert resolve_source("auto", "field", RunOutputs(fruit=True, temperature=True))[0] == "temperature"
     with pytest.raises(CountInputError, match=r"no 'temperature' output .* \(it has: thermal, rgb\)"):
         resolve_source("temperature", "views", RunOutputs(thermal=True, rgb=True))
 
