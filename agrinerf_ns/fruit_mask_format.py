@@ -3,6 +3,10 @@
 A frame's ``fruit_mask_file_path`` (``transforms.json``) names a single-channel 8-bit image in the RGB camera's plane,
 at the RGB frame's resolution: :data:`BACKGROUND` (0), :data:`UNKNOWN` (128: nobody knows, not supervised), any other
 value fruit (so 0/255 and 0/1 masks, as segmenters and FruitNeRF's ``semantics/`` write them, read as they are).
+A frame's optional ``fruit_mask_camera`` says whose view the mask holds: ``rgb`` (the default) or ``thermal``, a mask
+made on the thermal frame warped into the RGB plane, which holds what the thermal camera saw along its own rays (a
+few centimetres of baseline put its fruit many pixels from the RGB frame's): the model supervises such a mask along
+the thermal camera's rays.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ import numpy as np
 from jaxtyping import Bool, UInt8
 
 FRAME_KEY = "fruit_mask_file_path"
+CAMERA_KEY = "fruit_mask_camera"
+"""``rgb`` or ``thermal``: whose view a frame's mask holds (absent: rgb)."""
 FOLDER = "fruit_masks"
 """Where the processing writes them in a dataset (``fruit_masks/NNNNNN.png``)."""
 BACKGROUND = 0

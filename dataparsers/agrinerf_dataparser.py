@@ -45,6 +45,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
 from agrinerf_ns.dataparsers.fruit_masks import fruit_mask_paths
 from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
+from agrinerf_ns.fruit_mask_format import CAMERA_KEY as FRUIT_MASK_CAMERA_KEY
 from agrinerf_ns.fruit_mask_format import FRAME_KEY as FRUIT_MASK_KEY
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
@@ -111,6 +112,8 @@ class AgriNeRFDataParser(Nerfstudio):
             for frame, path in zip(kept, fruit_masks, strict=True):
                 _check_aligned_frame(path, frame, meta, FRUIT_MASK_KEY, transforms_path)
             metadata["fruit_mask_filenames"] = fruit_masks
+            # whose view each mask holds: the thermal camera's masks are supervised along its rays
+            metadata["fruit_mask_thermal"] = [frame.get(FRUIT_MASK_CAMERA_KEY, "rgb") == "thermal" for frame in kept]
         if "thermal_filenames" in metadata:
             metadata.update(_temperature(frames, kept, block, meta, data_dir, transforms_path))
             camera = _warped_camera(block, outputs, meta, "thermal")

@@ -11,7 +11,8 @@ Keys returned by :meth:`AgriNeRFDataset.get_metadata` (only for modalities the d
 - ``"temperature"`` in degrees C and ``"temperature_mask"`` in {0, 1} (the thermal mask, and the image has a value),
   when the dataset has temperature images (``metadata["temperature_filenames"]``);
 - ``"fruit"`` and ``"fruit_known"`` in {0, 1} (``dataparsers/fruit_masks.py``), when the frames have fruit masks
-  (``metadata["fruit_mask_filenames"]``).
+  (``metadata["fruit_mask_filenames"]``), and ``"fruit_thermal"`` (1 where the frame's mask is the thermal camera's
+  view, ``metadata["fruit_mask_thermal"]``).
 
 Like ``"image"``, these keys stay on the CPU in the cached batch (``exclude_batch_keys_from_device``); a model
 moves them with ``batch["thermal"].to(self.device)`` as it does the image.
@@ -146,6 +147,7 @@ class AgriNeRFDataset(InputDataset):
         "temperature_mask",
         "fruit",
         "fruit_known",
+        "fruit_thermal",
     ]
 
     def get_metadata(self, data: Dict) -> Dict[str, Any]:
@@ -170,6 +172,8 @@ class AgriNeRFDataset(InputDataset):
         fruit_masks = self.metadata.get("fruit_mask_filenames")
         if fruit_masks:
             out["fruit"], out["fruit_known"] = load_fruit_mask(fruit_masks[image_idx], height, width)
+            thermal = bool((self.metadata.get("fruit_mask_thermal") or [False] * len(fruit_masks))[image_idx])
+            out["fruit_thermal"] = torch.full((height, width, 1), float(thermal))  # the mask is the thermal camera's
         sums_files = self.metadata.get("event_sums_filenames")
         if sums_files:
             out["event_on"], out["event_off"] = load_event_counts(sums_files[image_idx], height, width)

@@ -96,6 +96,14 @@ def test_processing_makes_masks_from_the_frames_and_records_how(tmp_path: Path) 
     assert record["source"] == "maker:auto" and sum(record["frames"].values()) == 4
     outputs = AgriNeRFDataParserConfig(data=out).setup().get_dataparser_outputs("train")
     assert len(outputs.metadata["fruit_mask_filenames"]) == len(outputs.image_filenames)
+    # whose view each mask holds: the thermal maker's are the thermal camera's (supervised along its rays)
+    frames = json.loads((out / "transforms.json").read_text())["frames"]
+    thermal = [frame.get("fruit_mask_camera", "rgb") == "thermal" for frame in frames]
+    assert sum(thermal) == record["frames"]["thermal"]
+    thermal_only = process_capture(raw, tmp_path / "ds_thermal", ProcessConfig(poses="given", show_progress=False,
+                                                                               fruit_mask_maker="thermal"))  # fmt: skip
+    parsed = AgriNeRFDataParserConfig(data=thermal_only).setup().get_dataparser_outputs("train")
+    assert parsed.metadata["fruit_mask_thermal"] == [True] * len(parsed.image_filenames)
     with pytest.raises(ValueError, match="either --fruit-masks DIR or --fruit-mask-maker"):
         process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="given", show_progress=False,
                                                              fruit_mask_maker="colour", fruit_masks=tmp_path))  # fmt: skip

@@ -224,3 +224,31 @@ def test_the_held_out_thermal_metrics_render_the_thermal_cameras_view() -> None:
     model.eval_camera = camera(c2w)
     metrics, _ = model.get_image_metrics_and_images(own, batch)
     assert metrics["thermal_camera_psnr"] > 60.0 and metrics["temperature_mae"] < 1e-3
+
+
+def test_fruit_masks_of_the_thermal_camera_are_supervised_along_its_rays() -> None:
+    """A fruit mask made on the thermal frame (the thermal camera's view, a baseline from the RGB camera's) trains
+    the fruit head on the thermal camera's rays of the batch's first rays, and not on the RGB rays; an RGB mask on
+    the RGB rays. Without the thermal camera's rays the plan says the masks land a baseline off."""
+    from agrinerf_ns.model.fruit_head import fruit_loss
+
+    camera = {"camera_centre": torch.tensor(CENTRE, dtype=torch.float64), "plane_depth": math.inf}
+    metadata = {**_metadata(**camera), "fruit_mask_filenames": ["m.png"] * 4, "fruit_mask_thermal": [True] * 4}
+    model = _model(metadata, thermal_rays_per_batch=32)
+    assert model.plan.fruit_thermal_view and "fruit_loss" in model.plan.terms
+    rays, n = _rays(), 48
+    gen = torch.Generator().manual_seed(5)
+    fruit = (torch.rand(n, 1, generator=gen) > 0.5).float()
+    batch = {**_batch(), "fruit": fruit, "fruit_known": torch.ones(n, 1), "fruit_thermal": torch.ones(n, 1)}
+    torch.manual_seed(3)
+    outputs = model(rays)
+    assert outputs[PREFIX + "fruit"].shape == (32, 1) and outputs["fruit"].shape == (n, 1)
+    terms = model.get_metrics_dict(outputs, batch)
+    assert torch.allclose(terms["fruit_loss"], fruit_loss(outputs[PREFIX + "fruit"], fruit[:32], torch.ones(32, 1)))
+    rgb_masks = {**batch, "fruit_thermal": torch.zeros(n, 1)}
+    assert torch.allclose(model.get_metrics_dict(outputs, rgb_masks)["fruit_loss"],
+                          fruit_loss(outputs["fruit"], fruit, torch.ones(n, 1)))  # fmt: skip
+    terms["fruit_loss"].backward()
+    assert model.fruit_head is not None and any(p.grad is not None for p in model.fruit_head.parameters())
+    blind = _model(metadata, thermal_rays_per_batch=0)
+    assert not blind.plan.fruit_thermal_view and any("thermal camera's view" in n for n in blind.plan.notes)

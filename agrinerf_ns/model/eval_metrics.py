@@ -56,10 +56,10 @@ def image_metrics_and_images(
         metrics["lpips"] = float(model.lpips()(pred_c.clamp(0, 1), gt_c.clamp(0, 1)).item())
     if "fruit" in outputs and "fruit" in batch:  # the fruit head against the held-out frame's mask
         known = batch["fruit_known"].to(model.device)
-        metrics["fruit_iou"] = fruit_iou(outputs["fruit"], batch["fruit"].to(model.device), known)
-        images["fruit"] = torch.cat([batch["fruit"].to(model.device) * known, outputs["fruit"]], dim=1).expand(
-            -1, -1, 3
-        )
+        thermal_mask = "fruit_thermal" in batch and bool(batch["fruit_thermal"].flatten()[0] > 0.5)
+        fruit = thermal_outputs["fruit"] if thermal_mask and "fruit" in thermal_outputs else outputs["fruit"]
+        metrics["fruit_iou"] = fruit_iou(fruit, batch["fruit"].to(model.device), known)
+        images["fruit"] = torch.cat([batch["fruit"].to(model.device) * known, fruit], dim=1).expand(-1, -1, 3)
     outputs = thermal_outputs
     if plan.has_thermal_head:
         pred_th = outputs["thermal"]

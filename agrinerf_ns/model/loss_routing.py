@@ -93,7 +93,7 @@ class DataTerms:
         if self.events is not None:
             terms.update(self.events.loss(outputs, batch, device))
         if "fruit" in outputs and "fruit" in batch:  # the fruit head against the frames' masks (fruit_head.py)
-            terms["fruit_loss"] = fruit_loss(outputs["fruit"], optional("fruit"), optional("fruit_known"))
+            terms["fruit_loss"] = self.fruit_term(outputs, optional("fruit"), optional("fruit_known"), batch, device)
         if not plan.has_thermal_head:
             return terms
         # the thermal frames' terms: on the first rays of the batch seen from the thermal camera, where training
@@ -130,6 +130,21 @@ class DataTerms:
                 pred("reg_event_loss"), batch["event"].to(device), optional("event_mask")
             )
         return terms
+
+    @staticmethod
+    def fruit_term(
+        outputs: Dict[str, Tensor], fruit: Tensor, known: Tensor, batch: Dict[str, Any], device: torch.device
+    ) -> Tensor:
+        """The fruit loss: a mask of the RGB camera's view on the RGB rays; one of the thermal camera's view on the
+        first rays rendered along the thermal camera's rays (`thermal_view`), and not on the RGB rays."""
+        tv = thermal_view.PREFIX + "fruit"
+        if tv not in outputs or "fruit_thermal" not in batch:
+            return fruit_loss(outputs["fruit"], fruit, known)
+        thermal = batch["fruit_thermal"].to(device)
+        m = outputs[tv].shape[0]
+        rendered = torch.cat([outputs["fruit"], outputs[tv]])
+        known = torch.cat([known * (1.0 - thermal), known[:m] * thermal[:m]])
+        return fruit_loss(rendered, torch.cat([fruit, fruit[:m]]), known)
 
 
 def regularisers(field: AgriNeRFField, coefficients: Mapping[str, float]) -> Dict[str, Tensor]:

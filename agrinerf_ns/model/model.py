@@ -251,7 +251,8 @@ class AgriNeRFModel(Model):
                     sharp = outputs.get("rgb/rgb_loss", outputs["rgb"])  # the frame ray's render for the RGB loss
                     outputs.update(self.blur.outputs(self.render_rays, ray_bundle, sharp, self.step))
                 if self.thermal_view is not None and self.plan.thermal_view:
-                    outputs.update(self.thermal_view.outputs(self.render_rays, ray_bundle))
+                    fruit = self.plan.fruit_thermal_view
+                    outputs.update(self.thermal_view.outputs(self.render_rays, ray_bundle, fruit))
                 if self.events is not None:
                     outputs.update(self.events.outputs(self.render_rays, ray_bundle, self.step))
         return outputs
@@ -435,7 +436,8 @@ class AgriNeRFModel(Model):
         thermal_outputs = outputs
         if self.thermal_view is not None and self.eval_camera is not None:
             render = self.get_outputs_for_camera_ray_bundle
-            thermal_outputs = self.thermal_view.eval_outputs(render, self.eval_camera, outputs)
+            fruit = self.plan.fruit_thermal_view
+            thermal_outputs = self.thermal_view.eval_outputs(render, self.eval_camera, outputs, fruit)
         return eval_metrics.image_metrics_and_images(self, outputs, thermal_outputs, batch)
 
     def lpips(self) -> torch.nn.Module:

@@ -59,6 +59,8 @@ class ModelPlan:
     """EvDeblurNeRF's EDI prior on the frame rays."""
     has_fruit_head: bool
     """The fruit head and its `fruit` output: the frames have fruit masks (`fruit_output`, a `fruit_loss` weight)."""
+    fruit_thermal_view: bool
+    """Masks made on the thermal frames are supervised along the thermal camera's rays (`thermal_view`)."""
     density_gradient_scales: Mapping[str, float]
     """Per term, the scale of its gradient into the density (low light raises the thermal camera's to 1)."""
     terms: FrozenSet[str]
@@ -152,6 +154,14 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
         and config.fruit_output
         and coefficients.get("fruit_loss", 0.0) > 0
     )
+    thermal_masks = has_fruit_head and any(metadata.get("fruit_mask_thermal") or ())
+    fruit_thermal_view = thermal_masks and thermal_view
+    if thermal_masks and not thermal_view:
+        notes.append(
+            "Fruit: some fruit masks are the thermal camera's view, but training cannot render along its rays (it "
+            "needs the thermal camera's place, the frames' times and trajectory, and thermal rays per batch > 0): "
+            "they are supervised on the RGB rays, a baseline away from what the thermal camera saw."
+        )
     on = {
         "fruit_loss": has_fruit_head,
         "rgb_loss": use_rgb,
@@ -182,6 +192,7 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
         event_supervision=supervision,
         edi_prior=edi_prior,
         has_fruit_head=has_fruit_head,
+        fruit_thermal_view=fruit_thermal_view,
         density_gradient_scales=scales,
         terms=terms,
         notes=tuple(notes),

@@ -37,11 +37,12 @@ class ThermalView:
     def __init__(self, rig: Rig, rays_per_batch: int) -> None:
         self.rig, self.rays_per_batch = rig, rays_per_batch
 
-    def outputs(self, render: RenderRays, bundle: RayBundle) -> Dict[str, Tensor]:
+    def outputs(self, render: RenderRays, bundle: RayBundle, fruit: bool = False) -> Dict[str, Tensor]:
         """The thermal outputs of the first `rays_per_batch` rays of `bundle` rendered from the thermal camera's
         centre, where the rig was when it took its frame (the rig's `thermal_times`; an unsynchronised thermal camera
         takes it up to half a frame interval from the RGB frame, 5 cm at 1 m/s and 9 Hz), through their points on the
-        alignment plane, with their routed copies, keys prefixed with `PREFIX`."""
+        alignment plane, with their routed copies, keys prefixed with `PREFIX`; `fruit`: the fruit head's too (the
+        thermal camera's fruit masks are supervised on them)."""
         rig = self.rig
         assert rig.trajectory is not None and rig.frame_times is not None
         m = min(self.rays_per_batch, bundle.origins.shape[0])
@@ -50,14 +51,20 @@ class ThermalView:
         frame_times = rig.frame_times[rows].double()
         at = frame_times if rig.thermal_times is None else rig.thermal_times[rows].double()
         moved = reposed_rays(head, rig.trajectory, frame_times, at[:, None], **rig.thermal_camera)
-        rendered = render(moved, ("thermal", "temperature"))
-        return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in OUTPUTS}
+        heads = ("thermal", "temperature", "fruit") if fruit else ("thermal", "temperature")
+        rendered = render(moved, heads)
+        return {PREFIX + k: v for k, v in rendered.items() if k.split("/")[0] in heads + OUTPUTS}
 
     def eval_outputs(
-        self, render_image: Callable[[RayBundle], Dict[str, Tensor]], camera: Cameras, outputs: Dict[str, Tensor]
+        self,
+        render_image: Callable[[RayBundle], Dict[str, Tensor]],
+        camera: Cameras,
+        outputs: Dict[str, Tensor],
+        fruit: bool = False,
     ) -> Dict[str, Tensor]:
-        """`outputs` of the held-out `camera` with their thermal outputs rendered again from the thermal camera (what
-        the warped frames hold) by `render_image` (an image's bundle -> outputs)."""
+        """`outputs` of the held-out `camera` with their thermal outputs (and with `fruit` the fruit head's) rendered
+        again from the thermal camera (what the warped frames hold) by `render_image` (an image's bundle ->
+        outputs)."""
         if "thermal" not in outputs:
             return outputs
         bundle = camera.generate_rays(camera_indices=0, keep_shape=True)
@@ -69,4 +76,5 @@ class ThermalView:
         at = torch.zeros(flat.shape[0], dtype=torch.float64, device=flat.origins.device)  # one pose: the camera's
         moved = reposed_rays(flat, CameraTrajectory(np.zeros(1), c2w[None]), at, at[:, None], **self.rig.thermal_camera)
         rendered = render_image(moved.reshape((height, width)))
-        return {**outputs, **{k: v for k, v in rendered.items() if k in OUTPUTS}}
+        names = OUTPUTS + ("fruit",) if fruit else OUTPUTS
+        return {**outputs, **{k: v for k, v in rendered.items() if k in names}}

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from jaxtyping import Bool, UInt8
 
-from agrinerf_ns.fruit_mask_format import BACKGROUND, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
+from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
 
 MaskMaker = Literal["none", "colour", "thermal", "auto"]
@@ -104,6 +104,8 @@ def make_fruit_masks(
             mask = colour_mask(np.ascontiguousarray(rgb), config)
         used[kind] += 1
         frame[FRAME_KEY] = f"{FOLDER}/{name}.png"
+        if kind == "thermal":  # the thermal camera's view: supervised along its rays
+            frame[CAMERA_KEY] = "thermal"
         write_png(tmp / frame[FRAME_KEY], mask)
     return {"source": f"maker:{maker}", "frames": used, "settings": asdict(config),
             "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit"}  # fmt: skip
