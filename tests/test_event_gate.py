@@ -2,7 +2,8 @@
 event term where the events agree with the frames, and switches it down where they contradict them (the same
 capture with every event's polarity flipped: the events of the path driven backwards). The capture is the tiny
 scene in bright light with 24 views: with the tiny 8 views the field's renders between the frames explain even
-agreeing events worse than 'no change', and the gate then (rightly) keeps the term off."""
+agreeing events worse than 'no change', and the gate then (rightly) keeps the term off. The gate starts closed: the
+agreeing events open it once the frames-shaped field explains them."""
 
 from __future__ import annotations
 
@@ -36,8 +37,10 @@ def captures(tmp_path_factory: pytest.TempPathFactory):
     return data, flipped
 
 
-FIELD = dict(init_resolution=32, final_resolution=48, num_coarse_samples=32, num_fine_samples=32, density_shift=0.0)
-"""A field that reconstructs the 24 views well enough in 300 steps for the frames to explain their events."""
+FIELD = dict(init_resolution=32, final_resolution=48, num_coarse_samples=32, num_fine_samples=32, density_shift=0.0,
+             event_window_min_fraction=1.0)  # fmt: skip
+"""A field that reconstructs the 24 views well enough in 300 steps for the frames alone to explain their events
+better than 'no change' (on whole frame windows: in short sub-windows the tiny capture's coarse events do not)."""
 
 
 def _train(data: Path, steps: int = 300, **kw):
@@ -102,10 +105,10 @@ def test_the_gate_keeps_agreeing_events_and_switches_contradicting_ones_down(cap
     data, flipped = captures
     agree, agree_factors = _train(data, **FIELD)
     contradict, contradict_factors = _train(flipped, **FIELD)
-    # both start halving while the young field explains nothing (a warm-up the data decides); the agreeing events'
-    # residual then falls below 'no change' and the term comes back, the contradicting one's rises and it stays off
-    assert min(agree_factors) < 1.0 and agree_factors[-1] >= 0.5, agree_factors[::25]
-    assert contradict_factors[-1] == 0.0, contradict_factors[::25]
+    # both start closed while the young field explains nothing (a warm-up the data decides); the agreeing events'
+    # residual then falls below 'no change' and the term opens, the contradicting one's rises and it stays off
+    assert agree_factors[0] == 0.0 and agree_factors[-1] >= 0.5, agree_factors[::25]
+    assert max(contradict_factors) == 0.0, contradict_factors[::25]
     assert float(contradict.events.gate.residual) > float(agree.events.gate.residual)
     metrics = agree.get_metrics_dict(*_one_batch(agree, data))
     assert metrics["event_gate"] == agree_factors[-1]

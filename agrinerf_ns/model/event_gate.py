@@ -1,6 +1,7 @@
-"""The event term's data gate (config `event_gate`): the term's weight is kept only while a held-out share of the
+"""The event term's data gate (config `event_gate`): the term's weight is given only while a held-out share of the
 event stream, never trained on, is explained better than when the gate first looked, and better than by predicting
-no change.
+no change. The gate starts closed: the term opens (at RESTART, doubling every check) once the field the frames shape
+explains the held-out events, which is a warm-up the data decides, and never where they contradict the frames.
 
 Why: the event loss's targets can disagree with the frames (a sensor's refractory losses and noise, a threshold or
 time offset, a scene whose texture the field cannot fit at the event camera's rays); its `noise` weighting balances
@@ -64,7 +65,7 @@ class EventGate(nn.Module):
         times = torch.stack([t0, t1], -1).double() * 1e-6
         self.origins, self.directions = event_stream.event_rays(rig.trajectory, rig.event_stream, pixel, times)
         self.frames = frames
-        self.register_buffer("factor", torch.ones((), dtype=torch.float64))
+        self.register_buffer("factor", torch.zeros((), dtype=torch.float64))  # closed until the frames explain
         self.register_buffer("reference", torch.full((), math.nan, dtype=torch.float64))
         self.register_buffer("best", torch.full((), math.nan, dtype=torch.float64))
         self.register_buffer("residual", torch.full((), math.nan, dtype=torch.float64))

@@ -248,9 +248,10 @@ class AgriNeRFSettings(ModelConfig):
     """Training step from which the event term renders and weighs its samples (a warm-up: 0 from the start)."""
     event_gate: bool = False
     """The event term's data gate (`event_term.EventGate`): a fixed held-out share of the event samples (drawn once,
-    never trained on) is scored every `event_gate_every` steps without gradient; while its residual is not below the
-    smaller of its value at the gate's first check and its 'no change' loss, the term's weight is halved (to 0 below
-    1/64), and it doubles back (from 1/16) once the residual is below. Metric `event_gate`."""
+    never trained on) is scored every `event_gate_every` steps without gradient. The term starts off; once the residual
+    is below 0.95 x the smaller of its value at the gate's first check and its 'no change' loss, and not above 1.15 x
+    its lowest, the term's weight opens at 1/16 and doubles every check up to 1; otherwise it is halved (0 below
+    1/64). Metrics `event_gate`, `event_gate_residual`."""
     event_gate_every: int = 50
     """Steps between the gate's checks of its held-out event samples."""
     event_gate_samples: int = 1024
