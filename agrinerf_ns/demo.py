@@ -1,7 +1,7 @@
 """``agrinerf-demo``: the whole product on a built-in scene, as a user runs it.
 
 Synthesise a dark orchard capture, process it into a tri-modal dataset, train ``agrinerf-lite`` with ``ns-train``,
-score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.bench.checkpoint_eval.evaluate_checkpoint`: against
+score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`: against
 the captured frames, against the clean truth after exposure alignment, and the thermal outputs against the rescaled
 thermal frames), draw a labelled contact sheet of those views, and print the commands that open the run in
 Nerfstudio's viewer and render a video of it.
@@ -62,7 +62,7 @@ class Metric:
     """One number of the demo, with what it compares."""
 
     key: str
-    """Key in :func:`agrinerf_ns.bench.checkpoint_eval.evaluate_checkpoint`'s result."""
+    """Key in :func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`'s result."""
     name: str
     compares: str
     unit: str
@@ -144,7 +144,7 @@ def sheet_columns(views: Sequence[HeldOutView], found: Optional[Mapping[str, Seq
     when the model renders them. ``found`` (view name -> boxes), when given, is drawn on the render columns."""
     import torch
 
-    from agrinerf_ns.bench.image_metrics import exposure_align
+    from agrinerf_ns.image_metrics import exposure_align
 
     gain = display_gain(np.concatenate([v.captured for v in views], axis=0))
     aligned = [
@@ -179,7 +179,7 @@ def sheet_columns(views: Sequence[HeldOutView], found: Optional[Mapping[str, Seq
 def render_held_out(config_path: Path, raw: Path, max_views: int) -> List[HeldOutView]:
     """Render ``max_views`` evenly spaced eval views of a trained run with every output its model has, beside the
     captured frames and the clean truth."""
-    from agrinerf_ns.bench.checkpoint_eval import TruthImages
+    from agrinerf_ns.checkpoint_eval import TruthImages
     from agrinerf_ns.detect.render_views import load_run, render_camera
     from agrinerf_ns.views import evenly_spaced
 
@@ -273,11 +273,10 @@ def _caption(metrics: List[Metric], steps: int, device: str) -> str:
 
 def main(config: DemoConfig) -> DemoResult:
     from agrinerf_ns import compat
-    from agrinerf_ns.bench.checkpoint_eval import TruthImages, evaluate_checkpoint
-    from agrinerf_ns.bench.methods import METHODS
-    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.checkpoint_eval import TruthImages, evaluate_checkpoint
     from agrinerf_ns.contact_sheet import write_contact_sheet
     from agrinerf_ns.method_configs.agrinerf_methods import default_device_type
+    from agrinerf_ns.ns_commands import ns_train
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
@@ -306,7 +305,7 @@ def main(config: DemoConfig) -> DemoResult:
     CONSOLE.rule("4/5 evaluation of the held-out views (as agrinerf-bench)")
     step = run.checkpoints()[-1][0]
     with _timed(stages, "evaluation (held-out views)"):
-        results = evaluate_checkpoint(run.config, step, METHODS["agrinerf-lite"], TruthImages(raw))
+        results = evaluate_checkpoint(run.config, step, "rgb", TruthImages(raw))
     metrics = labelled_metrics(results)
     CONSOLE.rule("5/5 contact sheet")
     sheet = config.out / "contact_sheet.png"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import platform
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Optional, Sequence
 
 
 def torch_device_type() -> Literal["cuda", "cpu"]:
@@ -45,3 +45,10 @@ def software_versions() -> str:
     import torch
 
     return f"Python {platform.python_version()}, torch {torch.__version__}"
+
+
+def machine_note(devices: Optional[Sequence[str]] = None) -> str:
+    """``Machine: <arch>, <devices>; Python ..., torch ...`` (devices: those the rows were measured on, default this
+    machine's)."""
+    names = ", ".join(devices) if devices else device_name()
+    return f"Machine: {platform.machine()}, {names}; {software_versions()}"

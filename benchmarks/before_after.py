@@ -22,7 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import tyro  # noqa: E402
 
-from agrinerf_ns.bench import results  # noqa: E402
+from agrinerf_ns.lab import results  # noqa: E402
 
 COLUMNS: Tuple[Tuple[str, str, int], ...] = (
     ("psnr_clean", "PSNR clean (dB)", 2),

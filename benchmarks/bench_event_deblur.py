@@ -19,11 +19,11 @@ from typing import Dict, Tuple
 
 import tyro
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.methods import METHODS, BenchMethod
-from agrinerf_ns.bench.profiles import PROFILES, BenchProfile
-from agrinerf_ns.bench.runs import run_method
-from agrinerf_ns.bench.scenes import prepare_scene
+from agrinerf_ns.lab import results
+from agrinerf_ns.lab.methods import METHODS, BenchMethod
+from agrinerf_ns.lab.profiles import PROFILES, BenchProfile
+from agrinerf_ns.lab.runs import run_method
+from agrinerf_ns.lab.scenes import prepare_scene
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.method_configs.agrinerf_methods import evdeblurnerf_lite
 
@@ -124,7 +124,7 @@ BASELINES: Dict[str, str] = {
     "nerfacto-thermal": "Nerfacto (Thermal)",
     "evdeblurnerf-lite": "EvDeblurNeRF as published (TensoRF-lite field, not PDRF)",
 }
-"""Rows that are other methods (``agrinerf_ns.bench.methods.METHODS``), at the profile's step budget for them.
+"""Rows that are other methods (``agrinerf_ns.lab.methods.METHODS``), at the profile's step budget for them.
 ``evdeblurnerf-lite`` is EvDeblurNeRF's recipe (event-to-event samples, learnt event response and rigid blur kernel
 from step 1200, EDI prior, its learning-rate schedule) on AgriNeRF-lite's field: its budget must pass step 1200."""
 
@@ -215,7 +215,7 @@ class Args:
     scenes: Tuple[str, ...] = ("orchard-dusk", "orchard-dark")
     rows: Tuple[str, ...] = tuple(ROWS)
     profile: str = "deblur"
-    """Scene size, motion, held-out views and step budget (``agrinerf_ns.bench.profiles``)."""
+    """Scene size, motion, held-out views and step budget (``agrinerf_ns.lab.profiles``)."""
     seed: int = 0
     report_only: bool = False
     """Train nothing: write deblur.md from the rows already in results.csv."""

@@ -23,7 +23,7 @@ from typing import Any, Dict, List, Tuple
 import torch
 import tyro
 
-from agrinerf_ns.bench.stepper import MethodStepper
+from agrinerf_ns.lab.stepper import MethodStepper
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.run_order import rotated
 

@@ -24,7 +24,7 @@ from typing import Dict, List, Tuple
 import torch
 import tyro
 
-from agrinerf_ns.bench.stepper import MethodStepper
+from agrinerf_ns.lab.stepper import MethodStepper
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.model.gradients import parameter_groups, term_gradients
 from agrinerf_ns.model.loss_routing import PAPER_DENSITY_GRADIENT_SCALES

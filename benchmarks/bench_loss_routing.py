@@ -17,12 +17,12 @@ from typing import Dict, List, Tuple
 
 import tyro
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.methods import BenchMethod
-from agrinerf_ns.bench.profiles import PROFILES
-from agrinerf_ns.bench.runs import run_method
-from agrinerf_ns.bench.scenes import prepare_scene
 from agrinerf_ns.dataparsers.agrinerf_dataparser import rgb_level
+from agrinerf_ns.lab import results
+from agrinerf_ns.lab.methods import BenchMethod
+from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.lab.runs import run_method
+from agrinerf_ns.lab.scenes import prepare_scene
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 from agrinerf_ns.model.model import AgriNeRFModelConfig
@@ -70,7 +70,7 @@ class Args:
     sets: Tuple[str, ...] = ("rgb-thermal", "all")
     """Table IV modality sets (besides the RGB baseline): rgb-events, rgb-thermal, all."""
     profile: str = "ablation"
-    """Scene size, held-out views and step budget (``agrinerf_ns.bench.profiles``)."""
+    """Scene size, held-out views and step budget (``agrinerf_ns.lab.profiles``)."""
     seed: int = 0
     """Seed of the synthetic scenes."""
     run_seeds: Tuple[int, ...] = (0,)

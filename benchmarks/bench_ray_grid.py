@@ -26,9 +26,10 @@ from typing import Dict, List, Optional, Tuple
 
 import tyro
 
-from agrinerf_ns.bench.layout import BenchLayout, machine_note
-from agrinerf_ns.bench.profiles import PROFILES
-from agrinerf_ns.orchestrate import bench_grid
+from agrinerf_ns.lab import bench_grid
+from agrinerf_ns.lab.layout import BenchLayout
+from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.machine import machine_note
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import JobsReport, Resources
 
@@ -40,7 +41,7 @@ class Args:
     out: Path = Path("outputs/ray-grid")
     """Scenes, both grids' runs and results, ray-grid.md."""
     profile: str = "tiny"
-    """Scene size and step budgets (``agrinerf_ns.bench.profiles``)."""
+    """Scene size and step budgets (``agrinerf_ns.lab.profiles``)."""
     methods: Tuple[str, ...] = ("agrinerf-lite",)
     seeds: Tuple[int, ...] = (0, 1, 2, 3)
     """Random streams of each method: the grid is methods x seeds x the profile's scenes."""

@@ -32,7 +32,7 @@ from typing import Dict, List, NamedTuple, Optional, Tuple
 
 import tyro
 
-from agrinerf_ns.bench.methods import METHODS, field_values
+from agrinerf_ns.lab.methods import METHODS, field_values
 from agrinerf_ns.machine import device_name
 from agrinerf_ns.run_order import rotated
 from agrinerf_ns.source_tree import link_installed_layout

@@ -21,9 +21,9 @@ from typing import Dict, List, Tuple
 
 import tyro
 
-from agrinerf_ns.bench.methods import METHODS
-from agrinerf_ns.bench.ns_commands import ns_train
+from agrinerf_ns.lab.methods import METHODS
 from agrinerf_ns.machine import device_name
+from agrinerf_ns.ns_commands import ns_train
 from agrinerf_ns.run_order import rotated
 
 

@@ -1,6 +1,6 @@
 """Where the view path loses fruit, split between the renders' colours and their geometry: each render folder is
 counted three times, on the capture's own frames with the true depth (the ceiling), on the run's colours with the
-true depth (`agrinerf_ns.count.oracle.with_true_depth`) and on the run's colours with its rendered depth, each placed
+true depth (`agrinerf_ns.lab.count_oracle.with_true_depth`) and on the run's colours with its rendered depth, each placed
 by depth and by rays, with the diagnosis of each (2D recall and precision, lift error). Prints a Markdown table.
 
     python benchmarks/count_depth_split.py --renders COUNT/renders --raw RAW [--renders ... --raw ...] \
@@ -20,11 +20,11 @@ import tyro
 
 from agrinerf_ns.count.cluster import ClusterConfig
 from agrinerf_ns.count.detectors import DetectorConfig
-from agrinerf_ns.count.diagnose import diagnose
-from agrinerf_ns.count.oracle import oracle_renders, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import load_renders
 from agrinerf_ns.count.sources import CountSource
+from agrinerf_ns.lab.count_diagnose import diagnose
+from agrinerf_ns.lab.count_oracle import oracle_renders, with_true_depth
 
 CASES = ("capture frames, true depth", "run's colours, true depth", "run's colours, rendered depth")
 

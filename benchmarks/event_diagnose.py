@@ -31,12 +31,12 @@ import numpy as np
 import torch
 import tyro
 
-from agrinerf_ns.bench import image_metrics
-from agrinerf_ns.bench.layout import experiment_folder, train_record
-from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
-from agrinerf_ns.bench.profiles import PROFILES
-from agrinerf_ns.bench.scenes import prepare_scene
+from agrinerf_ns import image_metrics
+from agrinerf_ns.lab.layout import experiment_folder, train_record
+from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.lab.scenes import prepare_scene
 from agrinerf_ns.machine import device_name
+from agrinerf_ns.ns_commands import TrainRun, ns_train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_event_deblur import ROWS as DEBLUR_ROWS  # noqa: E402
@@ -172,7 +172,7 @@ def score_checkpoint(args: Args, run: TrainRun, step: int, raw: Path, samples: D
     from nerfstudio.cameras.rays import RayBundle
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from agrinerf_ns.bench.checkpoint_eval import TruthImages, _load_at_step
+    from agrinerf_ns.checkpoint_eval import TruthImages, _load_at_step
     from agrinerf_ns.dataparsers.event_stream import event_rays
     from agrinerf_ns.model import losses
 

@@ -31,8 +31,7 @@ from typing import Callable, Dict, List, NamedTuple, Optional, Tuple
 
 import tyro
 
-from agrinerf_ns.bench import layout
-from agrinerf_ns.bench.ns_commands import console_script, headless_train_args
+from agrinerf_ns.ns_commands import RUN_TIMESTAMP, console_script, headless_train_args
 
 PRESETS = (
     "agrinerf",
@@ -80,7 +79,7 @@ def _train_args(args: Args, preset: str) -> List[str]:
 
 
 def _config(args: Args, preset: str) -> Path:
-    return args.out / "runs" / EXPERIMENT / preset / layout.RUN_TIMESTAMP / "config.yml"
+    return args.out / "runs" / EXPERIMENT / preset / RUN_TIMESTAMP / "config.yml"
 
 
 def _json_figure(path: Path, *keys: str) -> Callable[[], str]:

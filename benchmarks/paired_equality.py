@@ -53,7 +53,7 @@ class Compare:
 def record(args: Record) -> None:
     import torch
 
-    from agrinerf_ns.bench.stepper import MethodStepper
+    from agrinerf_ns.lab.stepper import MethodStepper
 
     runs: Dict[str, List[Dict[str, float]]] = {}
     for key in args.methods:

@@ -4,7 +4,7 @@
 
 Each run's checkpoints load with whatever ``agrinerf_ns`` the interpreter imports (so runs made by another checkout
 load with its model code, through PYTHONPATH), while the metrics come from this file's checkout
-(``agrinerf_ns/bench/checkpoint_eval.py`` beside it, loaded by path): a metric added after the runs were made (e.g.
+(``agrinerf_ns/checkpoint_eval.py`` beside it, loaded by path): a metric added after the runs were made (e.g.
 ``psnr_fruit``) is then measured for them too. Writes the results rows (``agrinerf-bench``'s columns) to ``--out``.
 """
 
@@ -18,11 +18,12 @@ from typing import Optional
 
 import tyro
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.layout import BenchLayout, checkpoints, run_config, scene_folders
-from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.lab import results
+from agrinerf_ns.lab.layout import BenchLayout, run_config, scene_folders
+from agrinerf_ns.lab.methods import METHODS
+from agrinerf_ns.ns_commands import checkpoints
 
-EVALUATE = Path(__file__).resolve().parents[1] / "agrinerf_ns" / "bench" / "evaluate.py"
+EVALUATE = Path(__file__).resolve().parents[1] / "agrinerf_ns" / "checkpoint_eval.py"
 
 
 @dataclass
@@ -55,7 +56,7 @@ def main(args: Args) -> None:
         raw = scene_folders(layout.scenes, scene).raw
         truth = evaluate.TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
         step = int(row["step"]) - 1
-        metrics = evaluate.evaluate_checkpoint(config, step, method, truth, max_views=args.max_views)
+        metrics = evaluate.evaluate_checkpoint(config, step, method.supervision, truth, max_views=args.max_views)
         rows.append({**row, **metrics})
     args.out.parent.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for row in rows for k in row))  # every key, first seen first (both checkouts')

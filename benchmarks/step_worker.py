@@ -2,7 +2,7 @@
 
     python benchmarks/step_worker.py METHOD DATA RAYS AT_STEP SEED [OVERRIDES_JSON]
 
-Builds the method's Nerfstudio pipeline with `agrinerf_ns.bench.stepper.MethodStepper` from whatever `agrinerf_ns` the
+Builds the method's Nerfstudio pipeline with `agrinerf_ns.lab.stepper.MethodStepper` from whatever `agrinerf_ns` the
 interpreter imports (PYTHONPATH may point at another checkout: the same benchmark then times that checkout's code). An
 AgriNeRF model is first put in the state of training step AT_STEP: its grids at that step's resolution (in a fitted
 box where the model fits one) and its step-dependent terms (blur model, event loss) as from that step. Then, for each
@@ -52,7 +52,7 @@ def main() -> None:
     overrides = json.loads(sys.argv[6]) if len(sys.argv) > 6 else {}
     overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
     torch.manual_seed(seed)
-    from agrinerf_ns.bench.stepper import MethodStepper
+    from agrinerf_ns.lab.stepper import MethodStepper
 
     stepper = MethodStepper(method, data, rays, model_overrides=overrides)
     info = prepare(stepper, at_step)

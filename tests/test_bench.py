@@ -9,9 +9,9 @@ import pytest
 import torch
 import yaml
 
-from agrinerf_ns import colour
-from agrinerf_ns.bench import image_metrics, results
-from agrinerf_ns.bench.cli import BenchConfig, main
+from agrinerf_ns import colour, image_metrics
+from agrinerf_ns.lab import results
+from agrinerf_ns.lab.cli import BenchConfig, main
 from agrinerf_ns.views import CPU_RAYS_PER_CHUNK, evenly_spaced, rays_per_chunk
 
 
@@ -107,8 +107,8 @@ def test_bench_trains_a_table_iv_ablation(tmp_path: Path) -> None:
 
 def test_a_sample_budget_row_trains_the_papers_samples_for_the_presets_wall_time(tmp_path: Path) -> None:
     """`agrinerf-paper-samples`: the preset with the paper's 64 + 64 samples and 1024 event pixels, for fewer steps."""
-    from agrinerf_ns.bench.methods import SAMPLE_BUDGETS
-    from agrinerf_ns.bench.profiles import PROFILES
+    from agrinerf_ns.lab.methods import SAMPLE_BUDGETS
+    from agrinerf_ns.lab.profiles import PROFILES
     from agrinerf_ns.method_configs.agrinerf_methods import agrinerf
 
     preset = agrinerf.config.pipeline.model

@@ -7,12 +7,14 @@ from typing import Sequence
 
 import pytest
 
-from agrinerf_ns.bench import ns_commands
-from agrinerf_ns.bench.layout import BenchLayout, checkpoints, machine_note, run_config, split_scene
-from agrinerf_ns.bench.methods import METHODS
-from agrinerf_ns.bench.profiles import PROFILES
-from agrinerf_ns.bench.runs import run_method
-from agrinerf_ns.detect.eval_plan import plan_from_bench
+from agrinerf_ns import ns_commands
+from agrinerf_ns.lab.layout import BenchLayout, run_config, split_scene
+from agrinerf_ns.lab.methods import METHODS
+from agrinerf_ns.lab.paper_plan import plan_from_bench
+from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.lab.runs import run_method
+from agrinerf_ns.machine import machine_note
+from agrinerf_ns.ns_commands import checkpoints
 
 
 def _fake_ns_train(name: str, args: Sequence[str], log_path=None, timeout=None) -> ns_commands.CommandResult:
@@ -28,7 +30,7 @@ def _fake_ns_train(name: str, args: Sequence[str], log_path=None, timeout=None) 
 
 def test_a_run_folder_the_bench_writes_is_found_by_detect(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(ns_commands, "run_ns", _fake_ns_train)
-    monkeypatch.setattr("agrinerf_ns.bench.checkpoint_eval.evaluate_checkpoint", lambda *args, **kwargs: {})
+    monkeypatch.setattr("agrinerf_ns.checkpoint_eval.evaluate_checkpoint", lambda *args, **kwargs: {})
     layout = BenchLayout(tmp_path / "bench")
     raw, data = layout.scene("garden-dark")
     data.mkdir(parents=True)

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from agrinerf_ns.bench.ns_commands import TreeMemory, _wait
+from agrinerf_ns.ns_commands import TreeMemory, _wait
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 

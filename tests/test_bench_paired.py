@@ -1,10 +1,10 @@
-"""Paired per-view differences of two benchmark runs and their interval (agrinerf_ns.bench.results)."""
+"""Paired per-view differences of two benchmark runs and their interval (agrinerf_ns.lab.results)."""
 
 import math
 
 import pytest
 
-from agrinerf_ns.bench import results
+from agrinerf_ns.lab import results
 
 
 def test_paired_difference_matches_the_student_t_interval_by_hand() -> None:

@@ -7,8 +7,8 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
-from agrinerf_ns.bench.profiles import PROFILES
-from agrinerf_ns.bench.scenes import prepare_scene
+from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.lab.scenes import prepare_scene
 
 
 def _plane(data: Path) -> object:

@@ -9,9 +9,9 @@ import pytest
 import tyro
 import yaml
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.cli import BenchConfig, main
-from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.lab import results
+from agrinerf_ns.lab.cli import BenchConfig, main
+from agrinerf_ns.lab.methods import METHODS
 from agrinerf_ns.method_configs.agrinerf_methods import agrinerf_lite
 
 

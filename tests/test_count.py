@@ -17,7 +17,6 @@ from agrinerf_ns.count.blobs import BlobConfig, detect_blobs, surround_sides
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
 from agrinerf_ns.count.detectors import DetectorConfig, view_source
-from agrinerf_ns.count.diagnose import diagnose
 from agrinerf_ns.count.fruit_score import (
     TruthFruit,
     align_to_capture,
@@ -26,7 +25,6 @@ from agrinerf_ns.count.fruit_score import (
     visible_fruit,
 )
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
-from agrinerf_ns.count.oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import (
     CountInputError,
@@ -39,6 +37,8 @@ from agrinerf_ns.count.render import (
     save_renders,
 )
 from agrinerf_ns.count.support import keep_supported, views_showing
+from agrinerf_ns.lab.count_diagnose import diagnose
+from agrinerf_ns.lab.count_oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
 
 IDENTITY = WorldFrame(np.eye(4)[:3], 1.0)

@@ -1,4 +1,4 @@
-"""The count profile's counting of one trained run (`agrinerf_ns.count.bench.count_run_rows`): a synthetic capture
+"""The count profile's counting of one trained run (`agrinerf_ns.lab.count_bench.count_run_rows`): a synthetic capture
 processed by `agrinerf-process`, trained through Nerfstudio's Trainer, counted by the field path on each source it has
 and by the view path, its fruit placed by depth and by rays, every row scored against the capture's truth."""
 
@@ -12,11 +12,11 @@ import pytest
 from helpers.model_scene import tiny_trainer_config
 from helpers.tiny_run import train_saved_run
 
-from agrinerf_ns.bench.cli import BenchConfig, main
-from agrinerf_ns.count.bench import ORACLE_METHOD, VIEW_PLACEMENTS, count_run_rows
-from agrinerf_ns.count.count_tables import read_rows
 from agrinerf_ns.count.field_count import FieldCountConfig
 from agrinerf_ns.count.volume import VolumeConfig
+from agrinerf_ns.lab.cli import BenchConfig, main
+from agrinerf_ns.lab.count_bench import ORACLE_METHOD, VIEW_PLACEMENTS, count_run_rows
+from agrinerf_ns.lab.count_tables import read_rows
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
 

@@ -147,8 +147,8 @@ def test_a_folder_that_is_not_a_trained_run_is_named(tmp_path: Path, rgb_run: Pa
 
 
 def test_the_count_tables_pool_runs_with_bootstrap_intervals(tmp_path: Path) -> None:
-    from agrinerf_ns.count.count_tables import TablesArgs, append_rows, bootstrap_mean
-    from agrinerf_ns.count.count_tables import main as tables_main
+    from agrinerf_ns.lab.count_tables import TablesArgs, append_rows, bootstrap_mean
+    from agrinerf_ns.lab.count_tables import main as tables_main
 
     interval = bootstrap_mean([0.5, 0.7, 0.9, float("nan")])
     assert interval.value == pytest.approx(0.7) and 0.5 <= interval.low < 0.7 < interval.high <= 0.9

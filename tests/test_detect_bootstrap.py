@@ -109,8 +109,8 @@ def test_tables_print_intervals_and_paired_differences(tmp_path) -> None:
     import csv
 
     from agrinerf_ns.detect.box_metrics import score_detections
-    from agrinerf_ns.detect.merge import merge_evaluations
-    from agrinerf_ns.detect.paper_tables import ResultRow, write_tables
+    from agrinerf_ns.lab.paper_merge import merge_evaluations
+    from agrinerf_ns.lab.paper_tables import ResultRow, write_tables
 
     frames = [f"{i:06d}" for i in range(40)]
     good, poor = _images(40, 5, hit_rate=0.9), _images(40, 6, hit_rate=0.3)

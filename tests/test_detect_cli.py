@@ -13,9 +13,9 @@ from typing import Dict
 import pytest
 import tyro
 
-from agrinerf_ns.detect.cli import EvaluateCommand, entrypoint
 from agrinerf_ns.detect.detector import DetectorConfig
 from agrinerf_ns.detect.settings import EvalSettings
+from agrinerf_ns.lab.paper_cli import EvaluateCommand, entrypoint
 
 
 def _help_texts(cls: type) -> Dict[str, str]:

@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 
 from agrinerf_ns.detect.boxes import MissingTruthError, SceneTruth, list_images
-from agrinerf_ns.detect.cli import entrypoint
 from agrinerf_ns.detect.detector import DetectorConfig
 from agrinerf_ns.detect.eval_plan import MethodSpec, SceneSpec, check_scene
-from agrinerf_ns.detect.paper_eval import evaluate_plan
 from agrinerf_ns.detect.render_views import MissingOutputError, load_run, render_pipeline_views
 from agrinerf_ns.detect.settings import EvalSettings
+from agrinerf_ns.lab.paper_cli import entrypoint
+from agrinerf_ns.lab.paper_eval import evaluate_plan
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,7 @@ def _cli_error(args, capsys) -> str:
 @pytest.mark.slow
 def test_benchmark_on_tiny_scene_with_nerfacto(scene, tmp_path: Path) -> None:
     pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
-    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.ns_commands import ns_train
 
     raw, dataset = scene
     config = ns_train(

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from agrinerf_ns.bench.methods import ABLATIONS
-from agrinerf_ns.detect.eval_plan import load_plan, plan_from_bench
-from agrinerf_ns.detect.paper_tables import TABLE_IV_ORDER
 from agrinerf_ns.detect.training import trained_scene_detectors
+from agrinerf_ns.lab.methods import ABLATIONS
+from agrinerf_ns.lab.paper_plan import load_plan, plan_from_bench
+from agrinerf_ns.lab.paper_tables import TABLE_IV_ORDER
 
 
 def test_load_plan_resolves_relative_paths_and_reports_missing_keys(tmp_path: Path) -> None:

@@ -12,8 +12,8 @@ from PIL import Image
 
 from agrinerf_ns.detect.box_metrics import ImageBoxes, score_detections
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
-from agrinerf_ns.detect.merge import merge_evaluations
-from agrinerf_ns.detect.paper_tables import ResultRow, table_iv_markdown, write_tables
+from agrinerf_ns.lab.paper_merge import merge_evaluations
+from agrinerf_ns.lab.paper_tables import ResultRow, table_iv_markdown, write_tables
 
 
 def _metrics(shift: float):

@@ -110,7 +110,7 @@ def test_low_light_turns_the_event_loss_off_and_the_thermal_camera_up() -> None:
 def test_a_training_step_computes_exactly_the_planned_terms(scene: Path, preset: str) -> None:
     import torch
 
-    from agrinerf_ns.bench.stepper import MethodStepper
+    from agrinerf_ns.lab.stepper import MethodStepper
 
     torch.manual_seed(0)
     small = {"init_resolution": 16, "final_resolution": 24, "upsampling_iters": (), "box_fit_iters": (),

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from helpers.tiny_scene import write_tiny_scene
 
-from agrinerf_ns.bench.ns_commands import ns_eval, ns_render_dataset, ns_train
+from agrinerf_ns.ns_commands import ns_eval, ns_render_dataset, ns_train
 
 
 @pytest.mark.slow

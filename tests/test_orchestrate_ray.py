@@ -18,10 +18,9 @@ from typing import Dict, Iterator, List
 
 import pytest
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, train_record
-from agrinerf_ns.bench.profiles import BenchProfile
-from agrinerf_ns.orchestrate import bench_grid
+from agrinerf_ns.lab import bench_grid, results
+from agrinerf_ns.lab.layout import BenchLayout, experiment_folder, train_record
+from agrinerf_ns.lab.profiles import BenchProfile
 from agrinerf_ns.orchestrate.jobs import (
     DRIVER_LOCK,
     FolderInUse,
@@ -44,7 +43,7 @@ def test_plugin_method_configs_and_commands_import_no_ray() -> None:
     code = (
         "import sys\n"
         "import agrinerf_ns, agrinerf_ns.dataparsers.agrinerf_dataparser, agrinerf_ns.method_configs.agrinerf_methods\n"
-        "import agrinerf_ns.bench.cli, agrinerf_ns.survey.cli, agrinerf_ns.orchestrate.bench_grid\n"
+        "import agrinerf_ns.lab.cli, agrinerf_ns.survey.cli, agrinerf_ns.lab.bench_grid\n"
         "from nerfstudio.configs.method_configs import all_methods\n"
         "assert 'agrinerf-lite' in all_methods\n"
         "print(sorted(m for m in sys.modules if m == 'ray' or m.startswith('ray.')))\n"
@@ -132,7 +131,7 @@ def test_a_second_driver_on_the_same_folder_stops_and_a_killed_holder_frees_it(t
 def test_survey_and_bench_command_lines_and_bad_survey_folders(tmp_path: Path) -> None:
     import tyro
 
-    from agrinerf_ns.bench.cli import BenchConfig
+    from agrinerf_ns.lab.cli import BenchConfig
     from agrinerf_ns.survey.cli import SurveyArgs, SurveyInputError, list_captures
 
     args = tyro.cli(SurveyArgs, args=["--captures", "c", "--out", "o", "--ray", "auto", "--process.poses", "given",
@@ -290,9 +289,9 @@ from pathlib import Path
 print(*(line.strip() for line in open("/proc/self/status") if line.startswith(("SigBlk", "SigIgn"))), flush=True)
 signal.pthread_sigmask(signal.SIG_UNBLOCK, {{signal.SIGINT}})
 signal.signal(signal.SIGINT, signal.default_int_handler)
-from agrinerf_ns.bench.layout import BenchLayout
-from agrinerf_ns.bench.profiles import BenchProfile
-from agrinerf_ns.orchestrate import bench_grid
+from agrinerf_ns.lab.layout import BenchLayout
+from agrinerf_ns.lab.profiles import BenchProfile
+from agrinerf_ns.lab import bench_grid
 from agrinerf_ns.orchestrate.jobs import Resources
 from agrinerf_ns.orchestrate.ray_executor import RayExecutor
 profile = BenchProfile(**{profile})

@@ -48,7 +48,7 @@ def test_given_poses_match_truth(tiny):
 
 @pytest.mark.slow
 def test_ns_train_nerfacto_on_thermal_transforms(tiny, tmp_path: Path):
-    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.ns_commands import ns_train
 
     _, out = tiny
     run = ns_train(

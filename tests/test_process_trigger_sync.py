@@ -91,7 +91,7 @@ def test_trigger_sync_maps_frames_onto_their_edges(bag_capture, tmp_path: Path):
 
 @pytest.mark.slow
 def test_bag_capture_trains_agrinerf_lite(bag_capture, tmp_path: Path):
-    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.ns_commands import ns_train
 
     raw, _ = bag_capture
     cfg = ProcessConfig(poses="given", sync="trigger", trigger_offset_s=-HOST_OFFSET_S, show_progress=False)

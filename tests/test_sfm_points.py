@@ -131,7 +131,7 @@ def test_dataparser_gives_the_points_nerfstudios_pipeline_reads(tmp_path: Path) 
 def test_ns_train_on_a_dataset_with_sfm_points_without_open3d(tmp_path: Path, monkeypatch) -> None:
     """`ns-train agrinerf-lite` for 5 steps on such a dataset, with every import of open3d failing as it does on a
     machine without libusb."""
-    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.ns_commands import ns_train
 
     blocker = tmp_path / "no_open3d" / "open3d"
     blocker.mkdir(parents=True)

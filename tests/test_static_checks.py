@@ -163,6 +163,22 @@ def test_the_circle_check_finds_a_planted_circle():
     )
 
 
+def test_the_product_imports_nothing_of_the_lab():
+    """The lab (``agrinerf_ns.lab``: bench profiles, runners, grids, tables, oracles, diagnostics, the paper tables)
+    imports the product; no module outside it imports the lab, not even inside a function or for types only."""
+    import ast
+
+    modules = _modules()
+    planted = ast.parse("def f():\n    from agrinerf_ns.lab import results\n")  # seen inside a function too
+    assert _imports(planted, modules, module_level=False) == {"agrinerf_ns.lab.results"}
+    for name, path in sorted(modules.items()):
+        if name == "agrinerf_ns.lab" or name.startswith("agrinerf_ns.lab."):
+            continue
+        lab = sorted(m for m in _imports(ast.parse(path.read_text()), modules, module_level=False)
+                     if m == "agrinerf_ns.lab" or m.startswith("agrinerf_ns.lab."))  # fmt: skip
+        assert not lab, f"{path.relative_to(REPO)} imports {lab}"
+
+
 def test_the_data_stage_imports_nothing_of_the_model():
     """dataparsers/ (dataparser, dataset, event stream) reads data for the model and never imports it, not even
     inside a function."""

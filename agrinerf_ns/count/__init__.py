@@ -6,6 +6,6 @@ One module per job: :mod:`~agrinerf_ns.count.render` (views with depth and rays,
 OpenCV, YOLO is the optional AGPL extra, imported lazily), :mod:`~agrinerf_ns.count.lift` (pixels to a 3D centre and
 diameter), :mod:`~agrinerf_ns.count.cluster` (detections to fruit), :mod:`~agrinerf_ns.count.fruit_score` (against the
 truth), :mod:`~agrinerf_ns.count.write` (CSV, PLY, map), :mod:`~agrinerf_ns.count.pipeline` (the steps in order),
-:mod:`~agrinerf_ns.count.cli` and :mod:`~agrinerf_ns.count.oracle` (a synthetic capture's own frames and true depth as
+:mod:`~agrinerf_ns.count.cli` and :mod:`~agrinerf_ns.lab.count_oracle` (a synthetic capture's own frames and true depth as
 a render folder, to measure the counting apart from the reconstruction).
 """

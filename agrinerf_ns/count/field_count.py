@@ -42,7 +42,7 @@ def trained_run_config(path: Path) -> Path:
     """The ``config.yml`` of the trained run at ``path`` (the run folder or its config.yml); raises
     :class:`CountInputError` naming ``path`` when it is not a trained Nerfstudio run (no config.yml, no checkpoint
     under nerfstudio_models/, no dataparser_transforms.json)."""
-    from agrinerf_ns.bench.layout import CHECKPOINTS_DIR, checkpoints
+    from agrinerf_ns.ns_commands import CHECKPOINTS_DIR, checkpoints
 
     path = Path(path)
     config = path / "config.yml" if path.is_dir() else path

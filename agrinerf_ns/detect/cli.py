@@ -1,18 +1,18 @@
-"""``agrinerf-detect``: downstream fruit detection on rendered views (paper Tables III and IV).
+"""The detector's commands: downstream fruit detection on rendered views.
 
-Subcommands: ``evaluate`` (the whole benchmark from a plan file), ``render`` (held-out views of one run), ``train``
-(a detector on a scene's truth) and ``score`` (a folder of renders against the true boxes). Needs the optional
-``[detect]`` extra (Ultralytics, AGPL-3.0) for everything but ``render``.
+Subcommands: ``render`` (held-out views of one run), ``train`` (a detector on a scene's truth) and ``score`` (a folder
+of renders against the true boxes). The ``agrinerf-detect`` console script (:mod:`agrinerf_ns.lab.paper_cli`) adds
+the paper tables' ``evaluate`` and ``table``. Needs the optional ``[detect]`` extra (Ultralytics, AGPL-3.0) for
+everything but ``render``.
 """
 
 from __future__ import annotations
 
 import json
-import shlex
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Literal, Optional
+from typing import Dict, List, Literal, Optional
 
 import tyro
 from typing_extensions import Annotated
@@ -20,48 +20,6 @@ from typing_extensions import Annotated
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS
 from agrinerf_ns.detect.detector import DetectorConfig
 from agrinerf_ns.detect.settings import EvalSettings, MinBoxPixels, RaysPerChunk
-
-
-@dataclass
-class EvaluateCommand:
-    """Render, train detectors, detect and score every method of every scene in a plan; write the tables + picture.
-
-    Plan (JSON): {"scenes": [{"name": "orchard", "lighting": "dark", "raw": RAW, "dataset": DATASET,
-    "methods": [{"label": "Nerfacto (RGB)", "config": ".../config.yml", "output": "rgb"},
-    {"label": "Nerfacto (Thermal)", "config": ..., "output": "rgb", "detector": "thermal"},
-    {"label": "Ours (Cross-Spectral)", "config": ..., "output": "thermal"}]}]}. A method may give "renders" (a folder of
-    <frame>.png held-out views) instead of "config".
-    """
-
-    out: Path
-    """Output folder: table_<iii|iv>.md/.csv, metrics.json, detections.png, work/ (renders, YOLO sets, detectors)."""
-    plan: Optional[Path] = None
-    """Plan JSON (see above)."""
-    bench: Optional[Path] = None
-    """Or: an agrinerf-bench output folder (all its finished runs; agrinerf gives an RGB and a cross-spectral row)."""
-    table: Literal["III", "IV"] = "III"
-    """Table III (methods x lighting) or IV (modality ablations of one scene)."""
-    settings: Annotated[EvalSettings, tyro.conf.arg(name="")] = field(default_factory=EvalSettings)
-    """Evaluation settings (agrinerf_ns.detect.settings.EvalSettings)."""
-
-    def main(self) -> None:
-        from rich.console import Console
-
-        from agrinerf_ns.detect.eval_plan import load_plan, plan_from_bench
-        from agrinerf_ns.detect.paper_eval import evaluate_plan
-
-        if (self.plan is None) == (self.bench is None):
-            raise ValueError("give exactly one of --plan PLAN.json or --bench AGRINERF_BENCH_OUT")
-        if self.plan is not None:
-            scenes = load_plan(self.plan)
-        else:
-            scenes = plan_from_bench(self.bench, self.table)  # type: ignore[arg-type]
-        command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        written = evaluate_plan(scenes, self.out, self.settings, self.table, command)
-        console = Console()
-        console.print(written["markdown"].read_text())
-        for kind, path in written.items():
-            console.print(f"[green]wrote[/green] {kind}: {path}")
 
 
 @dataclass
@@ -154,40 +112,26 @@ class ScoreCommand:
             self.out.write_text(text)
 
 
-@dataclass
-class TableCommand:
-    """One table from several evaluations (e.g. one per lighting): their metrics.json files, scored alike."""
-
-    metrics: List[Path]
-    """metrics.json files written by agrinerf-detect evaluate."""
-    out: Path
-    """Output folder for table_<iii|iv>.md/.csv."""
-    table: Literal["III", "IV"] = "III"
-
-    def main(self) -> None:
-        from agrinerf_ns.detect.merge import merge_evaluations
-
-        command = "agrinerf-detect " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        md, csv_path = merge_evaluations(self.metrics, self.out, self.table, command)
-        print(md.read_text())
-        print(f"wrote {md} and {csv_path}")
-
-
-COMMANDS = {
-    "evaluate": EvaluateCommand,
+COMMANDS: Dict[str, type] = {
     "render": RenderCommand,
     "train": TrainCommand,
     "score": ScoreCommand,
-    "table": TableCommand,
 }
+"""The detector's own subcommands; the ``agrinerf-detect`` console script adds the paper tables' ``evaluate`` and
+``table`` (:mod:`agrinerf_ns.lab.paper_cli`)."""
 
 
-def entrypoint(args: Optional[List[str]] = None) -> None:
-    """Console script entry point: errors in the input are reported in one line, exit status 2."""
+def entrypoint(
+    args: Optional[List[str]] = None, commands: Optional[Dict[str, type]] = None, description: Optional[str] = None
+) -> None:
+    """Run one of ``commands`` (default :data:`COMMANDS`): errors in the input are reported in one line, exit
+    status 2."""
     from agrinerf_ns.detect.boxes import MissingTruthError
     from agrinerf_ns.detect.render_views import MissingOutputError
 
-    command = tyro.extras.subcommand_cli_from_dict(COMMANDS, args=args, description=__doc__)
+    command = tyro.extras.subcommand_cli_from_dict(
+        COMMANDS if commands is None else commands, args=args, description=description or __doc__
+    )
     try:
         command.main()
     except (MissingTruthError, MissingOutputError, FileNotFoundError, ValueError, ImportError) as err:

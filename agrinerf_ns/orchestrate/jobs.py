@@ -295,3 +295,14 @@ def failures_markdown(report: JobsReport, title: str) -> str:
     for key, blocker in report.skipped.items():
         lines.append(f"## {key}\n\nNot run: it needs `{blocker}`, which failed.\n")
     return "\n".join(lines)
+
+
+def write_failures(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically, or remove ``path`` when ``text`` is empty."""
+    if not text:
+        path.unlink(missing_ok=True)
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)

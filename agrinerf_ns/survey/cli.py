@@ -21,7 +21,6 @@ import tyro
 from rich.console import Console
 
 from agrinerf_ns.count.pipeline import CountConfig
-from agrinerf_ns.orchestrate.bench_grid import write_failures
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import (
     FolderInUse,
@@ -30,6 +29,7 @@ from agrinerf_ns.orchestrate.jobs import (
     driver_lock,
     failures_markdown,
     run_jobs,
+    write_failures,
 )
 from agrinerf_ns.process.pipeline import ProcessConfig
 from agrinerf_ns.survey import stages, table
@@ -132,7 +132,7 @@ def main(args: SurveyArgs) -> List[Dict[str, Any]]:
         errors = {key.rsplit(":", 1)[0]: failure.error for key, failure in report.failed.items()}
         write_failures(args.out / "failures.md", failures_markdown(report, "Survey steps that failed"))
     rows = table.survey_rows(names, {n: stages.capture_folders(args.out, n) for n in names}, errors)
-    from agrinerf_ns.bench.layout import machine_note
+    from agrinerf_ns.machine import machine_note
 
     header = (
         f"# Survey of {args.captures}\n\nCommand: `agrinerf-survey {' '.join(sys.argv[1:])}`\n\n{machine_note()}\n\n"

@@ -111,7 +111,7 @@ def process_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *
 
 def train_step(folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Dict[str, Any]:
     """Job: train the survey's method on the capture's dataset (a run folder left without a record is removed)."""
-    from agrinerf_ns.bench.ns_commands import ns_train
+    from agrinerf_ns.ns_commands import ns_train
 
     shutil.rmtree(folders.train_root / settings.method, ignore_errors=True)
     run = ns_train(settings.method, folders.data / "transforms.json", folders.root, TRAIN_EXPERIMENT,

@@ -98,7 +98,7 @@ def _raw(sel: Dict[str, Any], root: Path = ROOT) -> float:
             data = data[int(part)] if isinstance(data, list) else data[part]
         return float(data)
     if "paired" in sel:
-        from agrinerf_ns.bench import results
+        from agrinerf_ns.lab import results
 
         rows = _rows(root / sel["paired"])
         mine = _one(rows, {"scene": sel["scene"], "method": sel["method"]}, True, sel["paired"])

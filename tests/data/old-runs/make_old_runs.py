@@ -5,7 +5,7 @@ import os
 import subprocess
 from pathlib import Path
 
-from agrinerf_ns.bench.ns_commands import headless_train_args
+from agrinerf_ns.ns_commands import headless_train_args
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
 

@@ -2,7 +2,7 @@
 ``count.md`` (those rows, and per lighting, path and source the mean over runs with a bootstrap 95% interval that
 resamples the runs: scenes x seeds).
 
-``python -m agrinerf_ns.count.count_tables OUT_SEED0/count.csv OUT_SEED1/count.csv ... --out DIR`` pools the rows of
+``python -m agrinerf_ns.lab.count_tables OUT_SEED0/count.csv OUT_SEED1/count.csv ... --out DIR`` pools the rows of
 several benchmark folders (one per seed) into ``DIR/count.csv`` and ``DIR/count.md``.
 """
 

@@ -1,5 +1,5 @@
 """One benchmark scene, synthesised and processed once and cached: what ``agrinerf-bench`` and its grid jobs
-(:mod:`agrinerf_ns.orchestrate.bench_grid`) train on."""
+(:mod:`agrinerf_ns.lab.bench_grid`) train on."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Tuple
 
-from agrinerf_ns.bench.layout import scene_folders
-from agrinerf_ns.bench.profiles import BenchProfile
+from agrinerf_ns.lab.layout import scene_folders
+from agrinerf_ns.lab.profiles import BenchProfile
 
 if TYPE_CHECKING:
     from agrinerf_ns.synth import SynthConfig

@@ -1,16 +1,16 @@
 """One benchmark run: a method trained on a scene with ``ns-train`` and its checkpoints evaluated, resumed from its
 ``train_run.json`` when it was trained before. ``agrinerf-bench`` and its grid jobs
-(:mod:`agrinerf_ns.orchestrate.bench_grid`) both run it."""
+(:mod:`agrinerf_ns.lab.bench_grid`) both run it."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Dict, List, Tuple
 
-from agrinerf_ns.bench.layout import experiment_folder, train_record
-from agrinerf_ns.bench.methods import BenchMethod
-from agrinerf_ns.bench.ns_commands import TrainRun, ns_train
-from agrinerf_ns.bench.profiles import BenchProfile
+from agrinerf_ns.lab.layout import experiment_folder, train_record
+from agrinerf_ns.lab.methods import BenchMethod
+from agrinerf_ns.lab.profiles import BenchProfile
+from agrinerf_ns.ns_commands import TrainRun, ns_train
 
 
 def run_method(
@@ -25,8 +25,8 @@ def run_method(
 ) -> List[Dict[str, object]]:
     """Train one method on one scene and evaluate its checkpoints; returns the result rows.
 
-    ``runs``: the output folder's ``runs/`` (:mod:`agrinerf_ns.bench.layout`)."""
-    from agrinerf_ns.bench.checkpoint_eval import TruthImages, evaluate_checkpoint
+    ``runs``: the output folder's ``runs/`` (:mod:`agrinerf_ns.lab.layout`)."""
+    from agrinerf_ns.checkpoint_eval import TruthImages, evaluate_checkpoint
 
     # an ablation or a sample budget: its method's budget (scaled to about equal wall time)
     steps = profile.steps.get(method_key, round(profile.steps[method.ns_method] * method.step_scale))
@@ -43,7 +43,7 @@ def run_method(
     truth = TruthImages(raw) if (raw / "truth" / "rgb_clean").is_dir() else None
     rows = []
     for step, checkpoint in run.checkpoints():
-        metrics = evaluate_checkpoint(run.config, step, method, truth, max_views=profile.eval_views)
+        metrics = evaluate_checkpoint(run.config, step, method.supervision, truth, max_views=profile.eval_views)
         rows.append({
             "scene": scene, "method": method_key, "label": method.label, "step": step + 1,
             "wall_s": checkpoint.stat().st_mtime - run.started_at, "s_per_step": run.s_per_step,

@@ -2,21 +2,20 @@
 
 Loads each checkpoint with Nerfstudio's own ``eval_setup`` (as ``ns-eval`` does) and renders every eval camera once,
 scoring it with the model's own metrics (against the captured held-out frames, as the paper does) and, for synthetic
-scenes, against the clean truth after exposure alignment (see :func:`agrinerf_ns.bench.image_metrics.exposure_align`).
+scenes, against the clean truth after exposure alignment (see :func:`agrinerf_ns.image_metrics.exposure_align`).
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List, Literal, Optional
 
 import numpy as np
 import torch
 from PIL import Image
 
-from agrinerf_ns.bench import image_metrics
-from agrinerf_ns.bench.methods import BenchMethod
+from agrinerf_ns import image_metrics
 from agrinerf_ns.views import evenly_spaced, rays_per_chunk
 
 
@@ -79,13 +78,14 @@ resolution, the voxel size at the median rendered depth now and at the preset's 
 def evaluate_checkpoint(
     config_path: Path,
     step: int,
-    method: BenchMethod,
+    supervision: Literal["rgb", "thermal"],
     truth: Optional[TruthImages],
     chunk: Optional[int] = None,
     max_views: Optional[int] = None,
 ) -> Dict[str, object]:
     """Mean metrics over the eval split (or ``max_views`` of its views, evenly spaced) at one checkpoint, rendered
-    ``chunk`` rays at a time (None: :func:`agrinerf_ns.views.rays_per_chunk`).
+    ``chunk`` rays at a time (None: :func:`agrinerf_ns.views.rays_per_chunk`). ``supervision``: what the run's main
+    ``psnr`` compares against (``"thermal"``: a stock method trained on the thermal frames, whose ``psnr`` is thermal).
 
     Keys: ``eval_views`` (how many views were rendered), ``psnr``, ``ssim``, ``lpips`` (vs captured RGB; NaN when
     LPIPS is unavailable), ``psnr_clean``, ``ssim_clean`` (vs clean truth), ``psnr_fruit`` (the same PSNR over the truth's fruit pixels), ``thermal_psnr``, ``thermal_ssim`` (vs the
@@ -118,7 +118,7 @@ def evaluate_checkpoint(
             in ("psnr", "ssim", "lpips", "thermal_psnr", "thermal_ssim", "thermal_camera_psnr", "temperature_mae")
             + GRID_METRICS
         }
-        if method.supervision == "thermal" and "psnr" in row:  # Nerfacto on thermal frames: its psnr is thermal
+        if supervision == "thermal" and "psnr" in row:  # Nerfacto on thermal frames: its psnr is thermal
             row = {"thermal_psnr": row["psnr"], "thermal_ssim": row["ssim"]}
         elif truth is not None and "rgb" in outputs:
             target = truth.get(names[int(batch["image_idx"])])

@@ -14,7 +14,7 @@ class BenchProfile:
     width: int
     height: int
     steps: Dict[str, int]
-    """Training steps per method (keys of ``agrinerf_ns.bench.methods.METHODS``): per-method budgets that take
+    """Training steps per method (keys of ``agrinerf_ns.lab.methods.METHODS``): per-method budgets that take
     comparable wall time, so the curves overlap in time."""
     evaluations: int
     """Checkpoints evaluated per run, evenly spaced in steps (each is one point of the quality/time curve)."""
@@ -35,7 +35,7 @@ class BenchProfile:
     synth: Dict[str, Any] = field(default_factory=dict)
     """Further ``SynthConfig`` fields of the scenes (e.g. ``speed``)."""
     count: bool = False
-    """Also count the fruit of every finished run (``OUT/count.csv``, ``OUT/count.md``: ``agrinerf_ns.count.bench``)."""
+    """Also count the fruit of every finished run (``OUT/count.csv``, ``OUT/count.md``: ``agrinerf_ns.lab.count_bench``)."""
 
 
 PROFILES: Dict[str, BenchProfile] = {

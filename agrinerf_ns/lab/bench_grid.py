@@ -17,12 +17,12 @@ from typing import Any, Dict, List, Optional, Sequence, Set, Tuple
 
 from rich.console import Console
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.layout import BenchLayout, experiment_folder, train_record
-from agrinerf_ns.bench.methods import METHODS, BenchMethod
-from agrinerf_ns.bench.profiles import BenchProfile
-from agrinerf_ns.bench.runs import run_method
-from agrinerf_ns.bench.scenes import prepare_scene
+from agrinerf_ns.lab import results
+from agrinerf_ns.lab.layout import BenchLayout, experiment_folder, train_record
+from agrinerf_ns.lab.methods import METHODS, BenchMethod
+from agrinerf_ns.lab.profiles import BenchProfile
+from agrinerf_ns.lab.runs import run_method
+from agrinerf_ns.lab.scenes import prepare_scene
 from agrinerf_ns.orchestrate.jobs import (
     Executor,
     Job,
@@ -31,6 +31,7 @@ from agrinerf_ns.orchestrate.jobs import (
     driver_lock,
     failures_markdown,
     run_jobs,
+    write_failures,
 )
 
 GPU_PROFILES = ("full",)
@@ -44,13 +45,13 @@ class GridRun:
 
     scene: str
     method: str
-    """A bench method key (:data:`agrinerf_ns.bench.methods.METHODS`)."""
+    """A bench method key (:data:`agrinerf_ns.lab.methods.METHODS`)."""
     seed: int = 0
     """Random stream (``ns-train --machine.seed``; 0: Nerfstudio's default, the key unchanged)."""
 
     @property
     def key(self) -> str:
-        """Its ``method`` in ``results.csv`` (:func:`agrinerf_ns.bench.results.seed_key`)."""
+        """Its ``method`` in ``results.csv`` (:func:`agrinerf_ns.lab.results.seed_key`)."""
         return results.seed_key(self.method, self.seed)
 
 
@@ -143,17 +144,6 @@ def run_grid(
                           "benchmark runs", console)  # fmt: skip
         write_failures(layout.out / FAILURES_MD, failures_markdown(report, "Benchmark runs that failed"))
     return report
-
-
-def write_failures(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically, or remove ``path`` when ``text`` is empty."""
-    if not text:
-        path.unlink(missing_ok=True)
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 class RunsFailed(RuntimeError):

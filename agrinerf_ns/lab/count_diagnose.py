@@ -1,4 +1,4 @@
-"""Where a count loses fruit, measured against a synthetic capture's truth: ``python -m agrinerf_ns.count.diagnose
+"""Where a count loses fruit, measured against a synthetic capture's truth: ``python -m agrinerf_ns.lab.count_diagnose
 --renders FOLDER --truth RAW [count options]`` prints (and with ``--out`` writes) a JSON report.
 
 - **2D detection**, per view: the true fruit ids (``truth/fruit_ids``, undistorted onto the dataset's camera) under
@@ -37,9 +37,9 @@ from agrinerf_ns.count.fruit_score import (
     visible_fruit,
 )
 from agrinerf_ns.count.lift import lift_detection
-from agrinerf_ns.count.oracle import undistort_maps, with_true_depth
 from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
 from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders
+from agrinerf_ns.lab.count_oracle import undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import read_calibration
 
 
@@ -157,7 +157,7 @@ class DiagnoseArgs:
     """Measure where a count loses fruit, against a synthetic capture's truth."""
 
     renders: Path
-    """A render folder (agrinerf-count OUT/renders, or python -m agrinerf_ns.count.oracle)."""
+    """A render folder (agrinerf-count OUT/renders, or python -m agrinerf_ns.lab.count_oracle)."""
     truth: Path
     """The synthetic raw capture."""
     out: Optional[Path] = None

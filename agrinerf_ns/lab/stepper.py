@@ -12,7 +12,7 @@ from typing import Any, Dict, Optional
 
 import torch
 
-from agrinerf_ns.bench.methods import METHODS
+from agrinerf_ns.lab.methods import METHODS
 from agrinerf_ns.machine import torch_device_type
 
 
@@ -20,7 +20,7 @@ class MethodStepper:
     """One method's pipeline, optimizers, schedulers and training callbacks, on the GPU where PyTorch sees one.
 
     Args:
-        key: an ``agrinerf-bench`` method key (``agrinerf_ns.bench.methods.METHODS``).
+        key: an ``agrinerf-bench`` method key (``agrinerf_ns.lab.methods.METHODS``).
         data: a processed dataset folder.
         rays_per_batch: training rays per batch.
         model_overrides: model config fields to set (e.g. ``{"modalities": ("rgb",)}``).

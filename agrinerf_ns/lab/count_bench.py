@@ -15,11 +15,7 @@ from typing import TYPE_CHECKING, Any, Dict, List, Optional, Sequence, Set, Tupl
 import numpy as np
 
 from agrinerf_ns.atomic import atomic_output_dir
-from agrinerf_ns.bench.layout import BenchLayout, split_scene
-from agrinerf_ns.bench.methods import METHODS
-from agrinerf_ns.bench.results import seed_base
 from agrinerf_ns.count.cluster import ClusterConfig
-from agrinerf_ns.count.count_tables import append_rows, markdown, read_rows
 from agrinerf_ns.count.fruit_score import read_frames
 from agrinerf_ns.count.pipeline import (
     CONSOLE,
@@ -35,6 +31,10 @@ from agrinerf_ns.count.pipeline import (
 )
 from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
 from agrinerf_ns.count.sources import VIEW_ORDER, CountSource
+from agrinerf_ns.lab.count_tables import append_rows, markdown, read_rows
+from agrinerf_ns.lab.layout import BenchLayout, split_scene
+from agrinerf_ns.lab.methods import METHODS
+from agrinerf_ns.lab.results import seed_base
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.field_count import FieldCountConfig
@@ -84,7 +84,7 @@ def _row(scene: str, method: str, seed: int, step: int, path: str, source: str, 
 def _oracle_rows(scene: str, seed: int, raw: Path, data: Path, layout: BenchLayout) -> List[Dict[str, Any]]:
     """The ceiling: the capture's frames with the true depth and the true temperature at RGB resolution."""
     from agrinerf_ns.count.detectors import DetectorConfig
-    from agrinerf_ns.count.oracle import oracle_renders
+    from agrinerf_ns.lab.count_oracle import oracle_renders
 
     start = time.perf_counter()
     renders = oracle_renders(raw, data, "true")
@@ -99,10 +99,10 @@ def _oracle_rows(scene: str, seed: int, raw: Path, data: Path, layout: BenchLayo
 
 
 def oracle_field_count(raw: Path, data: Path, config: CountConfig) -> CountResult:
-    """The field path on the capture's true field (:mod:`agrinerf_ns.count.oracle_field`) at the default settings."""
+    """The field path on the capture's true field (:mod:`agrinerf_ns.lab.count_oracle_field`) at the default settings."""
     from agrinerf_ns.count.components import find_fruit
     from agrinerf_ns.count.field_count import FieldCountConfig
-    from agrinerf_ns.count.oracle_field import oracle_field
+    from agrinerf_ns.lab.count_oracle_field import oracle_field
 
     settings = FieldCountConfig()
     sampled = oracle_field(raw, data, settings.volume, settings.seen_margin, settings.components.max_diameter)
@@ -240,7 +240,7 @@ def run_note(command: str) -> str:
     """Command, machine, threads and load, for the head of count.md."""
     import os
 
-    from agrinerf_ns.bench.layout import machine_note
+    from agrinerf_ns.machine import machine_note
 
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
     threads = os.environ.get("OMP_NUM_THREADS", "unset")

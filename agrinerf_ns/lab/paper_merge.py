@@ -8,7 +8,7 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from agrinerf_ns.detect.bootstrap import MatchedImages
 from agrinerf_ns.detect.box_metrics import DetectionMetrics
-from agrinerf_ns.detect.paper_tables import ResultRow, machine_note, write_tables
+from agrinerf_ns.lab.paper_tables import ResultRow, machine_note, write_tables
 
 MERGE_FREE_SETTINGS = ("reuse", "detectors_from", "rays_per_chunk")
 """Settings that may differ between evaluations merged into one table (they change where results come from or how

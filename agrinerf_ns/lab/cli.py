@@ -16,11 +16,11 @@ from typing import List, Optional, Sequence, Tuple
 import tyro
 from rich.console import Console
 
-from agrinerf_ns.bench import results
-from agrinerf_ns.bench.layout import BenchLayout, machine_note
-from agrinerf_ns.bench.methods import METHODS, SAMPLE_BUDGETS, unknown_reason
-from agrinerf_ns.bench.profiles import PROFILES
-from agrinerf_ns.orchestrate import bench_grid
+from agrinerf_ns.lab import bench_grid, results
+from agrinerf_ns.lab.layout import BenchLayout
+from agrinerf_ns.lab.methods import METHODS, SAMPLE_BUDGETS, unknown_reason
+from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.machine import machine_note
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import FolderInUse
 
@@ -153,7 +153,7 @@ def main(config: BenchConfig) -> List[results.Row]:
         CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
     count = profile.count if config.count is None else config.count
     if count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
-        from agrinerf_ns.count.bench import count_bench, run_note
+        from agrinerf_ns.lab.count_bench import count_bench, run_note
 
         methods = {results.seed_key(m, s): METHODS[m].ns_method for m in config.methods for s in config.run_seeds}
         count_bench(layout, scenes, methods, config.seed, run_note("agrinerf-bench " + " ".join(sys.argv[1:])))

@@ -1,5 +1,5 @@
 """A render folder made of a synthetic capture's own frames and true depth, as a perfect reconstruction would render
-them: ``python -m agrinerf_ns.count.oracle --raw RAW --data DATASET --out FOLDER``, then
+them: ``python -m agrinerf_ns.lab.count_oracle --raw RAW --data DATASET --out FOLDER``, then
 ``agrinerf-count --renders FOLDER --truth RAW``.
 
 It measures the counting itself (detector, lift, fusion) apart from the reconstruction: ``rgb`` is the dataset's

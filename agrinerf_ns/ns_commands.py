@@ -18,7 +18,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from agrinerf_ns.bench import layout
+RUN_TIMESTAMP = "run"
+"""``ns-train --timestamp``: one run per experiment folder, at a path known before training."""
+CHECKPOINTS_DIR = "nerfstudio_models"
+
+
+def checkpoints(config: Path) -> List[Tuple[int, Path]]:
+    """``(step, path)`` of every checkpoint of the run whose ``config.yml`` is ``config``, by step."""
+    folder = Path(config).parent / CHECKPOINTS_DIR
+    return sorted((int(p.stem.split("-")[1]), p) for p in folder.glob("step-*.ckpt"))
 
 
 class NerfstudioCommandError(RuntimeError):
@@ -171,7 +179,7 @@ def headless_train_args(
         "--pipeline.datamanager.train-num-rays-per-batch", str(rays_per_batch),
         "--output-dir", str(output_dir),
         "--experiment-name", experiment,
-        "--timestamp", layout.RUN_TIMESTAMP,
+        "--timestamp", RUN_TIMESTAMP,
         "--vis", "tensorboard",
         "--viewer.quit-on-train-completion", "True",
     ]  # fmt: skip
@@ -217,7 +225,7 @@ class TrainRun:
 
     def checkpoints(self) -> List[Tuple[int, Path]]:
         """(step, path) of every checkpoint, by step."""
-        return layout.checkpoints(self.config)
+        return checkpoints(self.config)
 
 
 def steady_seconds_per_step(checkpoints: Sequence[Tuple[int, Path]]) -> Optional[float]:
@@ -261,7 +269,7 @@ def ns_train(
     ]
     started_at = time.time()
     result = run_ns("train", args, log_path=output_dir / experiment / f"{method}.train.log", timeout=timeout)
-    config = output_dir / experiment / method / layout.RUN_TIMESTAMP / "config.yml"
+    config = output_dir / experiment / method / RUN_TIMESTAMP / "config.yml"
     if not config.exists():
         raise NerfstudioCommandError(f"ns-train finished but wrote no {config}")
     profiler = _mean_iteration_seconds(result.output)

@@ -244,8 +244,8 @@ def write_tables(
 
 
 def machine_note(command: str) -> str:
-    """Footer for the tables: the command and the machine (:func:`agrinerf_ns.bench.layout.machine_note`)."""
-    from agrinerf_ns.bench.layout import machine_note as machine
+    """Footer for the tables: the command and the machine (:func:`agrinerf_ns.machine.machine_note`)."""
+    from agrinerf_ns.machine import machine_note as machine
 
     try:
         import ultralytics

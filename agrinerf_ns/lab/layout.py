@@ -5,7 +5,7 @@
     OUT/scenes/<scene>/raw/                      synthetic raw capture with truth/ (``agrinerf-synth``)
     OUT/scenes/<scene>/data/                     its processed dataset (``agrinerf-process``)
     OUT/runs/<scene>/<method key>/               one ``ns-train`` experiment per (scene, bench method key)
-        train_run.json                           the run's :class:`~agrinerf_ns.bench.ns_commands.TrainRun` record
+        train_run.json                           the run's :class:`~agrinerf_ns.ns_commands.TrainRun` record
         <ns method>/run/config.yml               the Nerfstudio run (timestamp fixed to "run")
         <ns method>/run/nerfstudio_models/step-NNNNNNNNN.ckpt   its checkpoints
     OUT/results.csv, results.md, tradeoff.png    the benchmark's report
@@ -15,17 +15,15 @@
 
 from __future__ import annotations
 
-import platform
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Mapping, NamedTuple, Optional, Sequence, Tuple
 
+from agrinerf_ns.ns_commands import RUN_TIMESTAMP, checkpoints
+
 SCENES_DIR = "scenes"
 RUNS_DIR = "runs"
-RUN_TIMESTAMP = "run"
-"""``ns-train --timestamp``: one run per experiment folder, at a path known before training."""
 TRAIN_RECORD = "train_run.json"
-CHECKPOINTS_DIR = "nerfstudio_models"
 
 
 class SceneFolders(NamedTuple):
@@ -59,12 +57,6 @@ def train_record(runs_root: Path, scene: str, method_key: str) -> Path:
 def run_config(runs_root: Path, scene: str, method_key: str, ns_method: str) -> Path:
     """The run's ``config.yml`` as ``ns-train`` writes it for this layout."""
     return experiment_folder(runs_root, scene, method_key) / ns_method / RUN_TIMESTAMP / "config.yml"
-
-
-def checkpoints(config: Path) -> List[Tuple[int, Path]]:
-    """``(step, path)`` of every checkpoint of the run whose ``config.yml`` is ``config``, by step."""
-    folder = Path(config).parent / CHECKPOINTS_DIR
-    return sorted((int(p.stem.split("-")[1]), p) for p in folder.glob("step-*.ckpt"))
 
 
 @dataclass(frozen=True)
@@ -116,12 +108,3 @@ class BenchLayout:
         in their order."""
         found = {key: self.finished_run(scene, key, ns_method) for key, ns_method in ns_methods.items()}
         return {key: config for key, config in found.items() if config is not None}
-
-
-def machine_note(devices: Optional[Sequence[str]] = None) -> str:
-    """``Machine: <arch>, <devices>; Python ..., torch ...`` (devices: those the rows were measured on, default this
-    machine's)."""
-    from agrinerf_ns.machine import device_name, software_versions
-
-    names = ", ".join(devices) if devices else device_name()
-    return f"Machine: {platform.machine()}, {names}; {software_versions()}"

@@ -3,7 +3,7 @@ capture's own primitives (ellipsoid leaves and fruit, bark and stakes, the groun
 temperatures, seen from the training views through the true depth. Counting it measures the field path's grouping
 (:mod:`agrinerf_ns.count.components`) apart from the reconstruction: the ceiling of the 3D count at that voxel size.
 
-``python -m agrinerf_ns.count.oracle_field --raw RAW --data DATASET`` prints its score (and writes ``--out``).
+``python -m agrinerf_ns.lab.count_oracle_field --raw RAW --data DATASET`` prints its score (and writes ``--out``).
 """
 
 from __future__ import annotations
@@ -114,7 +114,7 @@ def true_field(raw: Path, grid: VoxelGrid, to_capture: Similarity) -> Tuple[np.n
 def oracle_field(raw: Path, data: Path, config: VolumeConfig, seen_margin: float, pad: float) -> SampledField:
     """The capture's true field on the grid over the occupied box of its training views' true depth, as
     :func:`agrinerf_ns.count.volume.sample_field` samples a trained one (identity dataparser frame, scale 1)."""
-    from agrinerf_ns.count.oracle import oracle_renders
+    from agrinerf_ns.lab.count_oracle import oracle_renders
 
     renders = oracle_renders(Path(raw), Path(data), "true")
     train_names = set(read_split(Path(data), "train_filenames"))

@@ -1,1 +1,0 @@
-"""agrinerf_ns.bench."""

@@ -1,0 +1,1 @@
+"""agrinerf_ns.lab."""
