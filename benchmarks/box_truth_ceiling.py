@@ -6,7 +6,7 @@
 share of held-out pixels whose true surface (the capture's true depth) lies in that box: sky and the far background
 sit outside any box that keeps fruit-sized voxels. Prints both shares and, for boxes that would hold 80% and 90% of
 the true surfaces (`grid_mapping.smallest_box`, as the box fit finds them), the voxel size in metres at the preset's final
-grids, as JSON; and the box that the run's own fit rules (`grid_schedule.box_for_surface`) give the true surfaces of
+grids, as JSON; and the box that the run's own fit rules (`GridSchedule.box_for_surface`) give the true surfaces of
 every view (what a perfect field would be fitted), with its share of the held-out surfaces and its voxel.
 """
 
@@ -25,7 +25,6 @@ from agrinerf_ns.count.render import WorldFrame
 from agrinerf_ns.detect.render_views import load_run
 from agrinerf_ns.lab.count_oracle import oracle_renders
 from agrinerf_ns.model.grid_mapping import box_voxel, smallest_box
-from agrinerf_ns.model.grid_schedule import box_for_surface
 
 
 @dataclass
@@ -75,8 +74,8 @@ def main(args: Args) -> Dict[str, float]:
         "final_resolution": final,
     }
     # the box the run's fit rules would give a perfect field: the true surfaces of every view, seen from its camera
-    truth_box = box_for_surface(
-        model, torch.from_numpy(np.concatenate(seen)).float(), None, torch.from_numpy(np.concatenate(origins)).float()
+    truth_box = model.grid.box_for_surface(
+        torch.from_numpy(np.concatenate(seen)).float(), None, torch.from_numpy(np.concatenate(origins)).float()
     )
     if truth_box is not None:
         held = ((points >= truth_box[0].numpy()) & (points <= truth_box[1].numpy())).all(axis=1)

@@ -42,3 +42,14 @@ def test_the_plan_follows_the_light_and_the_heads_of_the_run(modalities, rgb_lev
         assert resolve_source("auto", "views", field_outputs(model))[0] == "rgb"
     else:
         assert "field" in plan.why
+
+
+@pytest.mark.parametrize("rgb_level", [0.4, 0.01], ids=["lit", "dark"])
+def test_a_run_with_a_fruit_head_is_counted_on_its_fruit_channel(rgb_level: float) -> None:
+    """Lit or dark, a run trained with fruit masks is counted by the view path on its rendered fruit regions."""
+    box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    metadata = {"modalities": ("rgb", "thermal"), "rgb_level": rgb_level, "fruit_mask_filenames": ["m.png"] * 4}
+    model = AgriNeRFModelConfig(**SMALL_MODEL).setup(scene_box=box, num_train_data=4, metadata=metadata)
+    plan = choose_plan(model)
+    assert plan.path == "views" and not plan.triangulate and "fruit head" in plan.why
+    assert resolve_source("auto", "views", field_outputs(model))[0] == "fruit"

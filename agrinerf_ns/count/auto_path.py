@@ -35,6 +35,13 @@ def choose_plan(model: Any) -> CountPlan:
     """The plan for a loaded run's ``model`` (an AgriNeRF model, or a stock one such as Nerfacto: views)."""
     outputs = field_outputs(model)
     thermal_field = outputs.thermal_any
+    if outputs.fruit:
+        return CountPlan(
+            "views",
+            "the run has a fruit head: the regions of its rendered fruit channel in its views, placed by depth, which "
+            "counted best (F1 0.22 against 0.17 from fruit colour on a realistic orchard, tuning seed 0: "
+            "results/count-fruit)",
+        )
     if thermal_field and not outputs.rgb:
         return CountPlan("field", "the run has no RGB head (trained without RGB frames): its field's thermal output")
     if thermal_field and outputs.dark:

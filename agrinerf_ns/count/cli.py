@@ -1,6 +1,6 @@
 """``agrinerf-count --config RUN/config.yml --out DIR [--truth RAW_CAPTURE]``: fruit in 3D from a trained run, counted
 in the sampled field (``--path field``) or detected in rendered views and lifted (``--path views``); by default
-(``--path auto``) the one that counted best on runs of its kind (``agrinerf_ns.count.plan``)."""
+(``--path auto``) the one that counted best on runs of its kind (``agrinerf_ns.count.auto_path``)."""
 
 from __future__ import annotations
 

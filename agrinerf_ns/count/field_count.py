@@ -115,7 +115,7 @@ def run_field_count(
 ) -> Tuple[CountResult, Dict[str, Any]]:
     """Count the fruit of the trained run at ``run`` (folder or config.yml) in 3D and write ``out`` atomically; with
     ``truth`` (a synthetic capture) also score it (``score``: match distance, alignment, visibility); ``loaded``: the
-    run already loaded (``agrinerf_ns.detect.render.load_run``)."""
+    run already loaded (``agrinerf_ns.detect.render_views.load_run``)."""
     from agrinerf_ns.detect.render_views import load_run
 
     config_path = trained_run_config(run)

@@ -204,7 +204,7 @@ def run_count(
 ) -> CountResult:
     """Render the run at ``run_config`` (or read ``renders_dir``), count its fruit and write ``out`` atomically:
     fruits.csv, fruits.ply, fruit_map.png, count.json, with ``truth`` also score.md; renders/ when ``save_renders``;
-    ``loaded``: the run at ``run_config`` already loaded (``agrinerf_ns.detect.render.load_run``)."""
+    ``loaded``: the run at ``run_config`` already loaded (``agrinerf_ns.detect.render_views.load_run``)."""
     if (run_config is None) == (renders_dir is None):
         raise ValueError("give exactly one of --config RUN/config.yml and --renders FOLDER")
     out = Path(out)

@@ -170,7 +170,7 @@ def render_run(
 def render_loaded_run(
     run: "LoadedRun", out_dir: Optional[Path] = None, splits: Sequence[str] = ("train", "eval")
 ) -> RenderSet:
-    """:func:`render_run` of a run already loaded (``agrinerf_ns.detect.render.load_run``), e.g. one whose field a
+    """:func:`render_run` of a run already loaded (``agrinerf_ns.detect.render_views.load_run``), e.g. one whose field a
     count has just sampled: the checkpoint is not read twice."""
     import torch
     from rich.progress import Progress
