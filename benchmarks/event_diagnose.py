@@ -215,6 +215,7 @@ def score_checkpoint(args: Args, run: TrainRun, step: int, raw: Path, samples: D
             rates.append(rate if rate is not None else torch.full((h * w,), math.nan))
     err, lum, rate = torch.cat(errs).double(), torch.cat(lums).double(), torch.cat(rates).double()
     row["psnr_clean"] = float(np.mean(psnrs))
+    row["psnr_views"] = [float(v) for v in psnrs]
     row["mse"] = float(err.mean())
     for name, values in (("lum", lum), ("rate", rate)):
         if not bool(torch.isfinite(values).all()):
@@ -263,6 +264,17 @@ def _f(value: float, digits: int = 3) -> str:
     return "-" if value is None or value != value else f"{value:.{digits}f}"
 
 
+def paired(row: Dict, base: Dict) -> str:
+    """Mean per-view PSNR difference to `base` and its 95% t-interval (the same held-out views)."""
+    if "psnr_views" not in row or "psnr_views" not in base or row is base:
+        return "-"
+    from scipy import stats
+
+    d = np.asarray(row["psnr_views"]) - np.asarray(base["psnr_views"])
+    half = stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / math.sqrt(len(d))
+    return f"{d.mean():+.2f} +- {half:.2f}" + ("*" if abs(d.mean()) > half else "")
+
+
 def report(args: Args, scores: Dict[str, List[Dict]], truth: Dict, sim: List[str]) -> str:
     lines = [f"## Event diagnosis: {args.scene}, profile `{args.profile}`, seed {args.seed} (one tuning seed)", "",
              "(a) held-out event samples (stream sampler, own seed; every checkpoint scored for the curve rows)", "",
@@ -278,16 +290,19 @@ def report(args: Args, scores: Dict[str, List[Dict]], truth: Dict, sim: List[str
                          f"{_f(e['loss_quiet'])} | {_f(e['pred_rms_quiet'])} | {terciles} | "
                          f"{_f(row.get('noise_weight'), 5)} | {_f(row.get('gate'), 3)} |")  # fmt: skip
     lines += ["", "(b) held-out RGB squared error (x 1e-3) by the truth's brightness and by the event rate, the last "
-              "checkpoint: each tercile's share of the mean (pixels' share in brackets)", "",
-              "| row | PSNR clean | MSE | dark | mid | bright | fewest events | mid | most events |",
-              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "checkpoint: each tercile's share of the mean (pixels' share in brackets); paired: the mean per-view "
+              "PSNR difference to the blur row of the same grids, 95% t-interval (* excludes 0)", "",
+              "| row | PSNR clean | vs blur, paired | MSE | dark | mid | bright | fewest events | mid | most events |",
+              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for key, rows in scores.items():
         row = rows[-1]
         cells = []
         for name in ("lum", "rate"):
             parts = row.get(name) or [(math.nan, math.nan)] * 3
             cells += [f"{share * 1e3:.2f} ({frac:.2f})" for share, frac in parts]
-        lines.append(f"| {key} | {_f(row['psnr_clean'], 2)} | {row['mse'] * 1e3:.2f} | " + " | ".join(cells) + " |")
+        base = scores.get("blur-fine" if key.endswith("fine") else "blur", [row])[-1]  # the same grids, no events
+        lines.append(f"| {key} | {_f(row['psnr_clean'], 2)} | {paired(row, base)} | {row['mse'] * 1e3:.2f} | "
+                     + " | ".join(cells) + " |")  # fmt: skip
     lines += ["", "(d) the simulated camera against the loss's model", "", *sim]
     return "\n".join(lines) + "\n"
 
