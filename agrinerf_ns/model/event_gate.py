@@ -73,7 +73,7 @@ class EventGate(nn.Module):
 
     def training_pixels(self, m: int) -> Int[Tensor, " m"]:
         """`m` random event pixels outside the held-out share (the global random stream, as the plain sampler)."""
-        return self.train_pixels[torch.randint(0, self.train_pixels.shape[0], (m,))]
+        return self.train_pixels[torch.randint(0, self.train_pixels.shape[0], (m,))]  # cpu: the stream's pixels
 
     def due(self, step: int) -> bool:
         last = int(self.last_check)
