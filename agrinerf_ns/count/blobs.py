@@ -106,11 +106,17 @@ def contrast(
     return dog / max(spread, 1e-6)
 
 
+def valid_pixels(view: RenderedView, feature: Float[np.ndarray, "h w"]) -> Bool[np.ndarray, "h w"]:
+    """The pixels of ``view`` a detection may use: rendered surface (accumulation), a finite positive depth to lift
+    it with, and a finite ``feature``."""
+    return (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(feature)
+
+
 def detect_blobs(view: RenderedView, source: str, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
     """Fruit-sized blobs of ``source`` in ``view``; ``scale`` is the dataparser scale (Nerfstudio units per dataset
     unit), so that sizes are compared in the dataset's units."""
     feature = feature_image(view, source)
-    valid = (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(feature)
+    valid = valid_pixels(view, feature)
     z = contrast(feature, valid, config.background_sigma)
     signs = (
         [1.0] if source == "rgb" or config.polarity == "warm" else [-1.0] if config.polarity == "cool" else [1.0, -1.0]

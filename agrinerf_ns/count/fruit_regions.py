@@ -11,7 +11,7 @@ from jaxtyping import Bool
 from scipy import ndimage
 from skimage.segmentation import watershed
 
-from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, blob_diameter, elongation
+from agrinerf_ns.count.blobs import BlobConfig, Detection, blob_diameter, elongation, valid_pixels
 from agrinerf_ns.count.render import RenderedView
 
 
@@ -20,7 +20,7 @@ def fruit_regions(view: RenderedView, scale: float, config: BlobConfig = BlobCon
     dataset unit), so that sizes are compared in the dataset's units (``config``'s diameters and elongation; its
     ``fruit_probability`` makes a pixel fruit)."""
     fruit = view.optional_output("fruit").astype(np.float32)
-    valid = (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(fruit)
+    valid = valid_pixels(view, fruit)
     above = (fruit >= config.fruit_probability) & valid
     labels, count = ndimage.label(above, structure=np.ones((3, 3), bool))
     detections: List[Detection] = []
