@@ -13,6 +13,11 @@ dataparser transform, scale 1). ``thermal`` (and ``temperature``, degrees C) is,
 - ``captured``: the dataset's thermal frame (warped into the RGB camera at one plane depth, so misregistered off that
   depth by the rig's baseline), NaN outside the thermal camera's view;
 - ``true``: the synthetic capture's true temperature in the RGB camera (``truth/temperature``), an upper bound.
+
+``fruit`` (the fruit head's channel, for ``--source fruit``), by ``--fruit``: ``none``; ``dataset``: the dataset's
+own fruit masks (``fruit_mask_file_path``, what a fruit head is trained on; unknown pixels and thermal-camera masks
+left out), as a perfect fruit head would render them; ``true``: the truth's fruit pixels (``truth/fruit_ids``), the
+ceiling of the counting itself.
 """
 
 from __future__ import annotations
@@ -29,9 +34,11 @@ from jaxtyping import Float
 
 from agrinerf_ns.count.fruit_score import read_frames, read_split
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
+from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRAME_KEY, fruit_and_known
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
 
 ThermalMode = Literal["reprojected", "captured", "true"]
+FruitMode = Literal["none", "dataset", "true"]
 
 
 def undistort_maps(rgb: CameraCalib, meta: dict) -> tuple:
@@ -100,7 +107,24 @@ def oracle_thermal(
     return t, t
 
 
-def oracle_renders(raw: Path, dataset: Path, thermal_mode: ThermalMode = "reprojected") -> RenderSet:
+def oracle_fruit(raw: Path, dataset: Path, frame: dict, maps: Tuple, mode: FruitMode) -> Optional[np.ndarray]:
+    """The ``fruit`` channel of one oracle view by ``mode`` (see the module docstring); NaN where unknown."""
+    if mode == "none":
+        return None
+    if mode == "true":
+        stem = Path(str(frame.get("raw_rgb", frame["file_path"]))).stem
+        ids = cv2.imread(str(raw / "truth" / "fruit_ids" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
+        ids = cv2.remap(ids, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return (ids > 0).astype(np.float32)
+    if FRAME_KEY not in frame or frame.get(CAMERA_KEY, "rgb") != "rgb":
+        return None
+    fruit, known = fruit_and_known(cv2.imread(str(dataset / frame[FRAME_KEY]), cv2.IMREAD_GRAYSCALE))
+    return np.where(known, fruit.astype(np.float32), np.nan).astype(np.float32)
+
+
+def oracle_renders(
+    raw: Path, dataset: Path, thermal_mode: ThermalMode = "reprojected", fruit_mode: FruitMode = "none"
+) -> RenderSet:
     """Every frame of ``dataset`` (processed from the synthetic capture ``raw``) as a rendered view."""
     meta = json.loads((dataset / "transforms.json").read_text())
     if not (raw / "truth" / "depth").is_dir():
@@ -134,9 +158,10 @@ def oracle_renders(raw: Path, dataset: Path, thermal_mode: ThermalMode = "reproj
                 focal=(fx + fy) / 2,
                 thermal=thermal,
                 temperature=temperature,
+                fruit=oracle_fruit(raw, dataset, frame, (map_x, map_y), fruit_mode),
             )
         )
-    method = f"oracle (captured frames, true depth, {thermal_mode} thermal)"
+    method = f"oracle (captured frames, true depth, {thermal_mode} thermal, {fruit_mode} fruit)"
     return RenderSet(views, WorldFrame(np.eye(4)[:3], 1.0), dataset, None, method)
 
 
@@ -170,11 +195,13 @@ class OracleArgs:
     thermal: ThermalMode = "reprojected"
     """The thermal output: the raw frame reprojected through the true depth, the dataset's plane-warped frame, or the
     true temperature."""
+    fruit: FruitMode = "none"
+    """The fruit channel: none, the dataset's fruit masks, or the truth's fruit pixels."""
 
 
 def entrypoint() -> None:
     args = tyro.cli(OracleArgs)
-    save_renders(oracle_renders(args.raw, args.data, args.thermal), args.out)
+    save_renders(oracle_renders(args.raw, args.data, args.thermal, args.fruit), args.out)
 
 
 if __name__ == "__main__":
