@@ -198,6 +198,12 @@ def test_scoring_is_one_on_the_truth_and_zero_in_empty_space() -> None:
     # a fruit no training view shows is neither missed nor a false positive when counted
     hidden = score_fruit(truth.centres, truth, np.array([True, True, True, False]), match_distance=0.05)
     assert (hidden.visible, hidden.true_positives, hidden.false_positives, hidden.f1) == (3, 3, 0, 1.0)
+    # the well-seen denominator: recall over fruit 0 and 1 only; a hit on fruit 2 (visible, not well seen) is no
+    # false positive
+    found = score_fruit(truth.centres[1:3], truth, well_seen=np.array([True, True, False, False]), match_distance=0.05)
+    assert (found.well_seen, found.recall_well_seen, found.precision) == (2, 0.5, 1.0)
+    assert found.f1_well_seen == pytest.approx(2 / 3) and found.count_error_well_seen == 0.0
+    assert score_fruit(truth.centres, truth, match_distance=0.05).well_seen == -1  # not computed
 
 
 def _write_truth_capture(raw: Path, truth: TruthFruit) -> None:

@@ -117,3 +117,24 @@ def test_exposures_times_and_trajectory_reach_the_dataparser(tiny):
         step = (sub[:, -1, :, 3] - sub[:, 0, :, 3]).norm(dim=-1)
         gap = (c2w[1:, :, 3] - c2w[:-1, :, 3]).norm(dim=-1).min() if n > 1 else 1.0
         assert (step > 0).all() and (step < gap).all()
+
+
+def test_well_seen_fruit_measures_each_fruit_against_its_own_disc(tmp_path):
+    from dataclasses import replace
+
+    from agrinerf_ns.count.fruit_score import disc_shares, read_truth_fruit, visible_fruit, well_seen_fruit
+
+    raw = tmp_path / "raw"  # a narrow view, so that fruit span many pixels and a disc's area is not a pixel count's
+    generate_capture(replace(SynthConfig.tiny(), rgb_hfov_deg=20.0, thermal_hfov_deg=20.0), raw)
+    truth = read_truth_fruit(raw)
+    stems = sorted(p.stem for p in (raw / "truth" / "fruit_ids").glob("*.png"))
+    k = readers.read_calibration(raw / "calib.yaml").rgb.K
+    shares = [s for stem in stems for s in disc_shares(raw, stem, truth, 0.5 * (k[0, 0] + k[1, 1])).values()]
+    # a fruit never shows more than its disc: radius, depth and focal length are in matching units (a diameter taken
+    # for a radius would put the largest share near 4 or 0.25)
+    assert 0.4 < max(shares) < 1.6, sorted(shares)[-5:]
+    # at a zero share and one view the well-seen fruit are the visible ones; the bar only removes fruit
+    assert (well_seen_fruit(raw, stems, truth, 0.0, 1) == visible_fruit(raw, stems, truth, 1)).all()
+    loose, strict = well_seen_fruit(raw, stems, truth, 0.1, 1), well_seen_fruit(raw, stems, truth, 0.5, 2)
+    assert strict.sum() < loose.sum() and not (strict & ~loose).any()
+    assert not well_seen_fruit(raw, stems, truth, 10.0, 1).any()

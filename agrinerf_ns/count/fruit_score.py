@@ -6,6 +6,12 @@ the 3D distance) within ``match_distance``: a match to a visible fruit is a true
 match a false positive (a match to a fruit no training view shows is neither), a visible fruit with no match a false
 negative. The count error is (counted - visible) / visible.
 
+"Visible" takes in fruit that show a sliver of a few pixels behind the leaves once. A stricter denominator beside it
+asks what a counter from views can be held to: a fruit is *well seen* when at least ``min_share`` of its disc (its
+true radius at the depth its pixels show, through the RGB camera's focal length) shows in at least ``min_views``
+training views, the views a 3D count needs. The ``*_well_seen`` scores are recall, F1 and count error over those
+fruit; a match to any visible fruit still counts as correct for precision.
+
 The fruit map is in the dataset's frame, the truth in the capture's: with ``align="poses"`` the dataset's cameras are
 fit to the capture's true ones (``truth/poses.txt``, matched by timestamp) by a similarity (rotation from their
 orientations, scale and shift from their centres), which removes the pose source's frame (SfM) and the odometry's mean
@@ -27,6 +33,7 @@ from agrinerf_ns.count.render import CountInputError
 
 FRUITS_JSON = Path("truth") / "fruits.json"
 FRUIT_IDS_DIR = Path("truth") / "fruit_ids"
+TRUE_DEPTH_DIR = Path("truth") / "depth"
 TRUE_POSES = Path("truth") / "poses.txt"
 Align = Literal["poses", "none"]
 
@@ -84,6 +91,13 @@ class CountScore:
     mean_temperature_error: float = float("nan")
     """Mean absolute difference of the true positives' temperatures from their true fruit's (degrees C; NaN without
     counted or true temperatures)."""
+    well_seen: int = -1
+    """The well-seen true fruit (-1: not computed, the capture has no true depth)."""
+    recall_well_seen: float = float("nan")
+    f1_well_seen: float = float("nan")
+    """F1 of ``precision`` and ``recall_well_seen``."""
+    count_error_well_seen: float = float("nan")
+    """(counted - well_seen) / well_seen."""
 
     def as_dict(self) -> Dict[str, Union[int, float]]:
         return asdict(self)
@@ -148,16 +162,60 @@ def match_fruit(
     return rows[keep].astype(np.int64), cols[keep].astype(np.int64)
 
 
+def disc_shares(raw: Path, stem: str, truth: TruthFruit, focal: float) -> Dict[int, float]:
+    """Per true fruit (index into ``truth``) shown in the raw RGB frame ``stem``: its pixels in ``truth/fruit_ids``
+    over pi (f r / z)^2, the disc its true radius would cover at ``z``, the median true depth (``truth/depth``) over
+    those pixels (``focal``: the RGB camera's focal length in pixels)."""
+    raw = Path(raw)
+    ids_path, depth_path = raw / FRUIT_IDS_DIR / f"{stem}.png", raw / TRUE_DEPTH_DIR / f"{stem}.npy"
+    ids = cv2.imread(str(ids_path), cv2.IMREAD_UNCHANGED)
+    if ids is None:
+        raise CountInputError(f"{ids_path}: missing or unreadable fruit mask (truth of frame {stem})")
+    if not depth_path.is_file():
+        raise CountInputError(f"{depth_path}: missing; the well-seen fruit need the capture's true depth")
+    depth = np.load(depth_path)
+    labels = ids.astype(np.int64) - 1
+    index = {int(fid): i for i, fid in enumerate(truth.ids)}
+    shares: Dict[int, float] = {}
+    values, counts = np.unique(labels[labels >= 0], return_counts=True)
+    for value, count in zip(values, counts, strict=True):
+        k = index.get(int(value))
+        if k is not None:
+            z = float(np.median(depth[labels == value]))
+            shares[k] = float(count) / (np.pi * (focal * 0.5 * truth.diameters[k] / max(z, 1e-6)) ** 2)
+    return shares
+
+
+def well_seen_fruit(
+    raw: Path, frames: Iterable[str], truth: TruthFruit, min_share: float = 0.25, min_views: int = 2
+) -> Bool[np.ndarray, " n"]:
+    """Which true fruit show at least ``min_share`` of their disc (:func:`disc_shares`) in at least ``min_views`` of
+    the ``frames`` (raw RGB frame stems)."""
+    from agrinerf_ns.process.readers import read_calibration
+
+    camera = read_calibration(Path(raw) / "calib.yaml").rgb
+    focal = 0.5 * float(camera.K[0, 0] + camera.K[1, 1])
+    frames = list(frames)
+    if not frames:
+        raise CountInputError(f"{Path(raw) / FRUIT_IDS_DIR}: no training frames to decide which fruit are well seen")
+    views = np.zeros(len(truth.ids), dtype=np.int64)
+    for stem in frames:
+        for k, share in disc_shares(raw, stem, truth, focal).items():
+            views[k] += int(share >= min_share)
+    return views >= min_views
+
+
 def score_fruit(
     predicted: Float[np.ndarray, "m 3"],
     truth: TruthFruit,
     visible: Optional[Bool[np.ndarray, " n"]] = None,
     match_distance: float = 0.05,
     temperatures: Optional[Float[np.ndarray, " m"]] = None,
+    well_seen: Optional[Bool[np.ndarray, " n"]] = None,
 ) -> CountScore:
     """Count error and precision / recall / F1 of ``predicted`` centres (capture frame) against the visible true
     fruit (all of them when ``visible`` is None); with the counted fruit's ``temperatures`` (degrees C, NaN where
-    unknown) also their mean error on the true positives."""
+    unknown) also their mean error on the true positives; with ``well_seen`` also the scores over those fruit."""
     visible = np.ones(len(truth.ids), dtype=bool) if visible is None else np.asarray(visible, bool)
     rows, cols = match_fruit(predicted, truth.centres, match_distance)
     counted = len(np.asarray(predicted).reshape(-1, 3))
@@ -170,6 +228,17 @@ def score_fruit(
     recall = tp / n_visible if n_visible else 0.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
     errors = np.linalg.norm(np.asarray(predicted).reshape(-1, 3)[rows[tp_mask]] - truth.centres[cols[tp_mask]], axis=1)
+    strict: Dict[str, Union[int, float]] = {}
+    if well_seen is not None:
+        well_seen = np.asarray(well_seen, bool)
+        n_well = int(well_seen.sum())
+        recall_well = int(well_seen[cols].sum()) / n_well if n_well else 0.0
+        strict = {
+            "well_seen": n_well,
+            "recall_well_seen": recall_well,
+            "f1_well_seen": 2 * precision * recall_well / (precision + recall_well) if precision + recall_well else 0.0,
+            "count_error_well_seen": (counted - n_well) / n_well if n_well else float("nan"),
+        }
     return CountScore(
         counted=counted,
         visible=n_visible,
@@ -184,6 +253,7 @@ def score_fruit(
         match_distance=match_distance,
         mean_match_error=float(errors.mean()) if errors.size else float("nan"),
         mean_temperature_error=_temperature_error(temperatures, truth, rows[tp_mask], cols[tp_mask]),
+        **strict,  # type: ignore[arg-type]
     )
 
 

@@ -19,6 +19,7 @@ from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector
 from agrinerf_ns.count.fruit_score import (
+    TRUE_DEPTH_DIR,
     Align,
     CountScore,
     Similarity,
@@ -31,6 +32,7 @@ from agrinerf_ns.count.fruit_score import (
     read_truth_fruit,
     score_fruit,
     visible_fruit,
+    well_seen_fruit,
 )
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.render import (
@@ -69,6 +71,9 @@ class CountConfig:
     """Scoring: fit the dataset's frame to the capture's on the cameras (``poses``) or take it as it is."""
     min_visible_pixels: int = 3
     """Scoring: a true fruit is visible when this many of its pixels show in a training view."""
+    well_seen_share: float = 0.25
+    """Scoring: a true fruit is also scored as *well seen* (the ``*_well_seen`` scores) when this share of its disc
+    shows in at least ``cluster.min_views`` training views (``fruit_score.well_seen_fruit``)."""
 
 
 @dataclass
@@ -140,9 +145,12 @@ def score_result(result: CountResult, dataset: Path, train: Sequence[str], raw: 
     truth = read_truth_fruit(raw)
     result.truth, result.visible = truth, visible_fruit(raw, train, truth, config.min_visible_pixels)
     result.to_capture = align_to_capture(dataset, raw) if config.align == "poses" else Similarity.identity()
+    well_seen = None
+    if (Path(raw) / TRUE_DEPTH_DIR).is_dir():
+        well_seen = well_seen_fruit(raw, train, truth, config.well_seen_share, config.cluster.min_views)
     result.score = score_fruit(
         result.to_capture.apply(_centres(result.fruit)), truth, result.visible, config.match_distance,
-        _temperatures(result.fruit),
+        _temperatures(result.fruit), well_seen,
     )  # fmt: skip
 
 
@@ -319,6 +327,8 @@ def write_count(
                     "detector": detector,
                     "min views per fruit": config.cluster.min_views,
                     "visible": f">= {config.min_visible_pixels} pixels in a training view",
+                    "well seen": f">= {config.well_seen_share:g} of its disc in >= {config.cluster.min_views} "
+                    "training views",
                     "alignment": f"{config.align} (camera residual RMS {result.to_capture.residual_rms:.3f})",
                 },
             )
@@ -339,3 +349,9 @@ def _print_summary(out: Path, result: CountResult) -> None:
             f"{s.precision:.2f}, recall {s.recall:.2f}, F1 {s.f1:.2f} at {s.match_distance:g} m",
             soft_wrap=True,
         )
+        if s.well_seen >= 0:
+            CONSOLE.print(
+                f"against the well-seen truth ({s.well_seen} fruit): count error {s.count_error_well_seen:+.1%}, "
+                f"recall {s.recall_well_seen:.2f}, F1 {s.f1_well_seen:.2f}",
+                soft_wrap=True,
+            )
