@@ -1,0 +1,103 @@
+"""Count scores of trained runs and their oracles, pooled over runs with bootstrap 95% intervals (#49).
+
+``python benchmarks/count_fruit_table.py --counts LABEL=COUNT_DIR... --out results/NAME`` reads each
+``agrinerf-count`` folder's ``count.json`` (written with ``--truth``), takes the scene, lighting and seed from the truth's
+``truth/scene.json`` and writes ``counts.csv`` (one row per folder) and ``counts.md``: per lighting and row kind the
+mean over the runs of the reporting seeds (``--reporting-from``: seeds at or above it; the others are tuning seeds,
+listed apart and never pooled) with an interval that resamples the runs. ``LABEL`` names the row's kind (the
+trained configuration, or an oracle: ``python -m agrinerf_ns.lab.count_oracle``, the counting on perfect renders);
+folders of one label and lighting are pooled.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Sequence
+
+import tyro
+
+from agrinerf_ns.lab.count_tables import bootstrap_mean
+
+MEASURES = ("f1", "precision", "recall", "count_error", "f1_well_seen", "recall_well_seen", "count_error_well_seen",
+            "mean_temperature_error")  # fmt: skip
+COLUMNS = ("scene", "lighting", "seed", "role", "label", "counted", "visible", "well_seen", *MEASURES, "folder")
+
+
+@dataclass
+class TableArgs:
+    counts: List[str]
+    """LABEL=FOLDER: agrinerf-count output folders (each with count.json written against a truth) and their row's
+    label."""
+    out: Path
+    """Folder for counts.csv and counts.md."""
+    reporting_from: int = 100
+    """Seeds at or above this are reporting seeds; the others tuning seeds."""
+
+
+def read_row(label: str, folder: Path, reporting_from: int) -> Dict[str, object]:
+    """One table row from an agrinerf-count folder; ValueError naming the file when it has no score."""
+    path = folder / "count.json"
+    report = json.loads(path.read_text())
+    if "score" not in report or "truth" not in report:
+        raise ValueError(f"{path}: no score; count with --truth RAW")
+    scene = json.loads((Path(report["truth"]) / "truth" / "scene.json").read_text())["config"]
+    score = report["score"]
+    return {
+        "scene": scene["scene"],
+        "lighting": scene["lighting"],
+        "seed": int(scene["seed"]),
+        "role": "reporting" if int(scene["seed"]) >= reporting_from else "tuning",
+        "label": label,
+        **{k: score.get(k, float("nan")) for k in ("counted", "visible", "well_seen", *MEASURES)},
+        "folder": str(folder),
+    }
+
+
+def _fmt(value: object) -> str:
+    return f"{value:.3f}" if isinstance(value, float) else str(value)
+
+
+def markdown(rows: Sequence[Dict[str, object]]) -> str:
+    """Per lighting, role and kind: the mean of each measure over the runs and its bootstrap interval; then all rows."""
+    groups: Dict[tuple, List[Dict[str, object]]] = defaultdict(list)
+    for row in rows:
+        groups[(row["lighting"], row["role"], row["label"])].append(row)
+    shown = ("f1", "f1_well_seen", "count_error", "count_error_well_seen", "mean_temperature_error")
+    lines = ["| lighting | seeds | row | runs (scene:seed) | " + " | ".join(shown) + " |",
+             "|---|---|---|---|" + "---|" * len(shown)]  # fmt: skip
+    for (lighting, role, label), members in sorted(groups.items(), key=lambda kv: [str(k) for k in kv[0]]):
+        cells = []
+        for measure in shown:
+            interval = bootstrap_mean([float(m[measure]) for m in members])  # type: ignore[arg-type]
+            cells.append("-" if math.isnan(interval.value) else
+                         f"{interval.value:.2f} [{interval.low:.2f}, {interval.high:.2f}]")  # fmt: skip
+        runs = ", ".join(f"{m['scene']}:{m['seed']}" for m in members)
+        lines.append(f"| {lighting} | {role} | {label} | {runs} | " + " | ".join(cells) + " |")
+    lines += ["", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    lines += ["| " + " | ".join(_fmt(row[c]) for c in COLUMNS) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def main(args: TableArgs) -> List[Dict[str, object]]:
+    pairs = [item.split("=", 1) for item in args.counts]
+    bad = [item for item, pair in zip(args.counts, pairs, strict=True) if len(pair) != 2]
+    if bad:
+        raise SystemExit(f"--counts takes LABEL=FOLDER, got {bad}")
+    rows = [read_row(label, Path(folder), args.reporting_from) for label, folder in pairs]
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "counts.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    (args.out / "counts.md").write_text(markdown(rows))
+    print((args.out / "counts.md").read_text())
+    return rows
+
+
+if __name__ == "__main__":
+    main(tyro.cli(TableArgs))
