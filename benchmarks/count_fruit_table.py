@@ -2,7 +2,7 @@
 
 ``python benchmarks/count_fruit_table.py --counts LABEL=COUNT_DIR... --out results/NAME`` reads each
 ``agrinerf-count`` folder's ``count.json`` (written with ``--truth``), takes the scene, lighting and seed from the truth's
-``truth/scene.json`` and writes ``counts.csv`` (one row per folder) and ``counts.md``: per lighting and row kind the
+``truth/scene.json`` and writes ``counts.csv`` (one row per folder), ``summary.csv`` and ``counts.md``: per lighting and row kind the
 mean over the runs of the reporting seeds (``--reporting-from``: seeds at or above it; the others are tuning seeds,
 listed apart and never pooled) with an interval that resamples the runs. ``LABEL`` names the row's kind (the
 trained configuration, or an oracle: ``python -m agrinerf_ns.lab.count_oracle``, the counting on perfect renders);
@@ -45,7 +45,10 @@ def read_row(label: str, folder: Path, reporting_from: int) -> Dict[str, object]
     report = json.loads(path.read_text())
     if "score" not in report or "truth" not in report:
         raise ValueError(f"{path}: no score; count with --truth RAW")
-    scene = json.loads((Path(report["truth"]) / "truth" / "scene.json").read_text())["config"]
+    truth = Path(report["truth"])
+    if not truth.is_absolute():  # counts written before count.json resolved it: relative to where they ran
+        truth = folder.resolve().parent / truth
+    scene = json.loads((truth / "truth" / "scene.json").read_text())["config"]
     score = report["score"]
     return {
         "scene": scene["scene"],
@@ -62,15 +65,34 @@ def _fmt(value: object) -> str:
     return f"{value:.3f}" if isinstance(value, float) else str(value)
 
 
-def markdown(rows: Sequence[Dict[str, object]]) -> str:
-    """Per lighting, role and kind: the mean of each measure over the runs and its bootstrap interval; then all rows."""
+SHOWN = ("f1", "f1_well_seen", "count_error", "count_error_well_seen", "mean_temperature_error")
+
+
+def _groups(rows: Sequence[Dict[str, object]]) -> Dict[tuple, List[Dict[str, object]]]:
     groups: Dict[tuple, List[Dict[str, object]]] = defaultdict(list)
     for row in rows:
         groups[(row["lighting"], row["role"], row["label"])].append(row)
-    shown = ("f1", "f1_well_seen", "count_error", "count_error_well_seen", "mean_temperature_error")
+    return dict(sorted(groups.items(), key=lambda kv: [str(k) for k in kv[0]]))
+
+
+def summary(rows: Sequence[Dict[str, object]]) -> List[Dict[str, object]]:
+    """Per lighting, role and label: the runs, and each measure's mean over them with its bootstrap interval."""
+    out: List[Dict[str, object]] = []
+    for (lighting, role, label), members in _groups(rows).items():
+        row: Dict[str, object] = {"lighting": lighting, "role": role, "label": label, "runs": len(members)}
+        for measure in MEASURES:
+            interval = bootstrap_mean([float(m[measure]) for m in members])  # type: ignore[arg-type]
+            row |= {measure: interval.value, f"{measure}_low": interval.low, f"{measure}_high": interval.high}
+        out.append(row)
+    return out
+
+
+def markdown(rows: Sequence[Dict[str, object]]) -> str:
+    """Per lighting, role and kind: the mean of each measure over the runs and its bootstrap interval; then all rows."""
+    shown = SHOWN
     lines = ["| lighting | seeds | row | runs (scene:seed) | " + " | ".join(shown) + " |",
              "|---|---|---|---|" + "---|" * len(shown)]  # fmt: skip
-    for (lighting, role, label), members in sorted(groups.items(), key=lambda kv: [str(k) for k in kv[0]]):
+    for (lighting, role, label), members in _groups(rows).items():
         cells = []
         for measure in shown:
             interval = bootstrap_mean([float(m[measure]) for m in members])  # type: ignore[arg-type]
@@ -94,6 +116,11 @@ def main(args: TableArgs) -> List[Dict[str, object]]:
         writer = csv.DictWriter(handle, fieldnames=COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
+    pooled = summary(rows)
+    with (args.out / "summary.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(pooled[0]))
+        writer.writeheader()
+        writer.writerows({k: _fmt(v) for k, v in row.items()} for row in pooled)
     (args.out / "counts.md").write_text(markdown(rows))
     print((args.out / "counts.md").read_text())
     return rows
