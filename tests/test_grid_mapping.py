@@ -167,7 +167,7 @@ def test_box_sampler_puts_half_the_samples_before_the_box_exit() -> None:
     torch.testing.assert_close(spacing[0], torch.tensor([0.05, 6.0, 1000.0]), rtol=1e-4, atol=1e-4)
 
 
-def _ring_cameras(n: int = 8, radius: float = 3.0, size: int = 24):
+def _ring_cameras(n: int = 8, radius: float = 3.0, size: int = 24, focal: float = 20.0):
     from nerfstudio.cameras.cameras import Cameras
 
     poses = []
@@ -180,7 +180,7 @@ def _ring_cameras(n: int = 8, radius: float = 3.0, size: int = 24):
         up = np.cross(back, right)
         poses.append(np.stack([right, up, back, eye], axis=1))
     c2w = torch.tensor(np.stack(poses), dtype=torch.float32)
-    return Cameras(camera_to_worlds=c2w, fx=20.0, fy=20.0, cx=size / 2, cy=size / 2, width=size, height=size)
+    return Cameras(camera_to_worlds=c2w, fx=focal, fy=focal, cx=size / 2, cy=size / 2, width=size, height=size)
 
 
 def test_the_model_fits_its_box_to_the_dense_region_it_renders() -> None:
@@ -234,17 +234,64 @@ def test_later_fits_only_shrink_the_box() -> None:
     assert smaller is not None and float((smaller[1] - smaller[0]).prod()) < 0.5 * float((later[1] - later[0]).prod())
 
 
-def _fill_density(model, dense: torch.Tensor) -> None:
-    """Density 30 (per scene unit) inside world box `dense`, none elsewhere (zeroed planes and lines)."""
+def _fill_density(model, *boxes: torch.Tensor) -> None:
+    """Density 30 (per scene unit) inside each world box of `boxes` (one VM component each), none elsewhere (zeroed
+    planes and lines)."""
     with torch.no_grad():
         volume = model.field.density_encoding
         volume.plane_table.zero_()
         volume.line_table.zero_()
-        lo, hi = model.field.mapping(dense[0]), model.field.mapping(dense[1])
         axes = [torch.linspace(-1, 1, r) for r in volume.resolution]
-        inside = [(a >= lo[i]) & (a <= hi[i]) for i, a in enumerate(axes)]
-        volume.planes()[0][:, :, 0] = 30.0 * (inside[1][:, None] & inside[0][None, :]).float()  # plane xy: (y, x)
-        volume.lines()[0][:, 0] = inside[2].float()  # line z
+        for k, dense in enumerate(boxes):
+            lo, hi = model.field.mapping(dense[0]), model.field.mapping(dense[1])
+            inside = [(a >= lo[i]) & (a <= hi[i]) for i, a in enumerate(axes)]
+            volume.planes()[0][:, :, k] = 30.0 * (inside[1][:, None] & inside[0][None, :]).float()  # xy: (y, x)
+            volume.lines()[0][:, k] = inside[2].float()  # line z
+
+
+def test_a_fruit_head_keeps_the_masked_fruit_in_the_box(tmp_path) -> None:
+    from helpers.small_model import SMALL_MODEL
+    from nerfstudio.data.scene_box import SceneBox
+    from PIL import Image
+
+    from agrinerf_ns.model.model import AgriNeRFModelConfig
+
+    canopy = torch.tensor([[-0.5, -0.4, -0.4], [0.4, 0.4, 0.4]])
+    fruit = torch.tensor([[0.55, 0.55, 0.5], [0.7, 0.7, 0.65]])  # a little matter apart: too little for the scene fit
+
+    def model_of_the_scene():  # a fresh model each time: a fit resamples the volumes into its box
+        torch.manual_seed(0)
+        small = {**SMALL_MODEL, "box_fit_rays": 4096, "density_shift": -12.0, "init_resolution": 24}
+        cfg = AgriNeRFModelConfig(modalities=("rgb",), box_fruit_share=0.9, **small)
+        model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=8, metadata={})
+        _fill_density(model, canopy, fruit)
+        return model
+
+    def held(box: torch.Tensor, region: torch.Tensor) -> float:
+        """Share of `region`'s volume inside `box`."""
+        overlap = (torch.minimum(box[1], region[1]) - torch.maximum(box[0], region[0])).clamp(min=0).prod()
+        return float(overlap / (region[1] - region[0]).prod())
+
+    model = model_of_the_scene()
+    cameras = _ring_cameras(size=64, focal=100.0)  # the fruit some pixels across
+    masks = []  # each camera's pixels whose surface lies in the fruit, as a segmenter would mark them
+    for k in range(cameras.shape[0]):
+        points, hit, _ = model.surface_points(cameras.generate_rays(camera_indices=k).flatten())
+        near = ((points >= fruit[0] - 0.05) & (points <= fruit[1] + 0.05)).all(-1) & (hit > 0.5)
+        masks.append(tmp_path / f"{k}.png")
+        Image.fromarray((255 * near.view(64, 64).numpy()).astype(np.uint8)).save(masks[-1])
+    assert sum(int((np.asarray(Image.open(m)) > 0).sum()) >= 8 for m in masks) >= 3, "the fruit shows in several views"
+    scene_only = model.grid.fit_box(model.surface_points, cameras, step=0)
+    assert scene_only is not None and held(scene_only, canopy) > 0.7 and held(scene_only, fruit) == 0.0
+    model = model_of_the_scene()
+    with_fruit = model.grid.fit_box(model.surface_points, cameras, step=0, fruit_masks=masks)
+    # the box holds the fruit's seen surfaces (its far corner faces no camera)
+    assert with_fruit is not None and held(with_fruit, canopy) > 0.7 and held(with_fruit, fruit) > 0.5
+    # masks without fruit leave the scene's fit as it is
+    empty = tmp_path / "empty.png"
+    Image.fromarray(np.zeros((64, 64), np.uint8)).save(empty)
+    model = model_of_the_scene()
+    torch.testing.assert_close(model.grid.fit_box(model.surface_points, cameras, 0, [empty] * 8), scene_only)
 
 
 def test_a_dataset_with_sfm_points_starts_with_their_box(tmp_path) -> None:

@@ -55,10 +55,13 @@ class GridSchedule:
                 volume.upsample_grid(target)
 
     @torch.no_grad()
-    def fit_box(self, surfaces: SurfaceRender, cameras: Any, step: int) -> Optional[Tensor]:
+    def fit_box(
+        self, surfaces: SurfaceRender, cameras: Any, step: int, fruit_masks: Optional[Sequence[Any]] = None
+    ) -> Optional[Tensor]:
         """Fit the full-resolution box to the median-depth points of `box_fit_rays` training rays of `cameras` (drawn
         with a generator seeded by `step`, so the global random stream is untouched) and resample the volumes into
-        it at the current resolution; returns the new box, or None when too few rays hit anything (box kept)."""
+        it at the current resolution; returns the new box, or None when too few rays hit anything (box kept).
+        `fruit_masks`: per camera its fruit-mask file (None: none, or not the RGB camera's), for `box_fruit_share`."""
         field, cfg = self.field, self.config
         if field.mapping is None:
             return None
@@ -73,6 +76,10 @@ class GridSchedule:
         box = self.box_for_surface(*surfaces(bundle))
         if box is None:
             return None
+        if cfg.box_fruit_share > 0 and fruit_masks is not None:
+            fruit = fruit_pixel_rays(cameras, fruit_masks, n, gen)
+            if fruit is not None:
+                box = box_with_fruit(box, *surfaces(fruit), cfg.box_depth_cut, cfg.box_fruit_share)
         old = field.full_resolution_box()
         first = not cfg.box_fit_iters or step <= min(cfg.box_fit_iters)
         growth = cfg.box_fit_growth if first else cfg.box_refit_growth
@@ -145,7 +152,7 @@ class GridSchedule:
 
         def refit_box(step: int) -> None:
             dataset = getattr(getattr(attributes.pipeline, "datamanager", None), "train_dataset", None)
-            if dataset is None or self.fit_box(surfaces, dataset.cameras, step) is None:
+            if dataset is None or self.fit_box(surfaces, dataset.cameras, step, rgb_fruit_masks(dataset)) is None:
                 return
             if optimizers is not None:
                 sync_optimizers(param_groups(), optimizers, keep_moments=False)
@@ -159,6 +166,57 @@ class GridSchedule:
                 TrainingCallback(where_to_run=after, iters=tuple(cfg.occupancy_update_iters), func=update_occupancy)
             )
         return callbacks
+
+
+def rgb_fruit_masks(dataset: Any) -> Optional[List[Optional[Any]]]:
+    """Per training camera of `dataset` its fruit-mask file where the mask is the RGB camera's (None where it is the
+    thermal camera's); None when the dataset has no fruit masks."""
+    metadata = getattr(dataset, "metadata", None) or {}
+    files = metadata.get("fruit_mask_filenames")
+    if not files:
+        return None
+    thermal = metadata.get("fruit_mask_thermal") or [False] * len(files)
+    return [None if on_thermal else path for path, on_thermal in zip(files, thermal, strict=True)]
+
+
+def fruit_pixel_rays(cameras: Any, masks: Sequence[Optional[Any]], n: int, gen: torch.Generator) -> Optional[RayBundle]:
+    """Up to `n` rays through fruit pixels of the cameras' masks (every fruit pixel equally likely, drawn with `gen`);
+    None when no mask holds fruit."""
+    from agrinerf_ns.dataparsers.fruit_masks import read_fruit_mask
+    from agrinerf_ns.fruit_mask_format import fruit_and_known
+
+    pixels = []
+    for index, path in enumerate(masks):
+        if path is None:
+            continue
+        height, width = int(cameras.height[index, 0]), int(cameras.width[index, 0])
+        fruit, _ = fruit_and_known(read_fruit_mask(path))
+        scale_y, scale_x = fruit.shape[0] / height, fruit.shape[1] / width  # masks at the frame's own size
+        ys, xs = np.nonzero(fruit)
+        if ys.size:
+            pixels.append(np.stack([np.full(ys.size, index), (ys + 0.5) / scale_y, (xs + 0.5) / scale_x], -1))
+    if not pixels:
+        return None
+    every = torch.from_numpy(np.concatenate(pixels)).float()
+    pick = torch.randint(0, every.shape[0], (min(n, every.shape[0]),), generator=gen)  # cpu: as the scene's rays
+    chosen = every[pick]
+    return cameras.generate_rays(camera_indices=chosen[:, :1].long(), coords=chosen[:, 1:])
+
+
+def box_with_fruit(
+    box: Float[Tensor, "2 3"],
+    points: Float[Tensor, "n 3"],
+    weights: Float[Tensor, " n"],
+    origins: Float[Tensor, "n 3"],
+    depth_cut: float,
+    share: float,
+) -> Float[Tensor, "2 3"]:
+    """`box` grown to also hold the box of `share` of the fruit pixels' surface points (as the scene's: points beyond
+    `depth_cut` times their median distance left out); `box` itself where too few fruit points hit anything."""
+    fruit = fit_box_to_points(points, weights, origins, depth_cut, share)
+    if fruit is None:
+        return box
+    return torch.stack([torch.minimum(box[0], fruit[0].to(box)), torch.maximum(box[1], fruit[1].to(box))])
 
 
 def sync_optimizers(current: Dict[str, List[Parameter]], optimizers: Optimizers, keep_moments: bool = True) -> int:

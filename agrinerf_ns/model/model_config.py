@@ -159,6 +159,10 @@ class AgriNeRFSettings(ModelConfig):
     (small grids, a wide scene), and for 0, the box holds `box_surface_share` as without a metric scale."""
     box_min_share: float = 0.8
     """The least share of the surface weight that a fit towards `box_voxel_target_m` keeps in the box."""
+    box_fruit_share: float = 0.0
+    """With a fruit head: each box fit also holds this share of the surface points of the training frames' fruit-mask
+    pixels (RGB-camera masks; `grid_schedule.fruit_pixel_rays`), so that the fruit the head is taught keep the
+    full resolution (the box grows over them, at a larger voxel). 0: off, the fit sees the scene only."""
     keep_freed_memory: bool = True
     """Training on a CPU: keep freed memory in the process for the next step (glibc serves large blocks from its heap
     and does not trim it) rather than fault fresh pages in every step; about half as long a step at the paper's final
