@@ -34,6 +34,7 @@ from torch import Tensor
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataError, AgriNeRFDataParserConfig
 from agrinerf_ns.dataparsers.fruit_masks import load_fruit_mask
+from agrinerf_ns.dataparsers.fruit_sampler import FruitPixelSamplerConfig
 
 # batch key -> (metadata key of its files, metadata key of its masks, batch key of its mask)
 MODALITY_KEYS: Dict[str, Tuple[str, str, str]] = {
@@ -193,9 +194,11 @@ def agrinerf_datamanager_config(parallel: bool = False, **kwargs: Any) -> Vanill
             ``if __name__ == "__main__":`` guard) instead of the in-process ``VanillaDataManager`` (the default:
             deterministic given the torch seed, and cheaper on a CPU).
         kwargs: fields of :class:`VanillaDataManagerConfig`, for example ``train_num_rays_per_batch=1024``; the
-            dataparser defaults to :class:`AgriNeRFDataParserConfig`.
+            dataparser defaults to :class:`AgriNeRFDataParserConfig`, the pixel sampler to
+            :class:`FruitPixelSamplerConfig` (uniform; ``--pipeline.datamanager.pixel-sampler.fruit-share``).
     """
     kwargs.setdefault("dataparser", AgriNeRFDataParserConfig())
+    kwargs.setdefault("pixel_sampler", FruitPixelSamplerConfig())  # uniform unless its fruit_share is set
     if parallel:
         return ParallelDataManagerConfig(_target=ParallelDataManager[AgriNeRFDataset], **kwargs)
     return VanillaDataManagerConfig(_target=VanillaDataManager[AgriNeRFDataset], **kwargs)
