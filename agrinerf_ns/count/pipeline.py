@@ -73,7 +73,10 @@ class CountConfig:
     """Scoring: a true fruit is visible when this many of its pixels show in a training view."""
     well_seen_share: float = 0.25
     """Scoring: a true fruit is also scored as *well seen* (the ``*_well_seen`` scores) when this share of its disc
-    shows in at least ``cluster.min_views`` training views (``fruit_score.well_seen_fruit``)."""
+    shows in at least ``well_seen_views`` training views (``fruit_score.well_seen_fruit``)."""
+    well_seen_views: int = 2
+    """Scoring: see ``well_seen_share`` (two: the views a 3D count needs; fixed apart from the counter's own
+    ``--min-views``, so that changing the counter does not move the denominator)."""
 
 
 @dataclass
@@ -147,7 +150,7 @@ def score_result(result: CountResult, dataset: Path, train: Sequence[str], raw: 
     result.to_capture = align_to_capture(dataset, raw) if config.align == "poses" else Similarity.identity()
     well_seen = None
     if (Path(raw) / TRUE_DEPTH_DIR).is_dir():
-        well_seen = well_seen_fruit(raw, train, truth, config.well_seen_share, config.cluster.min_views)
+        well_seen = well_seen_fruit(raw, train, truth, config.well_seen_share, config.well_seen_views)
     result.score = score_fruit(
         result.to_capture.apply(_centres(result.fruit)), truth, result.visible, config.match_distance,
         _temperatures(result.fruit), well_seen,
@@ -327,7 +330,7 @@ def write_count(
                     "detector": detector,
                     "min views per fruit": config.cluster.min_views,
                     "visible": f">= {config.min_visible_pixels} pixels in a training view",
-                    "well seen": f">= {config.well_seen_share:g} of its disc in >= {config.cluster.min_views} "
+                    "well seen": f">= {config.well_seen_share:g} of its disc in >= {config.well_seen_views} "
                     "training views",
                     "alignment": f"{config.align} (camera residual RMS {result.to_capture.residual_rms:.3f})",
                 },
