@@ -310,7 +310,7 @@ def write_count(
     draw_map(tmp / "fruit_map.png", fruit, surface, title, result.truth, result.visible, result.to_capture, cameras)
     report: Dict[str, Any] = dict(settings) | {"fruit": len(fruit)}
     if result.score is not None and result.to_capture is not None:
-        report["truth"] = str(Path(truth).resolve())
+        report["truth"] = str(Path(truth).resolve()) if truth is not None else None
         report["score"] = result.score.as_dict()
         capture_centres = result.to_capture.apply(centres)
         report["f1_at_distance"] = {
