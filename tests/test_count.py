@@ -451,3 +451,24 @@ def test_the_true_depth_under_a_runs_colours_undoes_a_wrong_geometry(tiny_captur
         np.testing.assert_allclose(got.depth, 2.5 * want.depth, rtol=1e-6)
     with pytest.raises(CountInputError, match="no frame for the rendered view images/none.png"):
         with_true_depth(replace(far, views=[replace(far.views[0], file_path="images/none.png")]), raw)
+
+
+def test_the_oracle_fruit_channel_counts_and_the_misses_report_reads_it(
+    tiny_capture: Tuple[Path, Path], tmp_path: Path
+) -> None:
+    """The oracle's fruit channel is the truth's fruit pixels; counted from it, every fruit pixel is found at its true
+    depth (benchmarks/fruit_count_misses.py on the oracle itself)."""
+    from helpers.bench_script import load_bench_script
+
+    raw, data = tiny_capture
+    renders = oracle_renders(raw, data, fruit_mode="true")
+    assert all(view.fruit is not None and set(np.unique(view.fruit)) <= {0.0, 1.0} for view in renders.views)
+    assert sum(float(view.fruit.sum()) for view in renders.views) > 20  # type: ignore[union-attr]
+    save_renders(renders, tmp_path / "renders")
+    settings = CountConfig(detect=DetectorConfig(source="fruit"))
+    result = main(CountArgs(out=tmp_path / "count", renders=tmp_path / "renders", truth=raw, count=settings))
+    assert result.score is not None and result.score.counted > 0 and result.score.well_seen >= 0
+    misses = load_bench_script("fruit_count_misses")
+    report = misses.main(misses.MissArgs(tmp_path / "renders", tmp_path / "renders", raw, tmp_path / "count"))
+    assert "median 0.000 m, within 5 cm 1.00" in str(report["depth error at found fruit pixels"])
+    assert str(report["depth error at missed fruit pixels"]).startswith("0 px")

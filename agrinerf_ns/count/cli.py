@@ -31,8 +31,9 @@ class CountArgs:
     config: Optional[Path] = None
     """The run's config.yml (outputs/<name>/<method>/<time>/config.yml) or its folder."""
     path: Literal["auto", "views", "field", "fruit"] = "auto"
-    """auto: what counted best on runs of this kind: RGB views placed by their rays where the RGB frames are lit, the
-    field's temperature where they are dark or absent (docs/count.md); views: detect in rendered views and lift
+    """auto: what counted best on runs of this kind: a run with a fruit head, its fruit channel in the views; else RGB
+    views placed by their rays where the RGB frames are lit, the field's temperature where they are dark or absent
+    (docs/count.md); views: detect in rendered views and lift
     (--renders: always); field: count in the sampled field, in 3D; fruit: count in 3D where the run's fruit head
     (trained from the frames' fruit masks) says fruit."""
     renders: Optional[Path] = None

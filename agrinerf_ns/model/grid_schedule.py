@@ -197,7 +197,7 @@ def fruit_pixel_rays(cameras: Any, masks: Sequence[Optional[Any]], n: int, gen: 
             pixels.append(np.stack([np.full(ys.size, index), (ys + 0.5) / scale_y, (xs + 0.5) / scale_x], -1))
     if not pixels:
         return None
-    every = torch.from_numpy(np.concatenate(pixels)).float()
+    every = torch.from_numpy(np.concatenate(pixels)).float()  # cpu: the training cameras stay on the CPU
     pick = torch.randint(0, every.shape[0], (min(n, every.shape[0]),), generator=gen)  # cpu: as the scene's rays
     chosen = every[pick]
     return cameras.generate_rays(camera_indices=chosen[:, :1].long(), coords=chosen[:, 1:])
