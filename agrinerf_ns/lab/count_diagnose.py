@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Dict, List, Optional
 
-import cv2
 import numpy as np
 import tyro
 from jaxtyping import Int
@@ -28,7 +27,6 @@ from jaxtyping import Int
 from agrinerf_ns.count.cluster import cluster_labels, merge_distance
 from agrinerf_ns.count.detectors import make_detector
 from agrinerf_ns.count.fruit_score import (
-    FRUIT_IDS_DIR,
     align_to_capture,
     dataset_frames,
     raw_stem,
@@ -38,8 +36,8 @@ from agrinerf_ns.count.fruit_score import (
 )
 from agrinerf_ns.count.lift import lift_detection
 from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
-from agrinerf_ns.count.render import CountInputError, RenderSet, load_renders
-from agrinerf_ns.lab.count_oracle import undistort_maps, with_true_depth
+from agrinerf_ns.count.render import RenderSet, load_renders
+from agrinerf_ns.lab.count_oracle import true_fruit_ids, undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import read_calibration
 
 
@@ -49,15 +47,8 @@ def view_fruit_ids(raw: Path, renders: RenderSet) -> List[Int[np.ndarray, "h w"]
     meta = json.loads((renders.dataset / "transforms.json").read_text())
     map_x, map_y = undistort_maps(read_calibration(raw / "calib.yaml").rgb, meta)
     frames = dataset_frames(renders.dataset)
-    out = []
-    for view in renders.views:
-        path = raw / FRUIT_IDS_DIR / f"{raw_stem(frames.get(view.file_path, {}), view.file_path)}.png"
-        ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if ids is None:
-            raise CountInputError(f"{path}: missing or unreadable fruit mask")
-        ids = cv2.remap(ids, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        out.append(ids.astype(np.int64) - 1)
-    return out
+    stems = [raw_stem(frames.get(view.file_path, {}), view.file_path) for view in renders.views]
+    return [true_fruit_ids(raw, stem, (map_x, map_y)) for stem in stems]
 
 
 def diagnose(renders: RenderSet, raw: Path, config: CountConfig) -> Dict[str, Any]:

@@ -30,9 +30,9 @@ from typing import List, Literal, Optional, Tuple
 import cv2
 import numpy as np
 import tyro
-from jaxtyping import Float
+from jaxtyping import Float, Int
 
-from agrinerf_ns.count.fruit_score import read_frames, read_split
+from agrinerf_ns.count.fruit_score import FRUIT_IDS_DIR, raw_stem, read_frames, read_split
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
 from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRAME_KEY, fruit_and_known
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
@@ -86,7 +86,7 @@ def oracle_thermal(
     """(thermal, temperature) of one oracle view by ``mode`` (see the module docstring); ``camera`` is the capture's
     thermal camera (``reprojected`` needs it)."""
     if mode == "true":
-        stem = Path(str(frame.get("raw_rgb", frame["file_path"]))).stem
+        stem = raw_stem(frame, frame["file_path"])
         t = np.load(raw / "truth" / "temperature" / f"{stem}.npy").astype(np.float32)
         t = cv2.remap(t, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
         return t, t
@@ -107,15 +107,23 @@ def oracle_thermal(
     return t, t
 
 
+def true_fruit_ids(raw: Path, stem: str, maps: Tuple) -> Int[np.ndarray, "h w"]:
+    """The true fruit id of each pixel (-1 none) of the raw RGB frame ``stem`` (``truth/fruit_ids``), undistorted onto
+    the dataset's pinhole camera by ``maps`` (:func:`undistort_maps`)."""
+    path = raw / FRUIT_IDS_DIR / f"{stem}.png"
+    ids = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if ids is None:
+        raise CountInputError(f"{path}: missing or unreadable fruit mask")
+    ids = cv2.remap(ids, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return ids.astype(np.int64) - 1
+
+
 def oracle_fruit(raw: Path, dataset: Path, frame: dict, maps: Tuple, mode: FruitMode) -> Optional[np.ndarray]:
     """The ``fruit`` channel of one oracle view by ``mode`` (see the module docstring); NaN where unknown."""
     if mode == "none":
         return None
     if mode == "true":
-        stem = Path(str(frame.get("raw_rgb", frame["file_path"]))).stem
-        ids = cv2.imread(str(raw / "truth" / "fruit_ids" / f"{stem}.png"), cv2.IMREAD_UNCHANGED)
-        ids = cv2.remap(ids, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        return (ids > 0).astype(np.float32)
+        return (true_fruit_ids(raw, raw_stem(frame, frame["file_path"]), maps) >= 0).astype(np.float32)
     if FRAME_KEY not in frame or frame.get(CAMERA_KEY, "rgb") != "rgb":
         return None
     fruit, known = fruit_and_known(cv2.imread(str(dataset / frame[FRAME_KEY]), cv2.IMREAD_GRAYSCALE))
@@ -138,7 +146,7 @@ def oracle_renders(
     train = set(read_split(dataset, "train_filenames"))
     views: List[RenderedView] = []
     for frame in read_frames(dataset):
-        stem = Path(str(frame.get("raw_rgb", frame["file_path"]))).stem
+        stem = raw_stem(frame, frame["file_path"])
         z = np.load(raw / "truth" / "depth" / f"{stem}.npy").astype(np.float32)
         z = cv2.remap(z, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
         hit = np.isfinite(z)
