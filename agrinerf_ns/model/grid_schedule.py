@@ -182,19 +182,17 @@ def rgb_fruit_masks(dataset: Any) -> Optional[List[Optional[Any]]]:
 def fruit_pixel_rays(cameras: Any, masks: Sequence[Optional[Any]], n: int, gen: torch.Generator) -> Optional[RayBundle]:
     """Up to `n` rays through fruit pixels of the cameras' masks (every fruit pixel equally likely, drawn with `gen`);
     None when no mask holds fruit."""
-    from agrinerf_ns.dataparsers.fruit_masks import read_fruit_mask
-    from agrinerf_ns.fruit_mask_format import fruit_and_known
+    from agrinerf_ns.dataparsers.fruit_masks import load_fruit_mask
 
     pixels = []
     for index, path in enumerate(masks):
         if path is None:
             continue
-        height, width = int(cameras.height[index, 0]), int(cameras.width[index, 0])
-        fruit, _ = fruit_and_known(read_fruit_mask(path))
-        scale_y, scale_x = fruit.shape[0] / height, fruit.shape[1] / width  # masks at the frame's own size
-        ys, xs = np.nonzero(fruit)
+        # at the camera's size, as the dataset reads it for the fruit loss
+        fruit, _ = load_fruit_mask(path, int(cameras.height[index, 0]), int(cameras.width[index, 0]))
+        ys, xs = np.nonzero(fruit[..., 0].numpy() > 0.5)
         if ys.size:
-            pixels.append(np.stack([np.full(ys.size, index), (ys + 0.5) / scale_y, (xs + 0.5) / scale_x], -1))
+            pixels.append(np.stack([np.full(ys.size, index), ys + 0.5, xs + 0.5], -1))
     if not pixels:
         return None
     every = torch.from_numpy(np.concatenate(pixels)).float()  # cpu: the training cameras stay on the CPU
