@@ -4,8 +4,8 @@ a run has (:class:`RunOutputs`) and one resolver (:func:`resolve_source`) that b
 ``auto`` is resolved in these orders, from the counts of results/count-seeds (F1 at 0.05 m):
 
 - the view path on a run with a fruit head (trained from the frames' fruit masks): ``fruit``, its rendered regions
-  (F1 0.31 against 0.23 from fruit colour on the realistic bright orchard, reporting seed 100, one run:
-  results/count-fruit-report; chosen on tuning seed 0, results/count-fruit);
+  (F1 0.35 against 0.20 from fruit colour on the same renders, four bright runs on reporting seeds:
+  results/count-fruit-seeds; chosen on tuning seed 0, results/count-fruit);
 - the view path on a run whose RGB frames are lit: ``rgb``. Fruit colour in the RGB views counted best in light
   (0.18-0.29; every thermal output 0.05 or less), so ``--path views`` counts a lit run as ``--path auto`` does;
 - the view path otherwise (RGB frames dark by the model's low-light rule, no RGB output, or the light not known: a
