@@ -10,8 +10,8 @@ import torch
 import yaml
 
 from agrinerf_ns import colour, image_metrics
-from agrinerf_ns.lab import results
-from agrinerf_ns.lab.cli import BenchConfig, main
+from agrinerf_ns.lab import margins, results
+from agrinerf_ns.lab.cli import BenchConfig, main, step_budgets
 from agrinerf_ns.views import CPU_RAYS_PER_CHUNK, evenly_spaced, rays_per_chunk
 
 
@@ -31,6 +31,37 @@ def test_quality_at_time_and_time_to_quality() -> None:
     assert math.isnan(results.psnr_at_time(rows, "b", "s", 5.0, "psnr"))
     assert results.time_to_quality(rows, "a", "s", 16.0, "psnr") == 20.0
     assert math.isnan(results.time_to_quality(rows, "b", "s", 30.0, "psnr"))
+
+
+def _checkpoints(method: str, points: list) -> list:
+    return [{"scene": "s", "method": method, "step": str(step), "wall_s": str(wall), "psnr": str(q)}
+            for step, wall, q in points]  # fmt: skip
+
+
+def test_margins_at_equal_time_and_steps_flag_a_flat_baseline(tmp_path: Path) -> None:
+    rows = (_checkpoints("agrinerf", [(130, 40, 16.0), (260, 80, 18.0), (390, 120, 19.0)])
+            + _checkpoints("nerfacto", [(13, 40, 7.75), (26, 80, 7.75), (40, 120, 7.76)])
+            + _checkpoints("tensorf", [(130, 30, 12.0), (260, 60, 14.0), (390, 90, 15.0)]))  # fmt: skip
+    table = {(r["baseline"], r["basis"]): r for r in margins.margins(rows, "psnr")}
+    assert set(table) == {(b, basis) for b in ("nerfacto", "tensorf") for basis in ("wall_s", "steps")}
+    # equal wall time: both at the shorter run's end (tensorf 90 s: agrinerf's best by then is 18.0 at 80 s)
+    assert table["tensorf", "wall_s"]["at"] == 90 and table["tensorf", "wall_s"]["difference"] == 18.0 - 15.0
+    # equal steps: both at 390 steps
+    assert table["tensorf", "steps"]["at"] == 390 and table["tensorf", "steps"]["difference"] == 19.0 - 15.0
+    # nerfacto ran 40 steps: at equal steps agrinerf has no checkpoint by step 40
+    assert math.isnan(table["nerfacto", "steps"]["difference"])
+    assert table["nerfacto", "wall_s"]["baseline_flat"] and not table["tensorf", "wall_s"]["baseline_flat"]
+    text = "\n".join(margins.summary_lines(list(table.values())))
+    assert "did not learn" in text and "no checkpoint of both" in text
+    written = results.read_rows(margins.write_margins(list(table.values()), tmp_path / "margins.csv"))
+    assert len(written) == 4 and {r["baseline_flat"] for r in written} == {"True", "False"}
+
+
+def test_step_budgets_override_the_profile_and_refuse_a_bad_pair() -> None:
+    assert step_budgets(("nerfacto=390", "tensorf=390")) == {"nerfacto": 390, "tensorf": 390}
+    for bad in ("nerfacto", "nerfacto=0", "nerfacto=ten", "nerfactoo=40"):
+        with pytest.raises(ValueError, match="expected METHOD=N"):
+            step_budgets((bad,))
 
 
 def test_csv_append_survives_and_resumes(tmp_path: Path) -> None:
@@ -86,6 +117,7 @@ def test_bench_end_to_end_tiny(tmp_path: Path) -> None:
     table = (tmp_path / "bench" / "results.md").read_text()
     assert "AgriNeRF-lite" in table and "Nerfacto (Thermal)" in table and "Command:" in table
     assert (tmp_path / "bench" / "tradeoff.png").stat().st_size > 5000
+    assert results.read_rows(tmp_path / "bench" / "margins.csv") == [], "no RGB baseline ran: no margin"
     # resumable: a second call trains nothing new and appends nothing
     again = main(config)
     assert len(again) == len(rows)

@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import tyro
 from rich.console import Console
 
-from agrinerf_ns.lab import bench_grid, results
+from agrinerf_ns.lab import bench_grid, margins, results
 from agrinerf_ns.lab.layout import BenchLayout
 from agrinerf_ns.lab.methods import METHODS, SAMPLE_BUDGETS, unknown_reason
 from agrinerf_ns.lab.profiles import PROFILES
@@ -43,6 +43,12 @@ class BenchConfig:
     model config field set, e.g. agrinerf-lite%thermal_rays_per_batch=128, JSON values)."""
     scenes: Optional[Tuple[str, ...]] = None
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
+    steps: Tuple[str, ...] = ()
+    """METHOD=N: train METHOD for N steps instead of the profile's budget, e.g. ``nerfacto=390 tensorf=390`` to set
+    the baselines at the paper preset's steps (equal steps) as well as at their own (about equal wall time)."""
+    evaluations: Optional[int] = None
+    """Checkpoints evaluated per run (None: the profile's); more give a slow baseline's curve points at the presets'
+    wall times."""
     seed: int = 0
     """Seed of the synthetic scenes."""
     count: Optional[bool] = None
@@ -71,11 +77,13 @@ class BenchConfig:
 
 
 def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
-    """Equal-time differences against Nerfacto (RGB) and time to a stated PSNR, per scene."""
+    """Differences against the baselines at equal wall time and equal steps (`margins.py`), and the time to a
+    stated PSNR, per scene."""
     key = results.quality_key(rows)
     lines = [
         f"Quality figure: `{key}` ({'vs clean truth, exposure-aligned' if key == 'psnr_clean' else 'vs held-out frames'})."
     ]
+    table = margins.margins(rows, key)
     for scene in sorted({r["scene"] for r in rows}):
         scene_rows = [r for r in rows if r["scene"] == scene]
         methods = sorted(
@@ -83,19 +91,8 @@ def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
         )
         if not methods:
             continue
-        finals = {m: max(results.as_float(r, "wall_s") for r in scene_rows if r["method"] == m) for m in methods}
         lines.append(f"\n**{scene}**")
-        for m in methods:
-            if m == "nerfacto" or "nerfacto" not in methods:
-                continue
-            # each pair at the shorter of the two runs: both have spent that much time, neither more
-            t_eq = min(finals[m], finals["nerfacto"])
-            mine, base = (results.psnr_at_time(scene_rows, k, scene, t_eq, key) for k in (m, "nerfacto"))
-            if math.isfinite(mine) and math.isfinite(base):
-                lines.append(f"- {METHODS[m].label} minus Nerfacto (RGB) at equal wall time {t_eq:.0f} s: "
-                             f"{mine:.2f} - {base:.2f} = {mine - base:+.2f} dB")  # fmt: skip
-            else:
-                lines.append(f"- {METHODS[m].label} vs Nerfacto (RGB) at {t_eq:.0f} s: no checkpoint of both by then")
+        lines += margins.summary_lines([row for row in table if row["scene"] == scene])
         final_quality = {m: max(results.as_float(r, key) for r in scene_rows if r["method"] == m) for m in methods}
         target = target_psnr if target_psnr is not None else min(final_quality.values())
         lines.append(
@@ -121,7 +118,20 @@ def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[
             f"steps between them. Peak RSS: the `ns-train` process tree, sampled every 0.2 s.\n\n"
             f"{results.markdown_table(rows)}")  # fmt: skip
     layout.results_md.write_text(text)
+    margins.write_margins(margins.margins(rows, results.quality_key(rows)), layout.out / "margins.csv")
     results.plot(rows, layout.tradeoff_png)
+
+
+def step_budgets(pairs: Sequence[str]) -> Dict[str, int]:
+    """``METHOD=N`` pairs to step budgets; ValueError naming the pair that is not one."""
+    budgets = {}
+    for pair in pairs:
+        method, _, value = pair.partition("=")
+        if unknown_reason(method) is not None or not value.isdigit() or int(value) < 1:
+            raise ValueError(f"--steps {pair!r}: expected METHOD=N, METHOD one of {', '.join(METHODS)} (or a variant "
+                             "BASE%FIELD=VALUE) and N a positive whole number of steps")  # fmt: skip
+        budgets[method] = int(value)
+    return budgets
 
 
 def main(config: BenchConfig) -> List[results.Row]:
@@ -134,6 +144,10 @@ def main(config: BenchConfig) -> List[results.Row]:
             "a variant BASE%FIELD=VALUE that sets a model config field (e.g. agrinerf-lite%thermal_rays_per_batch=128)"
         )
     profile = PROFILES[config.profile]
+    if config.steps:
+        profile = replace(profile, steps={**profile.steps, **step_budgets(config.steps)})
+    if config.evaluations is not None:
+        profile = replace(profile, evaluations=max(1, config.evaluations))
     scenes = config.scenes or profile.scenes
     layout = BenchLayout(config.out)
     csv_path = config.results_csv or layout.results_csv

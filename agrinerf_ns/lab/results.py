@@ -95,6 +95,27 @@ def psnr_at_time(rows: Sequence[Row], method: str, scene: str, wall_s: float, ke
     return max(reached) if reached else math.nan
 
 
+def psnr_at_step(rows: Sequence[Row], method: str, scene: str, step: int, key: str) -> float:
+    """A method's quality at ``step``: the best checkpoint at or before it (NaN if none had been saved)."""
+    reached = [as_float(r, key) for r in rows if r["method"] == method and r["scene"] == scene
+               and int(r["step"]) <= step]  # fmt: skip
+    reached = [q for q in reached if math.isfinite(q)]
+    return max(reached) if reached else math.nan
+
+
+FLAT_DB = 0.1
+"""A run whose quality moves less than this between its first and best checkpoint has not learnt at its budget: a
+margin over it is the budget's, not the method's (`is_flat`)."""
+
+
+def is_flat(rows: Sequence[Row], method: str, scene: str, key: str) -> bool:
+    """Whether a run's quality moved less than `FLAT_DB` over its checkpoints (a constant output)."""
+    ordered = sorted((r for r in rows if r["method"] == method and r["scene"] == scene), key=lambda r: int(r["step"]))
+    values = [as_float(r, key) for r in ordered]
+    values = [v for v in values if math.isfinite(v)]
+    return len(values) >= 2 and max(values) - values[0] < FLAT_DB
+
+
 def time_to_quality(rows: Sequence[Row], method: str, scene: str, target: float, key: str) -> float:
     """Wall seconds of a method's first checkpoint at or above ``target`` (NaN if never reached)."""
     times = [as_float(r, "wall_s") for r in rows if r["method"] == method and r["scene"] == scene
