@@ -472,3 +472,33 @@ def test_the_oracle_fruit_channel_counts_and_the_misses_report_reads_it(
     report = misses.main(misses.MissArgs(tmp_path / "renders", tmp_path / "renders", raw, tmp_path / "count"))
     assert "median 0.000 m, within 5 cm 1.00" in str(report["depth error at found fruit pixels"])
     assert str(report["depth error at missed fruit pixels"]).startswith("0 px")
+
+
+def test_table_iii_from_the_fruit_channel_scores_the_oracle_and_refuses_a_run_without_one(
+    tiny_capture: Tuple[Path, Path], tmp_path: Path
+) -> None:
+    """`agrinerf-detect fruit`: the oracle's fruit channel (the truth's fruit pixels) boxed region by region finds the
+    true boxes; the same views with the channel moved off the fruit find none; a render folder without a fruit
+    channel is refused with its name."""
+    from agrinerf_ns.detect.fruit_channel import score_fruit_channel
+
+    raw, data = tiny_capture
+    renders = oracle_renders(raw, data, fruit_mode="true")
+    save_renders(renders, tmp_path / "true")
+    scored = score_fruit_channel([(tmp_path / "true", raw)], split="train", min_box_pixels=3)
+    assert scored.metrics.num_images == sum(v.split == "train" for v in renders.views)
+    assert scored.metrics.num_true > 5
+    assert scored.metrics.precision > 0.6 and scored.metrics.recall > 0.6 and scored.metrics.map50 > 0.4
+    low, high = scored.intervals["f1"].low, scored.intervals["f1"].high
+    assert low <= scored.metrics.f1 <= high
+    for view in renders.views:  # the channel's fruit half a frame away from the true fruit
+        assert view.fruit is not None
+        view.fruit[:] = np.roll(view.fruit, view.fruit.shape[1] // 2, axis=1)
+    save_renders(renders, tmp_path / "moved")
+    moved = score_fruit_channel([(tmp_path / "moved", raw)], split="train", min_box_pixels=3)
+    assert moved.metrics.recall < 0.5 * scored.metrics.recall
+    for view in renders.views:
+        view.fruit = None
+    save_renders(renders, tmp_path / "none")
+    with pytest.raises(ValueError, match="no 'fruit' channel"):
+        score_fruit_channel([(tmp_path / "none", raw)], split="train")

@@ -182,7 +182,7 @@ class BootstrapMaps:
 
     def intervals(self, confidence: float = CONFIDENCE) -> Tuple[Interval, Interval]:
         """(mAP50, mAP50-95) with their percentile intervals."""
-        return _interval(self.map50, self.samples[:, 0], confidence), _interval(
+        return percentile_interval(self.map50, self.samples[:, 0], confidence), percentile_interval(
             self.map50_95, self.samples[:, 1], confidence
         )
 
@@ -194,8 +194,8 @@ class BootstrapMaps:
             raise ValueError("a paired difference needs both rows resampled alike")
         diff = self.samples - other.samples
         return (
-            _interval(self.map50 - other.map50, diff[:, 0], confidence),
-            _interval(self.map50_95 - other.map50_95, diff[:, 1], confidence),
+            percentile_interval(self.map50 - other.map50, diff[:, 0], confidence),
+            percentile_interval(self.map50_95 - other.map50_95, diff[:, 1], confidence),
         )
 
 
@@ -209,7 +209,8 @@ def bootstrap_maps(
     return BootstrapMaps(frozenset(matched.frames), float(point[0]), float(point.mean()), samples)
 
 
-def _interval(value: float, samples: Float[np.ndarray, " resamples"], confidence: float) -> Interval:
+def percentile_interval(value: float, samples: Float[np.ndarray, " resamples"], confidence: float) -> Interval:
+    """``value`` with the central ``confidence`` percentile range of its finite resamples (NaN bounds when none is)."""
     tail = 100 * (1 - confidence) / 2
     finite = samples[np.isfinite(samples)]
     if len(finite) == 0:

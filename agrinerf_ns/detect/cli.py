@@ -1,9 +1,10 @@
 """The detector's commands: downstream fruit detection on rendered views.
 
-Subcommands: ``render`` (held-out views of one run), ``train`` (a detector on a scene's truth) and ``score`` (a folder
-of renders against the true boxes). The ``agrinerf-detect`` console script (:mod:`agrinerf_ns.lab.paper_cli`) adds
-the paper tables' ``evaluate`` and ``table``. Needs the optional ``[detect]`` extra (Ultralytics, AGPL-3.0) for
-everything but ``render``.
+Subcommands: ``render`` (held-out views of one run), ``train`` (a detector on a scene's truth), ``score`` (a folder
+of renders against the true boxes) and ``fruit`` (a fruit head's rendered channel as the detections, no detector).
+The ``agrinerf-detect`` console script (:mod:`agrinerf_ns.lab.paper_cli`) adds the paper tables' ``evaluate`` and
+``table``. Needs the optional ``[detect]`` extra (Ultralytics, AGPL-3.0) for
+everything but ``render`` and ``fruit``.
 """
 
 from __future__ import annotations
@@ -112,10 +113,40 @@ class ScoreCommand:
             self.out.write_text(text)
 
 
+@dataclass
+class FruitCommand:
+    """Table III from a fruit head, no detector needed: the rendered fruit channel's regions in the held-out views of
+    one or more runs, scored against the scenes' true boxes (mAP50, mAP50-95, P/R/F1 with bootstrap intervals over
+    the pooled images; prints JSON)."""
+
+    runs: List[str]
+    """RENDERS=RAW pairs: an ``agrinerf-count`` render folder (OUT/renders of a run with a fruit head) and its raw
+    synthetic capture (truth/boxes_yolo)."""
+    split: Literal["eval", "train"] = "eval"
+    min_box_pixels: MinBoxPixels = MIN_BOX_PIXELS
+    out: Optional[Path] = None
+    """Also write the metrics JSON here."""
+
+    def main(self) -> None:
+        from agrinerf_ns.detect.fruit_channel import score_fruit_channel
+
+        pairs = []
+        for pair in self.runs:
+            renders, sep, raw = pair.partition("=")
+            if not sep or not renders or not raw:
+                raise ValueError(f"--runs {pair!r}: expected RENDERS=RAW (a count render folder and its raw capture)")
+            pairs.append((Path(renders), Path(raw)))
+        text = json.dumps(score_fruit_channel(pairs, self.split, self.min_box_pixels).as_dict(), indent=2)
+        print(text)
+        if self.out is not None:
+            self.out.write_text(text + "\n")
+
+
 COMMANDS: Dict[str, type] = {
     "render": RenderCommand,
     "train": TrainCommand,
     "score": ScoreCommand,
+    "fruit": FruitCommand,
 }
 """The detector's own subcommands; the ``agrinerf-detect`` console script adds the paper tables' ``evaluate`` and
 ``table`` (:mod:`agrinerf_ns.lab.paper_cli`)."""

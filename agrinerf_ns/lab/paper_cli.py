@@ -2,9 +2,9 @@
 
 Subcommands: ``evaluate`` (the whole benchmark from a plan file), ``render`` (held-out views of one run), ``train``
 (a detector on a scene's truth), ``score`` (a folder of renders against the true boxes) and ``table`` (one table from
-several evaluations). ``render``, ``train`` and ``score`` are the detector's own (:mod:`agrinerf_ns.detect.cli`);
+several evaluations). ``render``, ``train``, ``score`` and ``fruit`` are the detector's own (:mod:`agrinerf_ns.detect.cli`);
 ``evaluate`` and ``table`` are the paper tables' harness, here. Needs the optional ``[detect]`` extra (Ultralytics,
-AGPL-3.0) for everything but ``render``.
+AGPL-3.0) for everything but ``render`` and ``fruit``.
 """
 
 from __future__ import annotations
