@@ -45,7 +45,7 @@ VARIANT_SEPARATOR = "%"
 
 def field_values(key: str, texts: Sequence[str], known: Optional[Mapping[str, Any]] = None) -> Dict[str, Any]:
     """The ``FIELD=VALUE`` parts of a key (VALUE in JSON) as {field: value}: the model config fields a variant key
-    (`variant`) or a ``bench_step_interleaved.py --runs`` entry sets (FIELD ``loss_coefficients.sky_loss``: one
+    (`variant`) or a ``bench_step_interleaved.py --runs`` entry sets (FIELD ``loss_coefficients.thermal_loss``: one
     entry of a dict field; ``camera_optimizer.mode``: a field of a nested config). Raises KeyError naming the key and
     the part that is not one, or the field that `known` (model config fields and their defaults, when given) lacks,
     with the close names."""
