@@ -3,6 +3,7 @@ the known pixels, and the share of the truth's fruit (with at least ``--min-pixe
 
     python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET [--out TABLE.md]
     python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET --colour-scores 0.3 0.4 0.5  # tuning sweep
+    python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET --blob-thresholds 0.3 0.5 1 --thermal-contrast
     python benchmarks/fruit_mask_quality.py --raw RAW --write-oracle MASKS/   # truth masks, for the oracle row only
 
 The truth (``truth/fruit_ids``) is the raw RGB frame's; it is undistorted with the RGB calibration as the processing
@@ -21,7 +22,7 @@ import cv2
 import numpy as np
 import tyro
 
-from agrinerf_ns.fruit_mask_format import FRUIT, fruit_and_known
+from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRUIT, fruit_and_known
 
 
 @dataclass
@@ -36,6 +37,11 @@ class Args:
     colour_scores: Tuple[float, ...] = ()
     """Instead of the dataset's masks: the colour maker's masks of its RGB frames at each of these
     ``min_colour_score`` values (the other settings default), one row each: how the setting was chosen."""
+    blob_thresholds: Tuple[float, ...] = ()
+    """Instead of the dataset's masks: the thermal maker's masks of its thermal frames at each of these
+    ``blob_threshold`` values (the ``blobs`` rule), one row each, scored in the thermal camera's view."""
+    thermal_contrast: bool = False
+    """Also a row of the thermal maker's earlier rule (``--thermal-rule contrast``), scored the same way."""
     write_oracle: Optional[Path] = None
     """Write the truth's masks here (8-bit, named like the raw RGB frames) and stop."""
 
@@ -55,21 +61,58 @@ def truth_fruit(raw: Path, name: str, maps) -> np.ndarray:
     return ids
 
 
+def thermal_view_fruit(raw: Path, frame: dict, rgb_ids: np.ndarray, maps, plane_depth: float) -> np.ndarray:
+    """The fruit ids (0: none) that a mask made on the thermal frame warped into the RGB plane should hold: what the
+    thermal camera sees along its own ray at each warped pixel. The RGB frame's true surface points (true depth, its
+    fruit ids) are projected into the raw thermal camera, the nearest kept per thermal pixel, and that image is
+    warped into the RGB plane as the processing warps the thermal frames (`align.warp_maps` at ``plane_depth``)."""
+    from agrinerf_ns.process import align
+    from agrinerf_ns.process.readers import read_calibration
+
+    calib = read_calibration(raw / "calib.yaml")
+    thermal = calib.thermal
+    assert thermal is not None, f"{raw / 'calib.yaml'}: no thermal camera"
+    z = np.load(raw / "truth" / "depth" / f"{Path(frame['raw_rgb']).stem}.npy").astype(np.float32)
+    if maps is not None:
+        z = cv2.remap(z, maps[0], maps[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.inf)
+    height, width = z.shape
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    hit = np.isfinite(z) & (z > 0)
+    rays = np.stack([u, v, np.ones_like(u)], -1)[hit] @ np.linalg.inv(calib.rgb.K).T
+    points = (rays * z[hit][:, None]) @ thermal.T_cam_rgb[:3, :3].T + thermal.T_cam_rgb[:3, 3]
+    front = points[:, 2] > 1e-6
+    pixels = np.round(align.project_points(thermal, points[front])).astype(np.int64)
+    inside = (
+        (pixels[:, 0] >= 0) & (pixels[:, 0] < thermal.width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < thermal.height)
+    )
+    cell = pixels[inside, 1] * thermal.width + pixels[inside, 0]
+    depth, ids = points[front][inside, 2], rgb_ids[hit][front][inside]
+    order = np.argsort(-depth, kind="stable")  # farthest first: the nearest surface is written last and kept
+    seen = np.zeros(thermal.height * thermal.width, np.float32)
+    seen[cell[order]] = ids[order]
+    warped = align.warp_image(seen.reshape(thermal.height, thermal.width), align.warp_maps(calib.rgb, thermal, plane_depth),
+                              nearest=True)  # fmt: skip
+    return np.rint(warped).astype(np.int64)
+
+
 HEADER = (
     "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched |\n"
     "|---|---|---|---|---|---|---|\n"
 )
 
 
-def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str) -> str:
+def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, thermal_view: bool = False) -> str:
     """One table row: the masks `masks(frame)` of the dataset's frames against the truth."""
     assert args.dataset is not None
     meta = json.loads((args.dataset / "transforms.json").read_text())
     maps = _undistort_maps(args.raw)
     tp = fp = fn = 0
     touched = total = 0
+    plane_depth = float(meta.get("agrinerf", {}).get("alignment", {}).get("plane_depth", "inf"))
     for frame in meta["frames"]:
         ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
+        if thermal_view or frame.get(CAMERA_KEY, "rgb") == "thermal":  # the thermal camera's view (thermal_view_fruit)
+            ids = thermal_view_fruit(args.raw, frame, ids, maps, plane_depth)
         fruit, known = fruit_and_known(masks(frame))
         truth = ids > 0
         tp += int((fruit & truth & known).sum())
@@ -91,6 +134,17 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str) -> str
 def rows(args: Args) -> str:
     assert args.dataset is not None
     dataset = args.dataset
+    if args.blob_thresholds or args.thermal_contrast:
+        from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, thermal_frame, thermal_mask
+
+        def thermal(config: MaskMakerConfig) -> Callable[[dict], np.ndarray]:
+            return lambda frame: thermal_mask(*thermal_frame(dataset, frame, config), config)
+
+        configs = [(MaskMakerConfig(thermal_rule="blobs", blob_threshold=t), f"thermal blobs, threshold {t:g}")
+                   for t in args.blob_thresholds]  # fmt: skip
+        if args.thermal_contrast:
+            configs.append((MaskMakerConfig(thermal_rule="contrast"), "thermal contrast (the earlier rule)"))
+        return "".join(quality(args, thermal(c), label, thermal_view=True) for c, label in configs)
     if not args.colour_scores:
         meta = json.loads((dataset / "transforms.json").read_text())
         source = meta.get("agrinerf", {}).get("fruit_masks", {}).get("source", "?")

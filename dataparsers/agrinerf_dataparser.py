@@ -48,6 +48,7 @@ from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to
 from agrinerf_ns.fruit_mask_format import CAMERA_KEY as FRUIT_MASK_CAMERA_KEY
 from agrinerf_ns.fruit_mask_format import FRAME_KEY as FRUIT_MASK_KEY
 from agrinerf_ns.modalities import ALL_MODALITIES, Modality
+from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 from agrinerf_ns.views import evenly_spaced
 
@@ -191,8 +192,6 @@ def rgb_level(image_paths: List[Path]) -> float:
     return float(np.mean(means))
 
 
-TEMPERATURE_KEY = "thermal_temperature_path"
-"""Per-frame key of the linear temperature images (16-bit PNG in centikelvin, ``agrinerf_ns.temperature``)."""
 TEMPERATURE_STATS = ("mean_c", "std_c", "min_c", "max_c")
 
 
