@@ -136,7 +136,16 @@ class FruitCommand:
             if not sep or not renders or not raw:
                 raise ValueError(f"--runs {pair!r}: expected RENDERS=RAW (a count render folder and its raw capture)")
             pairs.append((Path(renders), Path(raw)))
-        text = json.dumps(score_fruit_channel(pairs, self.split, self.min_box_pixels).as_dict(), indent=2)
+        import datetime
+        import os
+
+        from agrinerf_ns.machine import machine_note
+
+        record = {"command": "agrinerf-detect fruit " + " ".join(sys.argv[2:]), "machine": machine_note(),
+                  "threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+                  "date": datetime.date.today().isoformat()}  # fmt: skip
+        scored = score_fruit_channel(pairs, self.split, self.min_box_pixels)
+        text = json.dumps({**scored.as_dict(), "record": record}, indent=2)
         print(text)
         if self.out is not None:
             self.out.write_text(text + "\n")
