@@ -40,6 +40,10 @@ class Args:
     blob_thresholds: Tuple[float, ...] = ()
     """Instead of the dataset's masks: the thermal maker's masks of its thermal frames at each of these
     ``blob_threshold`` values (the ``blobs`` rule), one row each, scored in the thermal camera's view."""
+    canopy_offsets: Tuple[float, ...] = (1.5,)
+    """With --blob-thresholds: each ``min_canopy_offset`` (robust spreads) swept beside each threshold."""
+    polarity: str = "both"
+    """With --blob-thresholds: fruit warmer than the canopy (warm), cooler (cool) or either (both)."""
     thermal_contrast: bool = False
     """Also a row of the thermal maker's earlier rule (``--thermal-rule contrast``), scored the same way."""
     write_oracle: Optional[Path] = None
@@ -140,8 +144,10 @@ def rows(args: Args) -> str:
         def thermal(config: MaskMakerConfig) -> Callable[[dict], np.ndarray]:
             return lambda frame: thermal_mask(*thermal_frame(dataset, frame, config), config)
 
-        configs = [(MaskMakerConfig(thermal_rule="blobs", blob_threshold=t), f"thermal blobs, threshold {t:g}")
-                   for t in args.blob_thresholds]  # fmt: skip
+        configs = [(MaskMakerConfig(thermal_rule="blobs", blob_threshold=t, min_canopy_offset=o,
+                                    polarity=args.polarity),  # type: ignore[arg-type]
+                    f"thermal blobs ({args.polarity}), threshold {t:g}, canopy offset {o:g}")
+                   for t in args.blob_thresholds for o in args.canopy_offsets]  # fmt: skip
         if args.thermal_contrast:
             configs.append((MaskMakerConfig(thermal_rule="contrast"), "thermal contrast (the earlier rule)"))
         return "".join(quality(args, thermal(c), label, thermal_view=True) for c, label in configs)

@@ -107,3 +107,28 @@ def test_processing_makes_masks_from_the_frames_and_records_how(tmp_path: Path) 
     with pytest.raises(ValueError, match="either --fruit-masks DIR or --fruit-mask-maker"):
         process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="given", show_progress=False,
                                                              fruit_mask_maker="colour", fruit_masks=tmp_path))  # fmt: skip
+
+
+def test_the_thermal_blob_rule_fills_a_fruit_and_ignores_edges_and_leaves() -> None:
+    """A warm fruit on a canopy is found whole; the straight edge of a cold sky, which a local contrast marks, is not
+    fruit; with the scene's polarity set, the other side's blobs (a cold gap in the canopy) go."""
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, thermal_mask
+
+    rng = np.random.default_rng(0)
+    celsius = 15.0 + rng.normal(0, 0.2, (120, 160)).astype(np.float32)
+    celsius[:25] = 2.0  # a cold sky above the canopy: a straight edge
+    rows, cols = np.mgrid[0:120, 0:160]
+    fruit = (rows - 70) ** 2 + (cols - 50) ** 2 <= 10**2  # 20 px across: wider than the contrast rule's 6 px scale
+    celsius[fruit] = 19.0
+    hole = (rows - 80) ** 2 + (cols - 120) ** 2 <= 6**2  # a cold gap in the canopy
+    celsius[hole] = 5.0
+    seen = np.ones(celsius.shape, bool)
+    mask = thermal_mask(celsius, seen, MaskMakerConfig())
+    assert (mask[fruit] == 255).mean() > 0.9, "the whole fruit, not its rim"
+    assert (mask[20:30] == 255).mean() < 0.02, "the sky's edge is no fruit"
+    assert (mask[~fruit & ~hole] == 255).mean() < 0.02
+    band = thermal_mask(celsius, seen, MaskMakerConfig(thermal_rule="contrast"))
+    assert (band[20:30] == 255).mean() > 0.2, "the earlier rule marks a band along the sky's edge"
+    assert (mask[hole] == 255).mean() > 0.5  # "both": a cold blob in the canopy is taken for a cool fruit
+    warm = thermal_mask(celsius, seen, MaskMakerConfig(polarity="warm"))
+    assert (warm[hole] == 255).sum() == 0 and (warm[fruit] == 255).mean() > 0.9
