@@ -181,7 +181,15 @@ def main(args: Args) -> None:
     if args.write_oracle is not None:
         write_oracle(args)
         return
+    import datetime
+    import os
+    import sys
+
+    from agrinerf_ns.machine import machine_note
+
     text = HEADER + rows(args)
+    text += (f"\nCommand: `python benchmarks/fruit_mask_quality.py {' '.join(sys.argv[1:])}`; {machine_note()}; "
+             f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}; {datetime.date.today().isoformat()}.\n")  # fmt: skip
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text)

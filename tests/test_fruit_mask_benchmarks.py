@@ -30,3 +30,11 @@ def test_mask_quality_rows_and_oracle(tmp_path: Path) -> None:
     subprocess.run([sys.executable, script, "--raw", str(raw), "--write-oracle", str(oracle)], check=True)
     masks = sorted(oracle.glob("*.png"))
     assert len(masks) == 6 and max(int(cv2.imread(str(m), 0).max()) for m in masks) == 255
+    assert "Command: `python benchmarks/fruit_mask_quality.py" in done.stdout
+    # the thermal rules, scored in the thermal camera's view (the truth seen along its rays)
+    thermal = subprocess.run([sys.executable, script, "--raw", str(raw), "--dataset", str(ds), "--blob-thresholds", "2",
+                              "--thermal-contrast"], check=True, capture_output=True, text=True)  # fmt: skip
+    rows = [line.split("|") for line in thermal.stdout.splitlines() if line.startswith("| orchard")]
+    assert [r[2].strip().split(" (")[0].split(",")[0] for r in rows] == ["thermal blobs", "thermal contrast"]
+    touched = [int(r[7].split("/")[0]) for r in rows]
+    assert all(0.0 <= float(r[k]) <= 1.0 for r in rows for k in (4, 5, 6)) and max(touched) > 0
