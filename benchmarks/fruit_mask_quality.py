@@ -1,5 +1,6 @@
 """How good a dataset's fruit masks are, against a synthetic capture's truth: pixel precision, recall and IoU over
-the known pixels, and the share of the truth's fruit (with at least ``--min-pixels`` in a frame) that a mask touches.
+the known pixels, the share of the truth's fruit (with at least ``--min-pixels`` in a frame) that a mask touches, the
+share of the masks' regions that touch a fruit, and the fruit F1 of those two.
 
     python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET [--out TABLE.md]
     python benchmarks/fruit_mask_quality.py --raw RAW --dataset DATASET --colour-scores 0.3 0.4 0.5  # tuning sweep
@@ -21,6 +22,7 @@ from typing import Callable, Optional, Tuple
 import cv2
 import numpy as np
 import tyro
+from scipy import ndimage
 
 from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRUIT, fruit_and_known
 
@@ -100,8 +102,9 @@ def thermal_view_fruit(raw: Path, frame: dict, rgb_ids: np.ndarray, maps, plane_
 
 
 HEADER = (
-    "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched |\n"
-    "|---|---|---|---|---|---|---|\n"
+    "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched | regions on a fruit | "
+    "fruit F1 |\n"
+    "|---|---|---|---|---|---|---|---|---|\n"
 )
 
 
@@ -112,6 +115,7 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     maps = _undistort_maps(args.raw)
     tp = fp = fn = 0
     touched = total = 0
+    components = components_on_fruit = 0
     plane_depth = float(meta.get("agrinerf", {}).get("alignment", {}).get("plane_depth", "inf"))
     for frame in meta["frames"]:
         ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
@@ -122,16 +126,22 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
         tp += int((fruit & truth & known).sum())
         fp += int((fruit & ~truth & known).sum())
         fn += int((~fruit & truth & known).sum())
+        parts, found = ndimage.label(fruit & known, structure=np.ones((3, 3), bool))
+        components += found
+        components_on_fruit += len(np.unique(parts[(parts > 0) & truth]))
         labels, counts = np.unique(ids[ids > 0], return_counts=True)
         for label in labels[counts >= args.min_pixels]:
             total += 1
             touched += int((fruit & (ids == label)).any())
     precision, recall = tp / max(tp + fp, 1), tp / max(tp + fn, 1)
+    region_precision, fruit_recall = components_on_fruit / max(components, 1), touched / max(total, 1)
+    fruit_f1 = 2 * region_precision * fruit_recall / max(region_precision + fruit_recall, 1e-12)
     iou = tp / max(tp + fp + fn, 1)
     scene = json.loads((args.raw / "truth" / "scene.json").read_text())["config"]
     return (
         f"| {scene['scene']} {scene['lighting']} seed {scene['seed']} | {source} | {len(meta['frames'])} | "
-        f"{precision:.3f} | {recall:.3f} | {iou:.3f} | {touched}/{total} ({touched / max(total, 1):.0%}) |\n"
+        f"{precision:.3f} | {recall:.3f} | {iou:.3f} | {touched}/{total} ({touched / max(total, 1):.0%}) | "
+        f"{components_on_fruit}/{components} ({region_precision:.0%}) | {fruit_f1:.3f} |\n"
     )
 
 
