@@ -20,7 +20,7 @@ against torchmetrics' ``MeanAveragePrecision`` in the tests.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Dict, List, Literal, Sequence, Tuple
+from typing import Dict, List, Literal, Sequence, Tuple, Union
 
 import numpy as np
 from jaxtyping import Bool, Float, Int8
@@ -191,7 +191,12 @@ def precision_recall_f1(
         _, is_tp = match_image(im, iou_threshold, max_dets, conf_threshold)
         tp += int(is_tp.sum())
         fp += int((~is_tp).sum())
-    num_true = sum(len(im.true_boxes) for im in images)
+    return rates(tp, fp, sum(len(im.true_boxes) for im in images))
+
+
+def rates(tp: Union[int, float], fp: Union[int, float], num_true: Union[int, float]) -> Tuple[float, float, float]:
+    """Precision, recall and F1 of ``tp`` true and ``fp`` false positives against ``num_true`` true boxes (precision
+    0 when nothing is detected, recall NaN when there is no true box)."""
     precision = tp / (tp + fp) if tp + fp > 0 else 0.0
     recall = tp / num_true if num_true > 0 else float("nan")
     f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0

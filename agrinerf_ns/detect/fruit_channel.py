@@ -30,7 +30,7 @@ from agrinerf_ns.detect.bootstrap import (
     percentile_interval,
     resample_counts,
 )
-from agrinerf_ns.detect.box_metrics import DetectionMetrics, ImageBoxes, match_image, score_detections
+from agrinerf_ns.detect.box_metrics import DetectionMetrics, ImageBoxes, rates, score_detections
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS, SceneTruth, yolo_to_xyxy
 
 
@@ -89,27 +89,20 @@ def score_fruit_channel(
                                      yolo_to_xyxy(frame.ignored, width, height)))  # fmt: skip
             frames.append(f"{number}:{Path(renders).parent.name}/{view.name}")
     metrics = score_detections(images, conf_threshold=0.0)
-    map50, map50_95 = bootstrap_maps(MatchedImages.from_images(frames, images)).intervals()
-    return ChannelScore(metrics, {"map50": map50, "map50_95": map50_95, **_rate_intervals(frames, images)},
-                        tuple(frames))  # fmt: skip
+    matched = MatchedImages.from_images(frames, images)
+    map50, map50_95 = bootstrap_maps(matched).intervals()
+    return ChannelScore(metrics, {"map50": map50, "map50_95": map50_95, **_rate_intervals(matched)}, tuple(frames))
 
 
-def _rate_intervals(
-    frames: Sequence[str], images: Sequence[ImageBoxes], confidence: float = CONFIDENCE
-) -> Dict[str, Interval]:
-    """Precision, recall and F1 at IoU 0.5 with percentile intervals over image resamples (the mAPs' resamples)."""
-    counts = np.zeros((len(images), 3))  # true positives, false positives, true boxes
-    for i, image in enumerate(images):
-        _, is_tp = match_image(image, 0.5)
-        counts[i] = is_tp.sum(), (~is_tp).sum(), len(image.true_boxes)
-    draws = resample_counts(frames, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
-    rates: Dict[str, List[float]] = {name: [] for name in ("precision", "recall", "f1")}
-    for weights in np.concatenate([np.ones((1, len(images)), np.int64), draws]):
-        tp, fp, true = weights @ counts
-        p = tp / (tp + fp) if tp + fp > 0 else 0.0
-        r = tp / true if true > 0 else float("nan")
-        rates["precision"].append(p)
-        rates["recall"].append(r)
-        rates["f1"].append(2 * p * r / (p + r) if p + r > 0 else 0.0)
-    return {name: percentile_interval(values[0], np.asarray(values[1:], np.float64), confidence)
-            for name, values in rates.items()}  # fmt: skip
+def _rate_intervals(matched: MatchedImages, confidence: float = CONFIDENCE) -> Dict[str, Interval]:
+    """Precision, recall and F1 at IoU 0.5 (the matches' first threshold) with percentile intervals over image
+    resamples (the mAPs' resamples)."""
+    n = len(matched.frames)
+    at_50 = matched.outcome[0]
+    counts = np.stack([np.bincount(matched.image[at_50 == 1], minlength=n),  # true positives per image
+                       np.bincount(matched.image[at_50 == 0], minlength=n),  # false positives
+                       matched.num_true], axis=1).astype(np.float64)  # fmt: skip
+    draws = resample_counts(matched.frames, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED)
+    values = np.array([rates(*(weights @ counts)) for weights in np.concatenate([np.ones((1, n), np.int64), draws])])
+    return {name: percentile_interval(float(values[0, k]), values[1:, k], confidence)
+            for k, name in enumerate(("precision", "recall", "f1"))}  # fmt: skip
