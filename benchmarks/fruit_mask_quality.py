@@ -52,13 +52,6 @@ class Args:
     """Write the truth's masks here (8-bit, named like the raw RGB frames) and stop."""
 
 
-def _undistort_maps(raw: Path):
-    from agrinerf_ns.process import align
-    from agrinerf_ns.process.readers import read_calibration
-
-    return align.undistort_maps(read_calibration(raw / "calib.yaml").rgb)
-
-
 def truth_fruit(raw: Path, name: str, maps) -> np.ndarray:
     """The fruit ids of raw RGB frame `name` (undistorted like the frame; 0: no fruit)."""
     ids = cv2.imread(str(raw / "truth" / "fruit_ids" / name), cv2.IMREAD_UNCHANGED)
@@ -67,15 +60,14 @@ def truth_fruit(raw: Path, name: str, maps) -> np.ndarray:
     return ids
 
 
-def thermal_view_fruit(raw: Path, frame: dict, rgb_ids: np.ndarray, maps, plane_depth: float) -> np.ndarray:
+def thermal_view_fruit(raw: Path, frame: dict, rgb_ids: np.ndarray, maps, calib, warp) -> np.ndarray:
     """The fruit ids (0: none) that a mask made on the thermal frame warped into the RGB plane should hold: what the
     thermal camera sees along its own ray at each warped pixel. The RGB frame's true surface points (true depth, its
     fruit ids) are projected into the raw thermal camera, the nearest kept per thermal pixel, and that image is
-    warped into the RGB plane as the processing warps the thermal frames (`align.warp_maps` at ``plane_depth``)."""
+    warped into the RGB plane as the processing warps the thermal frames (``warp``: `align.warp_maps` of the
+    capture's calibration ``calib`` at the dataset's plane depth)."""
     from agrinerf_ns.process import align
-    from agrinerf_ns.process.readers import read_calibration
 
-    calib = read_calibration(raw / "calib.yaml")
     thermal = calib.thermal
     assert thermal is not None, f"{raw / 'calib.yaml'}: no thermal camera"
     z = np.load(raw / "truth" / "depth" / f"{Path(frame['raw_rgb']).stem}.npy").astype(np.float32)
@@ -96,8 +88,7 @@ def thermal_view_fruit(raw: Path, frame: dict, rgb_ids: np.ndarray, maps, plane_
     order = np.argsort(-depth, kind="stable")  # farthest first: the nearest surface is written last and kept
     seen = np.zeros(thermal.height * thermal.width, np.float32)
     seen[cell[order]] = ids[order]
-    warped = align.warp_image(seen.reshape(thermal.height, thermal.width), align.warp_maps(calib.rgb, thermal, plane_depth),
-                              nearest=True)  # fmt: skip
+    warped = align.warp_image(seen.reshape(thermal.height, thermal.width), warp, nearest=True)
     return np.rint(warped).astype(np.int64)
 
 
@@ -112,7 +103,12 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     """One table row: the masks `masks(frame)` of the dataset's frames against the truth."""
     assert args.dataset is not None
     meta = json.loads((args.dataset / "transforms.json").read_text())
-    maps = _undistort_maps(args.raw)
+    from agrinerf_ns.process import align
+    from agrinerf_ns.process.readers import read_calibration
+
+    calib = read_calibration(args.raw / "calib.yaml")
+    maps = align.undistort_maps(calib.rgb)
+    warp = None  # the thermal frames' warp into the RGB plane, made once when a thermal-view mask needs it
     tp = fp = fn = 0
     touched = total = 0
     components = components_on_fruit = 0
@@ -120,7 +116,10 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     for frame in meta["frames"]:
         ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
         if thermal_view or frame.get(CAMERA_KEY, "rgb") == "thermal":  # the thermal camera's view (thermal_view_fruit)
-            ids = thermal_view_fruit(args.raw, frame, ids, maps, plane_depth)
+            if warp is None:
+                assert calib.thermal is not None, f"{args.raw / 'calib.yaml'}: no thermal camera"
+                warp = align.warp_maps(calib.rgb, calib.thermal, plane_depth)
+            ids = thermal_view_fruit(args.raw, frame, ids, maps, calib, warp)
         fruit, known = fruit_and_known(masks(frame))
         truth = ids > 0
         tp += int((fruit & truth & known).sum())
