@@ -76,14 +76,13 @@ class BenchConfig:
     """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
 
 
-def summary(rows: Sequence[results.Row], target_psnr: Optional[float]) -> str:
-    """Differences against the baselines at equal wall time and equal steps (`margins.py`), and the time to a
-    stated PSNR, per scene."""
+def summary(rows: Sequence[results.Row], target_psnr: Optional[float], table: Sequence[Dict[str, object]]) -> str:
+    """Differences against the baselines at equal wall time and equal steps (``table``: `margins.margins` of the
+    rows), and the time to a stated PSNR, per scene."""
     key = results.quality_key(rows)
     lines = [
         f"Quality figure: `{key}` ({'vs clean truth, exposure-aligned' if key == 'psnr_clean' else 'vs held-out frames'})."
     ]
-    table = margins.margins(rows, key)
     for scene in sorted({r["scene"] for r in rows}):
         scene_rows = [r for r in rows if r["scene"] == scene]
         methods = sorted(
@@ -112,13 +111,14 @@ def _seconds(value: float) -> str:
 def write_reports(rows: Sequence[results.Row], out: Path, target_psnr: Optional[float], command: str) -> None:
     """results.md (command, machine, summary, table) and tradeoff.png."""
     layout = BenchLayout(out)
+    table = margins.margins(rows, results.quality_key(rows))
     text = (f"# agrinerf-bench results\n\nCommand: `{command}`\n\n{machine_note(sorted({r['device'] for r in rows}))}\n\n"
-            f"![quality against wall time](tradeoff.png)\n\n## Summary\n{summary(rows, target_psnr)}\n"
+            f"![quality against wall time](tradeoff.png)\n\n## Summary\n{summary(rows, target_psnr, table)}\n"
             f"## All checkpoints\ns/step: steady state, wall time between a run's first and last checkpoint over the "
             f"steps between them. Peak RSS: the `ns-train` process tree, sampled every 0.2 s.\n\n"
             f"{results.markdown_table(rows)}")  # fmt: skip
     layout.results_md.write_text(text)
-    margins.write_margins(margins.margins(rows, results.quality_key(rows)), layout.out / "margins.csv")
+    margins.write_margins(table, layout.out / "margins.csv")
     results.plot(rows, layout.tradeoff_png)
 
 

@@ -38,8 +38,9 @@ MIN_BLOB_SIGMA = 1.5
 answers single noisy pixels."""
 
 
-MAX_BLOB_ELONGATION = 3.0
-"""A ``blobs`` blob whose principal curvatures differ by more than this factor is a ridge, not a fruit (`elongation`)."""
+MAX_CURVATURE_RATIO = 3.0
+"""A ``blobs`` blob whose principal curvatures differ by more than this factor is a ridge, not a fruit
+(`curvature_ratio`; `count.blobs.elongation` measures a mask's shape instead)."""
 MIN_DISC_SHARE = 0.9
 """A ``blobs`` blob whose disc lies less than this share inside the seen frame is not taken."""
 
@@ -136,14 +137,14 @@ def thermal_blobs(
             disc = ((rows - row) ** 2 + (cols - col) ** 2 <= 2.0 * sigma**2) & seen
             if disc.sum() < MIN_DISC_SHARE * 2.0 * np.pi * sigma**2:
                 continue  # cut by the frame's or the view's border: a band of sky or ground there looks like a blob
-            if elongation(z, row, col, sigma) > MAX_BLOB_ELONGATION:
+            if curvature_ratio(z, row, col, sigma) > MAX_CURVATURE_RATIO:
                 continue  # a ridge (a band of sky, a stake) answers the Laplacian too, with one curvature only
             if sign * (float(np.median(z[disc])) - canopy) >= config.min_canopy_offset:
                 fruit |= disc
     return fruit
 
 
-def elongation(z: Float[np.ndarray, "h w"], row: float, col: float, sigma: float) -> float:
+def curvature_ratio(z: Float[np.ndarray, "h w"], row: float, col: float, sigma: float) -> float:
     """The ratio of the larger to the smaller principal curvature of ``z`` smoothed at ``sigma`` at (row, col): about
     1 at the centre of a round blob, large along a ridge (the Hessian test of Lowe's SIFT)."""
     from scipy import ndimage
