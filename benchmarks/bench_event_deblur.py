@@ -15,7 +15,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Dict, Tuple
+from typing import Dict, Optional, Tuple
 
 import tyro
 
@@ -25,12 +25,14 @@ from agrinerf_ns.lab.profiles import PROFILES, BenchProfile
 from agrinerf_ns.lab.runs import run_method
 from agrinerf_ns.lab.scenes import prepare_scene
 from agrinerf_ns.machine import device_name
-from agrinerf_ns.method_configs.agrinerf_methods import evdeblurnerf_lite
+from agrinerf_ns.method_configs.agrinerf_methods import EVDEBLURNERF_LR, evdeblurnerf_lite
 
 MODEL = "--pipeline.model."
 RGB = (f"{MODEL}modalities", "rgb")
 EVENTS = (f"{MODEL}modalities", "rgb", "events", f"{MODEL}cross-spectral-output", "False")
 NOISE = (f"{MODEL}event-loss-weighting", "noise")
+GATE = (f"{MODEL}event-gate", "True")
+"""The `agrinerf` preset's event gate (a held-out share of the events sets the term's weight)."""
 
 
 def _blur(k: int) -> Tuple[str, ...]:
@@ -111,7 +113,11 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
             "1.0",
         ),
     ),
-    "agrinerf": ("Ours: All + blur + noise-balanced events", (*_blur(3), *_events(256, 1.0), *NOISE)),
+    "blur-events-gate": (
+        "Ours (RGB module): blur + gated noise-balanced events",
+        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, *GATE),
+    ),
+    "agrinerf": ("Ours: All + blur + gated noise-balanced events", (*_blur(3), *_events(256, 1.0), *NOISE, *GATE)),
     "rgb-long": ("RGB TensoRF, 4x the steps", RGB),
     "rgb-seed": ("RGB TensoRF, another seed", (*RGB, "--machine.seed", "43")),
 }
@@ -122,20 +128,18 @@ defaults), the blur model 3 renders per blurred pixel, unless the key says other
 BASELINES: Dict[str, str] = {
     "nerfacto": "Nerfacto (RGB)",
     "nerfacto-thermal": "Nerfacto (Thermal)",
-    "evdeblurnerf-lite": "EvDeblurNeRF as published (TensoRF-lite field, not PDRF)",
+    "evdeblurnerf-lite": "EvDeblurNeRF (TensoRF-lite field and its grid rate, not PDRF's)",
 }
 """Rows that are other methods (``agrinerf_ns.lab.methods.METHODS``), at the profile's step budget for them.
 ``evdeblurnerf-lite`` is EvDeblurNeRF's recipe (event-to-event samples, learnt event response and rigid blur kernel
 from step 1200, EDI prior, its learning-rate schedule) on AgriNeRF-lite's field: its budget must pass step 1200."""
 
-TENSORF_GRID_LR = 2e-2
-"""The grids' learning rate of TensoRF and of AgriNeRF's presets; EvDeblurNeRF's 5e-3 is its PDRF field's."""
-_PUBLISHED_GRIDS = evdeblurnerf_lite.config.optimizers["encodings"]
-_GRID_LR = (
-    "--optimizers.encodings.optimizer.lr", str(TENSORF_GRID_LR),
-    # the preset's own decay (EvDeblurNeRF's x0.1 per 10k steps over its scheduled steps), from the higher start
+_PRESET_GRIDS = evdeblurnerf_lite.config.optimizers["encodings"]
+_PDRF_GRID_LR = (
+    "--optimizers.encodings.optimizer.lr", str(EVDEBLURNERF_LR),
+    # the preset's own decay (EvDeblurNeRF's x0.1 per 10k steps over its scheduled steps), from the published start
     "--optimizers.encodings.scheduler.lr-final",
-    f"{TENSORF_GRID_LR * _PUBLISHED_GRIDS['scheduler'].lr_final / _PUBLISHED_GRIDS['optimizer'].lr:.6g}",
+    f"{EVDEBLURNERF_LR * _PRESET_GRIDS['scheduler'].lr_final / _PRESET_GRIDS['optimizer'].lr:.6g}",
 )  # fmt: skip
 
 PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
@@ -147,7 +151,7 @@ PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
         "RGB TensoRF on EvDeblurNeRF's recipe (its schedule and steps; no kernel, no events)",
         (*RGB, f"{MODEL}blur-samples", "1", f"{MODEL}edi-prior", "False", f"{MODEL}event-crf", "False"),
     ),
-    "evdeblurnerf-lite-grid-lr": ("EvDeblurNeRF as published, grids at TensoRF's learning rate (2e-2)", _GRID_LR),
+    "evdeblurnerf-lite-pdrf-lr": ("EvDeblurNeRF, grids at PDRF's learning rate (5e-3, as published)", _PDRF_GRID_LR),
     "evdeblurnerf-lite-fine32": (
         "EvDeblurNeRF as published, 32 + 32 samples (the preset's since these rows; 16 fine before)",
         (f"{MODEL}num-fine-samples", "32"),
@@ -157,33 +161,31 @@ PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
 """Rows that switch parts of ``evdeblurnerf-lite`` off (its steps, schedule and kernel), to attribute its gap:
 ``learnt-kernel`` is the frame-only deblurring its paper compares against (DP-NeRF's learnt kernel, no events);
 ``recipe-rgb`` the same recipe without the kernel, so that the kernel's part and the schedule's part separate;
-``evdeblurnerf-lite-grid-lr`` the published recipe with the grids learnt at TensoRF's rate, not PDRF's."""
+``evdeblurnerf-lite-pdrf-lr`` the recipe with the grids learnt at PDRF's published rate, not TensoRF's (the preset's)."""
 
 TABLE_I: Tuple[Tuple[str, str], ...] = (
     ("nerfacto", "Nerfacto (RGB)"),
     ("nerfacto-thermal", "Nerfacto (Thermal)"),
-    ("evdeblurnerf-lite", "EvDeblurNeRF (as published, TensoRF-lite field)"),
+    ("evdeblurnerf-lite", "EvDeblurNeRF (TensoRF-lite field at its grid rate)"),
+    ("evdeblurnerf-lite-pdrf-lr", "EvDeblurNeRF (as published: PDRF's grid rate)"),
     ("evdeblurnerf", "EvDeblurNeRF port (windowed events, trajectory blur)"),
-    ("blur-events-noise", "Ours (RGB module: blur + noise-balanced events)"),
-    ("agrinerf", "Ours (RGB): All + blur + noise-balanced events"),
+    ("blur", "RGB TensoRF + trajectory blur model, no events"),
+    ("blur-events-noise", "Ours (RGB module), ungated events"),
+    ("blur-events-gate", "Ours (RGB module: blur + gated noise-balanced events)"),
+    ("agrinerf", "Ours (RGB): All + blur + gated noise-balanced events"),
 )
 """The paper's Tables I/II rows: row key -> label."""
 
 PAIRS: Tuple[Tuple[str, str, str], ...] = (
-    ("blur-events-noise", "evdeblurnerf-lite", "Ours (RGB) against EvDeblurNeRF as published"),
-    ("blur", "evdeblurnerf-lite", "The trajectory blur model against EvDeblurNeRF as published"),
-    (
-        "evdeblurnerf-lite",
-        "learnt-kernel",
-        "EvDeblurNeRF as published against its recipe without events (its paper's ordering)",
-    ),
+    ("blur-events-gate", "blur", "Ours (RGB) against the same module without events"),
+    ("blur-events-gate", "blur-events-noise", "The gate against the ungated event term"),
+    ("blur-events-noise", "blur", "The ungated event term against the same module without events"),
+    ("blur-events-gate", "evdeblurnerf-lite", "Ours (RGB) against EvDeblurNeRF at TensoRF's grid rate"),
+    ("blur", "evdeblurnerf-lite", "The trajectory blur model against EvDeblurNeRF at TensoRF's grid rate"),
+    ("evdeblurnerf-lite", "evdeblurnerf-lite-pdrf-lr", "EvDeblurNeRF at TensoRF's grid rate against PDRF's"),
+    ("evdeblurnerf-lite", "learnt-kernel", "EvDeblurNeRF against its recipe without events (its paper's ordering)"),
     ("learnt-kernel", "recipe-rgb", "The learnt rigid kernel against the same recipe without it"),
-    ("evdeblurnerf-lite-grid-lr", "evdeblurnerf-lite", "EvDeblurNeRF with TensoRF's grid learning rate against PDRF's"),
-    ("blur-events-noise", "evdeblurnerf-lite-grid-lr", "Ours (RGB) against EvDeblurNeRF at TensoRF's grid rate"),
-    ("evdeblurnerf-lite-grid-lr", "blur", "EvDeblurNeRF at TensoRF's grid rate against the trajectory blur model"),
-    ("evdeblurnerf-lite", "evdeblurnerf-lite-no-edi", "The EDI prior's part of EvDeblurNeRF as published"),
-    ("evdeblurnerf-lite-fine32", "evdeblurnerf-lite", "EvDeblurNeRF with 32 fine samples against 16"),
-    ("blur-events-noise", "evdeblurnerf-lite-fine32", "Ours (RGB) against EvDeblurNeRF with 32 fine samples"),
+    ("evdeblurnerf-lite", "evdeblurnerf-lite-no-edi", "The EDI prior's part of EvDeblurNeRF"),
 )
 """Paired per-view comparisons reported where both rows ran: (row, against, what it measures)."""
 
@@ -217,6 +219,9 @@ class Args:
     profile: str = "deblur"
     """Scene size, motion, held-out views and step budget (``agrinerf_ns.lab.profiles``)."""
     seed: int = 0
+    """The scenes' seed (0-99 tuning, 100 and up reporting: docs/bench_profiles.md)."""
+    train_seed: Optional[int] = None
+    """Nerfstudio's ``--machine.seed`` for every row (its default 42 where unset)."""
     report_only: bool = False
     """Train nothing: write deblur.md from the rows already in results.csv."""
 
@@ -229,7 +234,15 @@ def row_profile(profile: BenchProfile, key: str) -> BenchProfile:
     return replace(profile, steps={**profile.steps, key: steps})
 
 
-def method(key: str) -> BenchMethod:
+def method(key: str, train_seed: Optional[int] = None) -> BenchMethod:
+    """The row's method, with Nerfstudio's machine seed where one is given."""
+    chosen = _method(key)
+    if train_seed is None:
+        return chosen
+    return replace(chosen, train_args=(*chosen.train_args, "--machine.seed", str(train_seed)))
+
+
+def _method(key: str) -> BenchMethod:
     if key in BASELINES:
         return METHODS[key]
     if key in PUBLISHED_VARIANTS:
@@ -277,7 +290,16 @@ def main(args: Args) -> None:
             if (scene, key) in done:
                 continue
             print(f"{scene}: {key}", flush=True)
-            rows = run_method(scene, key, method(key), raw, data, row_profile(profile, key), args.out / "runs", device)
+            rows = run_method(
+                scene,
+                key,
+                method(key, args.train_seed),
+                raw,
+                data,
+                row_profile(profile, key),
+                args.out / "runs",
+                device,
+            )
             results.append_rows(csv_path, rows)
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in args.scenes]
     labels = {k: known[k][0] for k in keys}

@@ -14,7 +14,10 @@ PRESETS = {"agrinerf-lite": agrinerf_lite.config, "evdeblurnerf-lite": evdeblurn
 
 
 def _parsed(key: str):
-    method = BENCH.method(key)
+    return _parsed_method(BENCH.method(key))
+
+
+def _parsed_method(method):
     preset = PRESETS[method.ns_method]
     # as ns-train parses them (booleans take a value: --flag False)
     return tyro.cli(tyro.conf.FlagConversionOff[type(preset)], default=preset, args=list(method.train_args))
@@ -23,22 +26,39 @@ def _parsed(key: str):
 def test_the_published_recipe_rows_switch_off_only_their_part() -> None:
     published = evdeblurnerf_lite.config
     recipe_rgb, kernel = _parsed("recipe-rgb"), _parsed("learnt-kernel")
-    grid_lr, fine32 = _parsed("evdeblurnerf-lite-grid-lr"), _parsed("evdeblurnerf-lite-fine32")
+    pdrf_lr, fine32 = _parsed("evdeblurnerf-lite-pdrf-lr"), _parsed("evdeblurnerf-lite-fine32")
     for config in (recipe_rgb, kernel):
         assert config.pipeline.model.modalities == ("rgb",) and not config.pipeline.model.edi_prior
     assert recipe_rgb.pipeline.model.blur_samples == 1  # no kernel
     assert kernel.pipeline.model.blur_kernel == "learnt"
     assert kernel.pipeline.model.blur_samples == published.pipeline.model.blur_samples == 10
-    encodings = grid_lr.optimizers["encodings"]
-    assert encodings["optimizer"].lr == pytest.approx(0.02)
-    assert encodings["scheduler"].lr_final == pytest.approx(0.02 * 0.1 ** (2000 / 10_000), rel=1e-5)
-    assert grid_lr.optimizers["fields"]["optimizer"].lr == published.optimizers["fields"]["optimizer"].lr
-    assert grid_lr.pipeline.model == published.pipeline.model
+    # the preset's grids learn at TensoRF's rate; the variant restores the published PDRF one, same decay
+    assert published.optimizers["encodings"]["optimizer"].lr == pytest.approx(0.02)
+    encodings = pdrf_lr.optimizers["encodings"]
+    assert encodings["optimizer"].lr == pytest.approx(5e-3)
+    assert encodings["scheduler"].lr_final == pytest.approx(5e-3 * 0.1 ** (2000 / 10_000), rel=1e-5)
+    assert pdrf_lr.optimizers["fields"]["optimizer"].lr == published.optimizers["fields"]["optimizer"].lr == 5e-3
+    assert pdrf_lr.pipeline.model == published.pipeline.model
     assert fine32.pipeline.model.num_fine_samples == 32 == published.pipeline.model.num_fine_samples  # the preset's
-    for key in ("recipe-rgb", "learnt-kernel", "evdeblurnerf-lite-grid-lr", "evdeblurnerf-lite-fine32"):
+    for key in ("recipe-rgb", "learnt-kernel", "evdeblurnerf-lite-pdrf-lr", "evdeblurnerf-lite-fine32"):
         assert BENCH.row_profile(BENCH.PROFILES["deblur"], key).steps == BENCH.PROFILES["deblur"].steps  # 1600 steps
 
 
 @pytest.mark.parametrize("key", sorted([*BENCH.ROWS, *BENCH.PUBLISHED_VARIANTS]))
 def test_every_row_parses(key: str) -> None:
     assert _parsed(key).method_name == BENCH.method(key).ns_method
+
+
+def test_the_gated_row_is_the_paper_presets_event_term() -> None:
+    from agrinerf_ns.method_configs.agrinerf_methods import agrinerf
+
+    gated, paper = _parsed("blur-events-gate").pipeline.model, agrinerf.config.pipeline.model
+    assert gated.event_gate and paper.event_gate
+    assert (gated.event_loss_weighting, gated.event_supervision) == (paper.event_loss_weighting, paper.event_supervision)
+    assert not _parsed("blur-events-noise").pipeline.model.event_gate
+
+
+def test_a_training_seed_reaches_every_row() -> None:
+    for key in ("rgb", "blur-events-gate", "evdeblurnerf-lite-pdrf-lr"):
+        method = BENCH.method(key, 43)
+        assert _parsed_method(method).machine.seed == 43
