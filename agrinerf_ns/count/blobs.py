@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Bool, Float
 
 from agrinerf_ns.count.render import RenderedView
+from agrinerf_ns.robust import robust_spread
 
 Polarity = Literal["both", "warm", "cool"]
 MIN_ACCUMULATION = 0.5
@@ -102,7 +103,7 @@ def contrast(
     dog[~valid] = 0.0
     if not valid.any():
         return dog
-    spread = 1.4826 * float(np.median(np.abs(dog[valid] - np.median(dog[valid]))))
+    spread = robust_spread(dog[valid])
     return dog / max(spread, 1e-6)
 
 

@@ -26,6 +26,7 @@ from jaxtyping import Float
 
 from agrinerf_ns.count.cluster import Fruit
 from agrinerf_ns.count.volume import SampledField, mask_of, views_showing_pixels
+from agrinerf_ns.robust import robust_spread
 
 Polarity = Literal["both", "warm", "cool"]
 DIAMETER_PER_SD = 2.0 * np.sqrt(5.0)
@@ -79,7 +80,7 @@ def standing_out(sampled: SampledField, config: ComponentConfig) -> Float[np.nda
     count = uniform_filter(mask, size=size, mode="constant")
     background = (total / np.maximum(count, 1e-6)).reshape(-1)[sampled.flat]
     difference = feature - background
-    spread = 1.4826 * float(np.median(np.abs(difference - np.median(difference)))) if len(difference) else 1.0
+    spread = robust_spread(difference) if len(difference) else 1.0
     return difference / max(spread, 1e-6)
 
 

@@ -18,6 +18,7 @@ import numpy as np
 from jaxtyping import Bool, Float
 
 from agrinerf_ns.count.render import RenderedView, WorldFrame
+from agrinerf_ns.robust import robust_spread
 
 CAP_MEDIAN_OFFSET = 1.0 / np.sqrt(2.0)
 """Median depth of a sphere's visible cap in front of its centre, in radii."""
@@ -55,7 +56,7 @@ def lift_detection(
     median = float(np.median(d))
     rho = np.sqrt(mask.sum() / np.pi)  # pixels
     radius = rho * median / max(view.focal - CAP_MEDIAN_OFFSET * rho, 1e-6)  # Nerfstudio units
-    spread = 1.4826 * float(np.median(np.abs(d - median)))
+    spread = robust_spread(d, median)
     inlier = np.abs(d - median) <= DEPTH_INLIER_MADS * spread + radius
     keep[keep] = inlier
     ray = view.directions[keep].mean(0)

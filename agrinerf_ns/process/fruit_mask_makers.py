@@ -27,6 +27,7 @@ from jaxtyping import Bool, Float, Shaped, UInt8
 
 from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
+from agrinerf_ns.robust import robust_spread
 from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
 
@@ -122,7 +123,7 @@ def thermal_blobs(
 
     values = thermal[seen].astype(np.float64)
     median = float(np.median(values))
-    spread = max(1.4826 * float(np.median(np.abs(values - median))), 1e-6)
+    spread = max(robust_spread(values, median), 1e-6)
     z = np.where(seen, (thermal - median) / spread, 0.0)
     short = min(thermal.shape)
     # a disc of diameter d is found at sigma d / (2 sqrt 2)
