@@ -54,7 +54,10 @@ def test_the_gated_row_is_the_paper_presets_event_term() -> None:
 
     gated, paper = _parsed("blur-events-gate").pipeline.model, agrinerf.config.pipeline.model
     assert gated.event_gate and paper.event_gate
-    assert (gated.event_loss_weighting, gated.event_supervision) == (paper.event_loss_weighting, paper.event_supervision)
+    assert (gated.event_loss_weighting, gated.event_supervision) == (
+        paper.event_loss_weighting,
+        paper.event_supervision,
+    )
     assert not _parsed("blur-events-noise").pipeline.model.event_gate
 
 
