@@ -47,6 +47,10 @@ def _events(pixels: int, weight: float = 0.1) -> Tuple[str, ...]:
     )  # fmt: skip
 
 
+OURS_EVENTS = (*_events(256, 1.0), *NOISE, *GATE)
+"""The `agrinerf` preset's kind of event term on the lite field: noise-balanced (coefficient 1) and gated."""
+
+
 def _window(fraction: float) -> Tuple[str, ...]:
     return (f"{MODEL}event-window-min-fraction", str(fraction))
 
@@ -115,13 +119,13 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     ),
     "blur-events-gate": (
         "Ours (RGB module): blur + gated noise-balanced events",
-        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, *GATE),
+        (*EVENTS, *_blur(3), *OURS_EVENTS),
     ),
     "blur-events-gate-evd-budget": (
         "Ours (RGB module) at EvDeblurNeRF-lite's budget: twice the steps, 32 + 32 samples",
-        (*EVENTS, *_blur(3), *_events(256, 1.0), *NOISE, *GATE, f"{MODEL}num-fine-samples", "32"),
+        (*EVENTS, *_blur(3), *OURS_EVENTS, f"{MODEL}num-fine-samples", "32"),
     ),
-    "agrinerf": ("Ours: All + blur + gated noise-balanced events", (*_blur(3), *_events(256, 1.0), *NOISE, *GATE)),
+    "agrinerf": ("Ours: All + blur + gated noise-balanced events", (*_blur(3), *OURS_EVENTS)),
     "rgb-long": ("RGB TensoRF, 4x the steps", RGB),
     "rgb-seed": ("RGB TensoRF, another seed", (*RGB, "--machine.seed", "43")),
 }
@@ -219,7 +223,7 @@ def paired_table(rows, scenes) -> str:
 
 STEP_FACTORS: Dict[str, int] = {"rgb-long": 4, "blur-events-gate-evd-budget": 2}
 """Rows trained for a multiple of the profile's steps: the RGB TensoRF at about the wall time of the blur model's rows
-(their step times: ``benchmarks/bench_event_speed.py``)."""
+(their step times: ``benchmarks/bench_event_speed.py``), and Ours at EvDeblurNeRF-lite's 1600 steps."""
 
 
 @dataclass
@@ -231,7 +235,7 @@ class Args:
     profile: str = "deblur"
     """Scene size, motion, held-out views and step budget (``agrinerf_ns.lab.profiles``)."""
     seed: int = 0
-    """The scenes' seed (0-99 tuning, 100 and up reporting: docs/bench_profiles.md)."""
+    """The scenes' seed (below 100 tuning, 100 and up reporting: docs/bench_profiles.md, Seeds)."""
     train_seed: Optional[int] = None
     """Nerfstudio's ``--machine.seed`` for every row (its default 42 where unset)."""
     report_only: bool = False
