@@ -67,3 +67,22 @@ def test_a_single_disc_is_not_split_by_its_own_distance_plateau() -> None:
     y, x = np.mgrid[0:SIZE, 0:SIZE] + 0.5
     disc = (y - 32) ** 2 + (x - 32) ** 2 <= 10.0**2
     assert len(split_touching(disc, 3.0)) == 1
+
+
+def test_the_fruit_depth_places_the_regions_when_asked_and_only_on_the_fruit_source() -> None:
+    from agrinerf_ns.count.detectors import DetectorConfig
+    from agrinerf_ns.count.pipeline import detect_and_lift
+    from agrinerf_ns.count.render import RenderSet, WorldFrame
+
+    view = _view([(32, 32, 6.4)])
+    view.depth = np.full((SIZE, SIZE), 1.4)  # the median depth passes through the fruit to the leaves behind it
+    view.fruit_depth = np.full((SIZE, SIZE), DEPTH, np.float32)
+    renders = RenderSet([view], WorldFrame(np.eye(4)[:3], 1.0), None, None, "agrinerf-lite", False)
+    base = DetectorConfig(source="fruit", blobs=CONFIG)
+    (by_median,), _ = detect_and_lift(renders, base)
+    (by_fruit,), _ = detect_and_lift(renders, DetectorConfig(source="fruit", blobs=CONFIG, fruit_depth=True))
+    assert by_median.centre[2] < -1.4 and -1.2 < by_fruit.centre[2] < -1.0  # the cap's median plus r / sqrt(2)
+    assert by_fruit.diameter == pytest.approx(0.2, rel=0.1) and by_median.diameter > 1.3 * by_fruit.diameter
+    view.fruit_depth = None  # renders made before the output: the rendered depth
+    (old,), _ = detect_and_lift(renders, DetectorConfig(source="fruit", blobs=CONFIG, fruit_depth=True))
+    assert np.allclose(old.centre, by_median.centre)

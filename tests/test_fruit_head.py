@@ -15,7 +15,7 @@ from PIL import Image
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataError, AgriNeRFDataParserConfig
 from agrinerf_ns.dataparsers.agrinerf_dataset import AgriNeRFDataset
-from agrinerf_ns.model.fruit_head import fruit_iou, fruit_loss
+from agrinerf_ns.model.fruit_head import fruit_depth, fruit_iou, fruit_loss
 
 
 def test_masks_reach_the_batch_with_unknown_pixels_apart(tmp_path: Path) -> None:
@@ -63,6 +63,19 @@ def test_the_loss_reads_known_pixels_only_and_is_finite_at_the_extremes() -> Non
     assert fruit_iou(rendered, fruit, known) == 1.0 and fruit_iou(torch.zeros(4, 1), torch.zeros(4, 1), known) == 1.0
 
 
+def test_the_fruit_depth_is_where_the_head_puts_the_fruit_and_nan_where_none() -> None:
+    # one ray: a half-opaque fruit at 1.0 in front of a leaf at 2.0 (weights 0.45 / 0.55: the median depth is the
+    # leaf's); the head gives the fruit 0.9 and the leaf 0.1. A second ray holds no fruit at all.
+    weights = torch.tensor([[[0.45], [0.55]], [[0.5], [0.5]]])
+    probability = torch.tensor([[[0.9], [0.1]], [[0.0], [0.0]]])
+    distances = torch.tensor([[[1.0], [2.0]], [[1.0], [2.0]]])
+    depth = fruit_depth(weights * probability, distances)
+    assert depth.shape == (2, 1) and abs(float(depth[0, 0]) - (0.405 + 0.11) / 0.46) < 1e-6  # 1.12, by the fruit
+    assert torch.isnan(depth[1, 0])
+    tiny = fruit_depth(torch.full((1, 64, 1), 1e-30), torch.linspace(0.1, 1e4, 64).view(1, 64, 1))
+    assert torch.isnan(tiny).all()  # vanishing fruit weight: no depth, never an overflow
+
+
 @pytest.mark.slow
 def test_the_fruit_head_trains_to_the_true_fruit_and_no_masks_build_no_head(tmp_path: Path) -> None:
     data = add_fruit_masks(write_model_scene(tmp_path / "scene", views=10, modalities=("rgb",)))
@@ -79,7 +92,9 @@ def test_the_fruit_head_trains_to_the_true_fruit_and_no_masks_build_no_head(tmp_
     ious, inside, outside = [], [], []
     for i in range(len(dataset)):  # the training views: the tiny field's held-out views are too poor to judge by
         with torch.no_grad():
-            rendered = model.get_outputs_for_camera(dataset.cameras[i : i + 1])["fruit"]
+            outputs = model.get_outputs_for_camera(dataset.cameras[i : i + 1])
+        rendered = outputs["fruit"]
+        assert torch.isfinite(outputs["fruit_depth"]).all()  # the rendered depth where the head puts no fruit
         item = dataset[i]
         ious.append(fruit_iou(rendered, item["fruit"], item["fruit_known"]))
         known = item["fruit_known"] > 0.5

@@ -37,6 +37,9 @@ class DetectorConfig:
     """YOLO weights (``.pt``), for ``--detector yolo``."""
     confidence: float = 0.25
     """YOLO: lowest box score kept."""
+    fruit_depth: bool = False
+    """On the ``fruit`` source, lift each region by the fruit head's depth (``fruit_depth``: where along the ray the
+    head puts the fruit) rather than the rendered median depth; renders without it keep the rendered depth."""
     blobs: Annotated[BlobConfig, tyro.conf.arg(name="")] = field(default_factory=BlobConfig)
     """Settings of ``--detector blobs``."""
 

@@ -45,10 +45,16 @@ class LiftedDetection:
 
 
 def lift_detection(
-    view: RenderedView, mask: Bool[np.ndarray, "h w"], frame: WorldFrame, view_index: int = 0, score: float = 1.0
+    view: RenderedView,
+    mask: Bool[np.ndarray, "h w"],
+    frame: WorldFrame,
+    view_index: int = 0,
+    score: float = 1.0,
+    depth: Optional[Float[np.ndarray, "h w"]] = None,
 ) -> Optional[LiftedDetection]:
-    """The fruit centre and diameter of the pixels ``mask`` of ``view`` (None when no pixel has a depth)."""
-    depth = view.depth
+    """The fruit centre and diameter of the pixels ``mask`` of ``view`` (None when no pixel has a depth), lifted by
+    ``depth`` (default: the view's rendered depth)."""
+    depth = view.depth if depth is None else depth
     keep = mask & np.isfinite(depth) & (depth > 0)
     if not keep.any():
         return None

@@ -17,7 +17,7 @@ from rich.progress import Progress
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
-from agrinerf_ns.count.detectors import DetectorConfig, make_detector
+from agrinerf_ns.count.detectors import DetectorConfig, make_detector, view_source
 from agrinerf_ns.count.fruit_score import (
     TRUE_DEPTH_DIR,
     Align,
@@ -113,8 +113,9 @@ def detect_and_lift(
     for index, view in enumerate(renders.views):
         found = detector(view, renders.frame.scale)
         per_view.append(len(found))
+        depth = view.fruit_depth if config.fruit_depth and view_source(config, view) == "fruit" else None
         for detection in found:
-            point = lift_detection(view, detection.mask, renders.frame, index, detection.score)
+            point = lift_detection(view, detection.mask, renders.frame, index, detection.score, depth)
             if point is not None:
                 lifted.append(point)
         if progress is not None and task is not None:

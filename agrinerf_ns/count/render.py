@@ -27,8 +27,9 @@ if TYPE_CHECKING:
     from agrinerf_ns.detect.render_views import LoadedRun
 
 RENDERS_JSON = "renders.json"
-OPTIONAL_OUTPUTS = ("thermal", "temperature", "fruit")
-"""Outputs kept when the run renders them (the cross-spectral channel, degrees C, the fruit head's probability)."""
+OPTIONAL_OUTPUTS = ("thermal", "temperature", "fruit", "fruit_depth")
+"""Outputs kept when the run renders them (the cross-spectral channel, degrees C, the fruit head's probability and
+its depth)."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,8 @@ class RenderedView:
     temperature: Optional[Float[np.ndarray, "h w"]] = None
     fruit: Optional[Float[np.ndarray, "h w"]] = None
     """The fruit head's rendered probability (a run trained with fruit masks)."""
+    fruit_depth: Optional[Float[np.ndarray, "h w"]] = None
+    """Where along each ray the fruit head puts the fruit (the rendered depth where it puts none)."""
 
     def optional_output(self, name: str) -> Float[np.ndarray, "h w *channels"]:
         """The ``rgb``, ``thermal``, ``temperature`` or ``fruit`` image; ValueError naming the view where the run
@@ -124,6 +127,7 @@ class RenderedView:
             "thermal": None if self.thermal is None else self.thermal.astype(np.float16),
             "temperature": None if self.temperature is None else self.temperature.astype(np.float32),
             "fruit": None if self.fruit is None else self.fruit.astype(np.float16),
+            "fruit_depth": None if self.fruit_depth is None else self.fruit_depth.astype(np.float32),
         }
 
 
@@ -248,6 +252,7 @@ def _view_from_outputs(
         thermal=array("thermal")[..., 0] if "thermal" in outputs else None,
         temperature=array("temperature")[..., 0] if "temperature" in outputs else None,
         fruit=array("fruit")[..., 0] if "fruit" in outputs else None,
+        fruit_depth=array("fruit_depth")[..., 0] if "fruit_depth" in outputs else None,
     )
 
 
@@ -308,6 +313,7 @@ def load_renders(folder: Path) -> RenderSet:
                     thermal=data["thermal"].astype(np.float32) if "thermal" in data else None,
                     temperature=data["temperature"].astype(np.float32) if "temperature" in data else None,
                     fruit=data["fruit"].astype(np.float32) if "fruit" in data else None,
+                    fruit_depth=data["fruit_depth"].astype(np.float32) if "fruit_depth" in data else None,
                 )
             )
     dataset = Path(meta["dataset"]) if meta.get("dataset") else None

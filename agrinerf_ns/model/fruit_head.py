@@ -11,6 +11,8 @@ model's plan), so that ``agrinerf-count --path fruit`` can count fruit in the fi
 
 from __future__ import annotations
 
+from typing import Optional, Tuple
+
 import torch
 from jaxtyping import Float
 from nerfstudio.field_components.encodings import NeRFEncoding
@@ -20,6 +22,8 @@ from torch.nn import functional as F
 
 PROBABILITY_EPS = 1e-6
 """Rendered probabilities are clamped to [eps, 1 - eps] in the loss (BCE of an exact 0 or 1 is infinite)."""
+FRUIT_DEPTH_EPS = 1e-4
+"""Below this rendered fruit probability a ray has no fruit depth (NaN)."""
 
 
 class FruitHead(nn.Module):
@@ -53,13 +57,32 @@ class FruitHead(nn.Module):
         return torch.sigmoid(self.mlp(inputs))
 
     def render(
-        self, features: Float[Tensor, "n c"], coords: Float[Tensor, "n 3"], weights: Float[Tensor, "rays samples 1"]
-    ) -> Float[Tensor, "rays 1"]:
-        """Expected fruit probability along each ray (`features`, `coords`: the rays' samples flattened, ray-major)."""
+        self,
+        features: Float[Tensor, "n c"],
+        coords: Float[Tensor, "n 3"],
+        weights: Float[Tensor, "rays samples 1"],
+        distances: Optional[Float[Tensor, "rays samples 1"]] = None,
+    ) -> Tuple[Float[Tensor, "rays 1"], Optional[Float[Tensor, "rays 1"]]]:
+        """Expected fruit probability along each ray (`features`, `coords`: the rays' samples flattened, ray-major)
+        and, given the samples' `distances` along the ray, the fruit depth: the mean distance weighted by each
+        sample's render weight times its fruit probability, where along the ray the head puts the fruit (the
+        rendered depth, the median of the weights, passes through a fruit the field holds only half opaque)."""
         if not self.shape_geometry:
             weights = weights.detach()
         probability = self.probability(features, coords).view(*weights.shape[:2], 1)
-        return (weights * probability).sum(dim=-2)
+        fruit_weights = weights * probability
+        fruit = fruit_weights.sum(dim=-2)
+        return fruit, None if distances is None else fruit_depth(fruit_weights, distances)
+
+
+def fruit_depth(
+    fruit_weights: Float[Tensor, "rays samples 1"], distances: Float[Tensor, "rays samples 1"]
+) -> Float[Tensor, "rays 1"]:
+    """Mean sample distance weighted by render weight times fruit probability; NaN where a ray's rendered fruit
+    probability is below :data:`FRUIT_DEPTH_EPS`."""
+    fruit = fruit_weights.sum(dim=-2)
+    depth = (fruit_weights * distances).sum(dim=-2) / fruit.clamp(min=FRUIT_DEPTH_EPS)
+    return torch.where(fruit > FRUIT_DEPTH_EPS, depth, torch.full_like(depth, float("nan")))
 
 
 def fruit_loss(

@@ -347,14 +347,20 @@ class AgriNeRFModel(Model):
         outputs: Dict[str, Tensor] = {
             name: self.composite(weights, accumulation, values) for name, values in dense.items()
         }
+        fruit_depth: Optional[Tensor] = None
         if self.fruit_head is not None and (heads is None or "fruit" in heads):
             features = self.field.density_encoding.features(corners)
             fruit_weights = weights
             if self.config.fruit_in_box_only:  # fruit only where the grids have their full resolution
                 in_box = self.field.full_resolution(samples.frustums.get_positions())
                 fruit_weights = weights * in_box[..., None]
-            outputs["fruit"] = self.fruit_head.render(features, coords.reshape(-1, 3), fruit_weights)
+            distances = None if self.training else (samples.frustums.starts + samples.frustums.ends) / 2
+            outputs["fruit"], fruit_depth = self.fruit_head.render(
+                features, coords.reshape(-1, 3), fruit_weights, distances
+            )
         outputs["depth"] = self.renderer_depth(weights, samples)
+        if fruit_depth is not None:  # eval: where along the ray the head puts the fruit (counting lifts by it)
+            outputs["fruit_depth"] = torch.where(fruit_depth.isnan(), outputs["depth"], fruit_depth)
         outputs["accumulation"] = accumulation
         if not self.training:  # where the weight falls and how fine the grid is there (`grid_diagnostics`)
             positions = samples.frustums.get_positions()
