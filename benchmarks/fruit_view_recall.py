@@ -1,7 +1,8 @@
 """Where the view path on the fruit channel loses fruit: per training view of a count's render folder, the true fruit
 at least ``--min-pixels`` in that view (the capture's truth/fruit_ids) and how many of them a detection of
-``--source fruit`` covers; per fruit, in how many views it is that large and in how many detected; and, with
-``--config``, the share of the visible fruit inside the run's fitted full-resolution box.
+``--source fruit`` covers, also by the fruit's size in the view (pixels); per fruit, in how many views it is that large
+and in how many detected; and, with ``--config``, the share of the visible fruit inside the run's fitted
+full-resolution box.
 
     python benchmarks/fruit_view_recall.py --renders COUNT/renders --raw RAW [--config RUN/config.yml]
 """
@@ -35,9 +36,14 @@ class Args:
     """A fruit this many pixels in a view is one the view should find."""
 
 
+SIZE_EDGES = (100, 300, 1000)
+"""Pixel counts that bucket a fruit's view: under 100 px (about 11 px across), 100-300, 300-1000, 1000 and more."""
+
+
 def main(args: Args) -> str:
     renders = load_renders(args.renders)
     large, found, seen = collections.Counter(), collections.Counter(), collections.Counter()
+    by_size: collections.Counter = collections.Counter()  # (bucket, found) -> fruit views
     per_view = []
     for view in renders.views:
         if view.split != "train":
@@ -54,6 +60,8 @@ def main(args: Args) -> str:
             if pairs:
                 hit.add(max(pairs)[1])
         found.update(hit & big)
+        sizes = dict(zip(labels.tolist(), counts.tolist(), strict=True))
+        by_size.update((int(np.searchsorted(SIZE_EDGES, sizes[i], side="right")), i in hit) for i in big)
         per_view.append(len(hit & big) / max(len(big), 1))
     visible = sorted(seen)
     lines = [
@@ -62,6 +70,12 @@ def main(args: Args) -> str:
         f"visible fruit (3 px in a view): {len(visible)}; at least {args.min_pixels} px in 2 views: "
         f"{sum(large[i] >= 2 for i in visible)}; found in 2 views: {sum(found[i] >= 2 for i in visible)}",
     ]
+    bounds = [args.min_pixels, *SIZE_EDGES]
+    names = [f"{a}-{b}" for a, b in zip(bounds[:-1], bounds[1:], strict=True)] + [f">={SIZE_EDGES[-1]}"]
+    for bucket, name in enumerate(names):
+        total = by_size[(bucket, True)] + by_size[(bucket, False)]
+        if total:
+            lines.append(f"fruit views of {name} px: {total}, found {by_size[(bucket, True)] / total:.2f}")
     if args.config is not None:
         import torch
         from nerfstudio.utils.eval_utils import eval_setup
