@@ -1,5 +1,5 @@
-"""The system pieces that Nerfstudio's commands need beyond pip: open3d's libusb (``ns-export``) and an ``ffmpeg``
-(``ns-render`` videos). Each check returns None when the piece works, else a message that says how to install it.
+"""The system pieces that Nerfstudio's commands need beyond pip: open3d's system libraries (libusb, libEGL, libGL;
+``ns-export``) and an ``ffmpeg`` (``ns-render`` videos). Each check returns None when the piece works, else a message that says how to install it.
 
 ``python -m agrinerf_ns.system_deps`` prints every problem and exits 1 if there is one (``scripts/install.sh`` runs
 it after installing).
@@ -11,9 +11,17 @@ import shutil
 import sys
 from typing import List, Optional
 
-OPEN3D_LIBUSB_HINT = (
-    "open3d (used by ns-export and agrinerf-export) cannot load: {err}. It needs the system library libusb-1.0: "
-    "on Debian/Ubuntu run 'sudo apt-get install libusb-1.0-0' (Fedora: 'sudo dnf install libusb1')."
+OPEN3D_LIBRARIES = {
+    "libusb-1.0.so.0": ("libusb-1.0-0", "libusb1"),
+    "libEGL.so.1": ("libegl1", "libglvnd-egl"),
+    "libGL.so.1": ("libgl1", "libglvnd-glx"),
+}
+"""The system libraries open3d's module links that a minimal Debian lacks: soname -> (Debian/Ubuntu, Fedora) package
+(scripts/install_system.sh installs the same)."""
+OPEN3D_LIBRARY_HINT = (
+    "open3d (used by ns-export and agrinerf-export) cannot load: {err}. It needs the system library {soname}: "
+    "on Debian/Ubuntu run 'sudo apt-get install {debian}' (Fedora: 'sudo dnf install {fedora}'); "
+    "'bash scripts/install_system.sh' installs every one it needs."
 )
 FFMPEG_HINT = (
     "No 'ffmpeg' on PATH, which ns-render needs for videos, and imageio-ffmpeg (a dependency) provides none for this "
@@ -30,8 +38,9 @@ def open3d_problem() -> Optional[str]:
     try:
         import open3d  # noqa: F401
     except ImportError as err:
-        if "libusb" in str(err):
-            return OPEN3D_LIBUSB_HINT.format(err=err)
+        for soname, (debian, fedora) in OPEN3D_LIBRARIES.items():
+            if soname in str(err):
+                return OPEN3D_LIBRARY_HINT.format(err=err, soname=soname, debian=debian, fedora=fedora)
         return f"open3d cannot be imported: {err} (reinstall with 'bash scripts/install.sh')."
     return None
 

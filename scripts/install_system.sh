@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The system packages pip cannot install, for scripts/install.sh: open3d's libusb-1.0 (ns-export, agrinerf-export)
+# The system packages pip cannot install, for scripts/install.sh: the libraries open3d's module links that a minimal
+# Debian lacks (libusb-1.0, libEGL, libGL; ns-export, agrinerf-export)
 # and, with --dev, Chromium (the viewer test, tests/test_viewer.py).
 #   bash scripts/install_system.sh [--dev]
 # As root on a system with apt-get (Debian/Ubuntu) it installs what is missing. Otherwise, or when apt-get fails, it
@@ -15,13 +16,16 @@ done
 
 missing=()
 why=()
-# libusb: whichever package brought it, as the dynamic loader finds it (ldconfig's cache; /sbin may be off PATH)
+# open3d's libraries (soname:Debian package, as agrinerf_ns/system_deps.py names them): whichever package brought
+# each, as the dynamic loader finds it (ldconfig's cache; /sbin may be off PATH)
 LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
 ldcache=$("$LDCONFIG" -p 2>/dev/null || true)
-case "$ldcache" in
-  *libusb-1.0.so.0*) ;;
-  *) missing+=(libusb-1.0-0); why+=("libusb-1.0-0 (open3d: ns-export)") ;;
-esac
+for pair in libusb-1.0.so.0:libusb-1.0-0 libEGL.so.1:libegl1 libGL.so.1:libgl1; do
+  case "$ldcache" in
+    *"${pair%%:*}"*) ;;
+    *) missing+=("${pair##*:}"); why+=("${pair##*:} (open3d: ns-export)") ;;
+  esac
+done
 # Chromium: looked up as tests/test_viewer.py does
 if [ "$DEV" = 1 ] && ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null; then
   missing+=(chromium); why+=("chromium (the viewer test)")
@@ -39,6 +43,6 @@ elif command -v apt-get >/dev/null; then
   echo "install_system.sh: missing ${why[*]}: run 'sudo apt-get install ${missing[*]}'" >&2
 else
   echo "install_system.sh: missing ${why[*]}: install them with the system's package manager" \
-    "(Fedora calls libusb-1.0-0 'libusb1')" >&2
+    "(Fedora: libusb1, libglvnd-egl, libglvnd-glx)" >&2
 fi
 exit 1

@@ -10,6 +10,7 @@ The exporters run in this process through their console scripts' entry points wi
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -150,18 +151,21 @@ def test_system_deps_report_nothing_missing_after_install(capsys) -> None:
     assert system_deps.main() == 0, capsys.readouterr().err
 
 
-def test_missing_libusb_gets_the_install_command(monkeypatch) -> None:
-    """open3d's import error when libusb is absent (the message seen on a fresh Debian) becomes one that says what
-    to install."""
+@pytest.mark.parametrize(
+    ("soname", "package"), [("libusb-1.0.so.0", "libusb-1.0-0"), ("libEGL.so.1", "libegl1"), ("libGL.so.1", "libgl1")]
+)
+def test_a_missing_open3d_library_gets_the_install_command(monkeypatch, soname: str, package: str) -> None:
+    """open3d's import error when one of its system libraries is absent (the messages seen on a fresh Debian: libusb,
+    then libEGL on a minimal one) becomes one that says what to install."""
 
-    class NoLibusb:
+    class NoLibrary:
         def find_spec(self, name, path=None, target=None):
             if name == "open3d":
-                raise ImportError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+                raise ImportError(f"{soname}: cannot open shared object file: No such file or directory")
             return None
 
     for name in [m for m in sys.modules if m == "open3d" or m.startswith("open3d.")]:
         monkeypatch.delitem(sys.modules, name)
-    monkeypatch.setattr(sys, "meta_path", [NoLibusb(), *sys.meta_path])
-    with pytest.raises(system_deps.SystemDependencyError, match=r"apt-get install libusb-1\.0-0"):
+    monkeypatch.setattr(sys, "meta_path", [NoLibrary(), *sys.meta_path])
+    with pytest.raises(system_deps.SystemDependencyError, match=rf"apt-get install {re.escape(package)}'"):
         system_deps.import_open3d()
