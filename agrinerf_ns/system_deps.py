@@ -1,5 +1,5 @@
 """The system pieces that Nerfstudio's commands need beyond pip: open3d's system libraries (libusb, libEGL, libGL;
-``ns-export``) and an ``ffmpeg`` (``ns-render`` videos). Each check returns None when the piece works, else a message that says how to install it.
+``ns-export``), pymeshlab's libOpenGL (``ns-export`` meshes) and an ``ffmpeg`` (``ns-render`` videos). Each check returns None when the piece works, else a message that says how to install it.
 
 ``python -m agrinerf_ns.system_deps`` prints every problem and exits 1 if there is one (``scripts/install.sh`` runs
 it after installing).
@@ -7,6 +7,8 @@ it after installing).
 
 from __future__ import annotations
 
+import ctypes
+import importlib.util
 import shutil
 import sys
 from typing import List, Optional
@@ -22,6 +24,10 @@ OPEN3D_LIBRARY_HINT = (
     "open3d (used by ns-export and agrinerf-export) cannot load: {err}. It needs the system library {soname}: "
     "on Debian/Ubuntu run 'sudo apt-get install {debian}' (Fedora: 'sudo dnf install {fedora}'); "
     "'bash scripts/install_system.sh' installs every one it needs."
+)
+MESHLAB_OPENGL_HINT = (
+    "pymeshlab (ns-export's meshes) cannot load its PLY writer without the system library libOpenGL.so.0 ({err}): "
+    "on Debian/Ubuntu run 'sudo apt-get install libopengl0' (Fedora: 'sudo dnf install libglvnd-opengl')."
 )
 FFMPEG_HINT = (
     "No 'ffmpeg' on PATH, which ns-render needs for videos, and imageio-ffmpeg (a dependency) provides none for this "
@@ -55,6 +61,18 @@ def import_open3d():
     return open3d
 
 
+def meshlab_opengl_problem() -> Optional[str]:
+    """None if pymeshlab is absent or its plugins' libOpenGL.so.0 loads (without it pymeshlab imports, then saves no
+    PLY: "Unknown format for save: ply", as seen on a fresh Debian); else how to install it. Linux only."""
+    if not sys.platform.startswith("linux") or importlib.util.find_spec("pymeshlab") is None:
+        return None
+    try:
+        ctypes.CDLL("libOpenGL.so.0")
+    except OSError as err:
+        return MESHLAB_OPENGL_HINT.format(err=err)
+    return None
+
+
 def ffmpeg_problem() -> Optional[str]:
     """None if an ``ffmpeg`` is on PATH (as Nerfstudio's ``check_ffmpeg_installed`` and mediapy look it up)."""
     return None if shutil.which("ffmpeg") else FFMPEG_HINT
@@ -62,7 +80,7 @@ def ffmpeg_problem() -> Optional[str]:
 
 def problems() -> List[str]:
     """Every missing system piece, as messages."""
-    return [p for p in (open3d_problem(), ffmpeg_problem()) if p is not None]
+    return [p for p in (open3d_problem(), meshlab_opengl_problem(), ffmpeg_problem()) if p is not None]
 
 
 def main() -> int:

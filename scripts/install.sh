@@ -33,8 +33,8 @@ python -m pip install --quiet --force-reinstall --no-deps "opencv-contrib-python
 if [ "$DEV" = 1 ]; then bash scripts/install_detect.sh; fi
 # optional FLIR radiometric JPEG reader (flyr, EUPL-1.2, pure Python) for the tests of agrinerf_ns/process/flir.py
 if [ "$DEV" = 1 ]; then python -m pip install --quiet "flyr>=5.1"; fi
-# 5. system packages pip cannot install: open3d's libusb, libEGL and libGL (ns-export) and, with --dev, Chromium (the
-#    viewer test).
+# 5. system packages pip cannot install: open3d's libusb, libEGL, libGL and pymeshlab's
+#    libOpenGL (ns-export) and, with --dev, Chromium (the viewer test).
 #    install_system.sh installs them as root on Debian/Ubuntu (apt-get), else says what to run; system_deps then
 #    checks what the ns-* commands load (open3d, ffmpeg). Neither stops the install: only the commands named need them.
 SYSTEM_OK=1; SYSTEM_FLAG=""

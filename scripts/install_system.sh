@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The system packages pip cannot install, for scripts/install.sh: the libraries open3d's module links that a minimal
-# Debian lacks (libusb-1.0, libEGL, libGL; ns-export, agrinerf-export)
+# The system packages pip cannot install, for scripts/install.sh: the libraries open3d and pymeshlab load that a
+# minimal Debian lacks (libusb-1.0, libEGL, libGL, libOpenGL; ns-export, agrinerf-export)
 # and, with --dev, Chromium (the viewer test, tests/test_viewer.py).
 #   bash scripts/install_system.sh [--dev]
 # As root on a system with apt-get (Debian/Ubuntu) it installs what is missing. Otherwise, or when apt-get fails, it
@@ -16,14 +16,17 @@ done
 
 missing=()
 why=()
-# open3d's libraries (soname:Debian package, as agrinerf_ns/system_deps.py names them): whichever package brought
-# each, as the dynamic loader finds it (ldconfig's cache; /sbin may be off PATH)
+# soname:Debian package:its user, as agrinerf_ns/system_deps.py names them (open3d's module links the first three;
+# pymeshlab, which ns-export's meshes are saved with, loads its PLY writer through the fourth): whichever package
+# brought each, as the dynamic loader finds it (ldconfig's cache; /sbin may be off PATH)
 LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
 ldcache=$("$LDCONFIG" -p 2>/dev/null || true)
-for pair in libusb-1.0.so.0:libusb-1.0-0 libEGL.so.1:libegl1 libGL.so.1:libgl1; do
+for entry in libusb-1.0.so.0:libusb-1.0-0:open3d libEGL.so.1:libegl1:open3d libGL.so.1:libgl1:open3d \
+  libOpenGL.so.0:libopengl0:pymeshlab; do
+  IFS=: read -r soname package user <<< "$entry"
   case "$ldcache" in
-    *"${pair%%:*}"*) ;;
-    *) missing+=("${pair##*:}"); why+=("${pair##*:} (open3d: ns-export)") ;;
+    *"$soname"*) ;;
+    *) missing+=("$package"); why+=("$package ($user: ns-export)") ;;
   esac
 done
 # Chromium: looked up as tests/test_viewer.py does
@@ -43,6 +46,6 @@ elif command -v apt-get >/dev/null; then
   echo "install_system.sh: missing ${why[*]}: run 'sudo apt-get install ${missing[*]}'" >&2
 else
   echo "install_system.sh: missing ${why[*]}: install them with the system's package manager" \
-    "(Fedora: libusb1, libglvnd-egl, libglvnd-glx)" >&2
+    "(Fedora: libusb1, libglvnd-egl, libglvnd-glx, libglvnd-opengl)" >&2
 fi
 exit 1

@@ -151,6 +151,18 @@ def test_system_deps_report_nothing_missing_after_install(capsys) -> None:
     assert system_deps.main() == 0, capsys.readouterr().err
 
 
+def test_pymeshlab_without_libopengl_gets_the_install_command(monkeypatch) -> None:
+    """pymeshlab imports without libOpenGL.so.0 and then saves no PLY (seen on a fresh Debian); the check names the
+    package."""
+
+    def no_library(name, *args, **kwargs):
+        raise OSError(f"{name}: cannot open shared object file: No such file or directory")
+
+    assert system_deps.meshlab_opengl_problem() is None  # installed as scripts/install.sh does
+    monkeypatch.setattr(system_deps.ctypes, "CDLL", no_library)
+    assert "apt-get install libopengl0" in str(system_deps.meshlab_opengl_problem())
+
+
 @pytest.mark.parametrize(
     ("soname", "package"), [("libusb-1.0.so.0", "libusb-1.0-0"), ("libEGL.so.1", "libegl1"), ("libGL.so.1", "libgl1")]
 )

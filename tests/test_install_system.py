@@ -1,5 +1,5 @@
 """scripts/install_system.sh (run by scripts/install.sh): as root with apt-get it installs the missing system packages
-(open3d's libusb, libEGL and libGL, Chromium with --dev), otherwise it says what to run. Run against stub ``id``, ``ldconfig``,
+(open3d's libusb, libEGL and libGL, pymeshlab's libOpenGL, Chromium with --dev), otherwise it says what to run. Run against stub ``id``, ``ldconfig``,
 ``apt-get`` and ``chromium`` on an otherwise empty PATH, so nothing is installed."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from typing import List, Tuple
 import pytest
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "install_system.sh"
-OPEN3D_LIBS = ("libusb-1.0.so.0", "libEGL.so.1", "libGL.so.1")
-"""What a machine set up for open3d has in ldconfig's cache (a minimal Debian had none of them)."""
-OPEN3D_PACKAGES = "libusb-1.0-0 libegl1 libgl1"
+OPEN3D_LIBS = ("libusb-1.0.so.0", "libEGL.so.1", "libGL.so.1", "libOpenGL.so.0")
+"""What a machine set up for open3d and pymeshlab has in ldconfig's cache (a minimal Debian had none of them)."""
+OPEN3D_PACKAGES = "libusb-1.0-0 libegl1 libgl1 libopengl0"
 
 
 def _stub(folder: Path, name: str, body: str) -> None:
@@ -69,7 +69,7 @@ def test_only_the_missing_packages_are_installed(tmp_path: Path) -> None:
     assert rc == 0, err
     assert calls[-1].endswith("--no-install-recommends chromium")
     (tmp_path / "egl").mkdir()
-    rc, err, calls = _run(tmp_path / "egl", libs=("libusb-1.0.so.0", "libGL.so.1"))  # the fresh Debian seen: no libEGL
+    rc, err, calls = _run(tmp_path / "egl", libs=("libusb-1.0.so.0", "libGL.so.1", "libOpenGL.so.0"))  # no libEGL
     assert rc == 0, err
     assert calls[-1].endswith("--no-install-recommends libegl1")
 
@@ -84,6 +84,7 @@ def test_without_apt_get_says_what_is_missing(tmp_path: Path) -> None:
     rc, err, _ = _run(tmp_path, "--dev", apt=False)
     assert rc == 1
     assert "missing libusb-1.0-0 (open3d: ns-export) libegl1 (open3d: ns-export) libgl1 (open3d: ns-export)" in err
+    assert "libopengl0 (pymeshlab: ns-export)" in err
     assert "chromium (the viewer test)" in err
 
 
