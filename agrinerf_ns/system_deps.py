@@ -1,5 +1,6 @@
-"""The system pieces that Nerfstudio's commands need beyond pip: open3d's system libraries (libusb, libEGL, libGL;
-``ns-export``), pymeshlab's libOpenGL (``ns-export`` meshes) and an ``ffmpeg`` (``ns-render`` videos). Each check returns None when the piece works, else a message that says how to install it.
+"""The system pieces that Nerfstudio's commands need beyond pip: the libraries open3d and pymeshlab load
+(``ns-export``) and an ``ffmpeg`` (``ns-render`` videos). Each check returns None when the piece works, else a message
+that says how to install it.
 
 ``python -m agrinerf_ns.system_deps`` prints every problem and exits 1 if there is one (``scripts/install.sh`` runs
 it after installing).
@@ -13,21 +14,23 @@ import shutil
 import sys
 from typing import List, Optional
 
-OPEN3D_LIBRARIES = {
-    "libusb-1.0.so.0": ("libusb-1.0-0", "libusb1"),
-    "libEGL.so.1": ("libegl1", "libglvnd-egl"),
-    "libGL.so.1": ("libgl1", "libglvnd-glx"),
+SYSTEM_LIBRARIES = {
+    "libusb-1.0.so.0": ("libusb-1.0-0", "libusb1", "open3d"),
+    "libEGL.so.1": ("libegl1", "libglvnd-egl", "open3d"),
+    "libGL.so.1": ("libgl1", "libglvnd-glx", "open3d"),
+    "libOpenGL.so.0": ("libopengl0", "libglvnd-opengl", "pymeshlab"),
 }
-"""The system libraries open3d's module links that a minimal Debian lacks: soname -> (Debian/Ubuntu, Fedora) package
-(scripts/install_system.sh installs the same)."""
+"""The system libraries that a minimal Debian lacks: soname -> (Debian/Ubuntu package, Fedora package, the module
+that loads it). open3d's module links the first three; pymeshlab, which ns-export's meshes are saved with, loads its
+PLY writer through the fourth. scripts/install_system.sh installs the same (tests/test_install_system.py checks)."""
 OPEN3D_LIBRARY_HINT = (
     "open3d (used by ns-export and agrinerf-export) cannot load: {err}. It needs the system library {soname}: "
     "on Debian/Ubuntu run 'sudo apt-get install {debian}' (Fedora: 'sudo dnf install {fedora}'); "
     "'bash scripts/install_system.sh' installs every one it needs."
 )
 MESHLAB_OPENGL_HINT = (
-    "pymeshlab (ns-export's meshes) cannot load its PLY writer without the system library libOpenGL.so.0 ({err}): "
-    "on Debian/Ubuntu run 'sudo apt-get install libopengl0' (Fedora: 'sudo dnf install libglvnd-opengl')."
+    "pymeshlab (ns-export's meshes) cannot load its PLY writer without the system library {soname} ({err}): "
+    "on Debian/Ubuntu run 'sudo apt-get install {debian}' (Fedora: 'sudo dnf install {fedora}')."
 )
 FFMPEG_HINT = (
     "No 'ffmpeg' on PATH, which ns-render needs for videos, and imageio-ffmpeg (a dependency) provides none for this "
@@ -44,8 +47,8 @@ def open3d_problem() -> Optional[str]:
     try:
         import open3d  # noqa: F401
     except ImportError as err:
-        for soname, (debian, fedora) in OPEN3D_LIBRARIES.items():
-            if soname in str(err):
+        for soname, (debian, fedora, user) in SYSTEM_LIBRARIES.items():
+            if user == "open3d" and soname in str(err):
                 return OPEN3D_LIBRARY_HINT.format(err=err, soname=soname, debian=debian, fedora=fedora)
         return f"open3d cannot be imported: {err} (reinstall with 'bash scripts/install.sh')."
     return None
@@ -66,10 +69,12 @@ def meshlab_opengl_problem() -> Optional[str]:
     PLY: "Unknown format for save: ply", as seen on a fresh Debian); else how to install it. Linux only."""
     if not sys.platform.startswith("linux") or importlib.util.find_spec("pymeshlab") is None:
         return None
+    soname = "libOpenGL.so.0"
+    debian, fedora, _ = SYSTEM_LIBRARIES[soname]
     try:
-        ctypes.CDLL("libOpenGL.so.0")
+        ctypes.CDLL(soname)
     except OSError as err:
-        return MESHLAB_OPENGL_HINT.format(err=err)
+        return MESHLAB_OPENGL_HINT.format(err=err, soname=soname, debian=debian, fedora=fedora)
     return None
 
 

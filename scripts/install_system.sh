@@ -16,9 +16,9 @@ done
 
 missing=()
 why=()
-# soname:Debian package:its user, as agrinerf_ns/system_deps.py names them (open3d's module links the first three;
-# pymeshlab, which ns-export's meshes are saved with, loads its PLY writer through the fourth): whichever package
-# brought each, as the dynamic loader finds it (ldconfig's cache; /sbin may be off PATH)
+# soname:Debian package:the module that loads it, agrinerf_ns/system_deps.py's SYSTEM_LIBRARIES (this script runs
+# without the venv; tests/test_install_system.py keeps the two equal): whichever package brought each, as the dynamic
+# loader finds it (ldconfig's cache; /sbin may be off PATH)
 LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
 ldcache=$("$LDCONFIG" -p 2>/dev/null || true)
 for entry in libusb-1.0.so.0:libusb-1.0-0:open3d libEGL.so.1:libegl1:open3d libGL.so.1:libgl1:open3d \

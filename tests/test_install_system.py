@@ -1,19 +1,33 @@
 """scripts/install_system.sh (run by scripts/install.sh): as root with apt-get it installs the missing system packages
-(open3d's libusb, libEGL and libGL, pymeshlab's libOpenGL, Chromium with --dev), otherwise it says what to run. Run against stub ``id``, ``ldconfig``,
-``apt-get`` and ``chromium`` on an otherwise empty PATH, so nothing is installed."""
+(the libraries of agrinerf_ns.system_deps.SYSTEM_LIBRARIES, Chromium with --dev), otherwise it says what to run. Run
+against stub ``id``, ``ldconfig``, ``apt-get`` and ``chromium`` on an otherwise empty PATH, so nothing is installed."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 from pathlib import Path
 from typing import List, Tuple
 
 import pytest
 
+from agrinerf_ns import system_deps
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "install_system.sh"
-OPEN3D_LIBS = ("libusb-1.0.so.0", "libEGL.so.1", "libGL.so.1", "libOpenGL.so.0")
+SYSTEM_LIBS = ("libusb-1.0.so.0", "libEGL.so.1", "libGL.so.1", "libOpenGL.so.0")
 """What a machine set up for open3d and pymeshlab has in ldconfig's cache (a minimal Debian had none of them)."""
-OPEN3D_PACKAGES = "libusb-1.0-0 libegl1 libgl1 libopengl0"
+SYSTEM_PACKAGES = "libusb-1.0-0 libegl1 libgl1 libopengl0"
+
+
+def test_the_script_installs_the_libraries_system_deps_checks() -> None:
+    """The shell list (the script runs before and without the venv) is system_deps' table, entry for entry."""
+    text = SCRIPT.read_text()
+    entries = re.findall(r"(lib[\w.+-]+\.so\.\d+):([\w.+-]+):(\w+)", text)
+    assert {soname: (debian, user) for soname, debian, user in entries} == {
+        soname: (debian, user) for soname, (debian, _, user) in system_deps.SYSTEM_LIBRARIES.items()
+    }
+    assert SYSTEM_LIBS == tuple(system_deps.SYSTEM_LIBRARIES)
+    assert SYSTEM_PACKAGES == " ".join(debian for debian, _, _ in system_deps.SYSTEM_LIBRARIES.values())
 
 
 def _stub(folder: Path, name: str, body: str) -> None:
@@ -51,7 +65,7 @@ def test_root_with_apt_installs_what_is_missing(tmp_path: Path) -> None:
     assert rc == 0, err
     assert calls == [
         "DEBIAN_FRONTEND= update -qq",
-        f"DEBIAN_FRONTEND=noninteractive install -y -qq --no-install-recommends {OPEN3D_PACKAGES} chromium",
+        f"DEBIAN_FRONTEND=noninteractive install -y -qq --no-install-recommends {SYSTEM_PACKAGES} chromium",
     ]
 
 
@@ -60,12 +74,12 @@ def test_root_with_apt_installs_what_is_missing(tmp_path: Path) -> None:
     [(("--dev",), True), ((), False)],  # Chromium is only wanted with --dev
 )
 def test_nothing_missing_runs_no_apt_get(tmp_path: Path, args: Tuple[str, ...], chromium: bool) -> None:
-    rc, err, calls = _run(tmp_path, *args, libs=OPEN3D_LIBS, chromium=chromium)
+    rc, err, calls = _run(tmp_path, *args, libs=SYSTEM_LIBS, chromium=chromium)
     assert (rc, err, calls) == (0, "", [])
 
 
 def test_only_the_missing_packages_are_installed(tmp_path: Path) -> None:
-    rc, err, calls = _run(tmp_path, "--dev", libs=OPEN3D_LIBS)
+    rc, err, calls = _run(tmp_path, "--dev", libs=SYSTEM_LIBS)
     assert rc == 0, err
     assert calls[-1].endswith("--no-install-recommends chromium")
     (tmp_path / "egl").mkdir()
@@ -77,7 +91,7 @@ def test_only_the_missing_packages_are_installed(tmp_path: Path) -> None:
 def test_not_root_says_what_to_run(tmp_path: Path) -> None:
     rc, err, calls = _run(tmp_path, uid=1000)
     assert rc == 1 and calls == []
-    assert f"run 'sudo apt-get install {OPEN3D_PACKAGES}'" in err
+    assert f"run 'sudo apt-get install {SYSTEM_PACKAGES}'" in err
 
 
 def test_without_apt_get_says_what_is_missing(tmp_path: Path) -> None:
@@ -91,4 +105,4 @@ def test_without_apt_get_says_what_is_missing(tmp_path: Path) -> None:
 def test_failed_apt_get_is_reported(tmp_path: Path) -> None:
     rc, err, calls = _run(tmp_path, apt_fails=True)
     assert rc == 1 and calls == ["DEBIAN_FRONTEND= update -qq"]
-    assert f"apt-get could not install {OPEN3D_PACKAGES}" in err
+    assert f"apt-get could not install {SYSTEM_PACKAGES}" in err
