@@ -39,6 +39,12 @@ class Args:
     colour_scores: Tuple[float, ...] = ()
     """Instead of the dataset's masks: the colour maker's masks of its RGB frames at each of these
     ``min_colour_score`` values (the other settings default), one row each: how the setting was chosen."""
+    balance: Tuple[str, ...] = ()
+    """With or instead of --colour-scores: each ``colour_balance`` (none, grey-world) swept beside each score."""
+    denoise_px: Tuple[float, ...] = ()
+    """With or instead of --colour-scores: each ``colour_denoise_px`` swept beside each score (default score)."""
+    min_region_pixels: Tuple[int, ...] = ()
+    """With or instead of --colour-scores: each ``min_region_pixels`` swept beside each score and smoothing."""
     blob_thresholds: Tuple[float, ...] = ()
     """Instead of the dataset's masks: the thermal maker's masks of its thermal frames at each of these
     ``blob_threshold`` values (the ``blobs`` rule), one row each, scored in the thermal camera's view."""
@@ -94,8 +100,8 @@ def thermal_view_fruit(raw: Path, frame: dict, rgb_ids: np.ndarray, maps, calib,
 
 HEADER = (
     "| capture | masks | frames | pixel precision | pixel recall | pixel IoU | fruit touched | regions on a fruit | "
-    "fruit F1 |\n"
-    "|---|---|---|---|---|---|---|---|---|\n"
+    "fruit F1 | fruit pixels unknown |\n"
+    "|---|---|---|---|---|---|---|---|---|---|\n"
 )
 
 
@@ -112,6 +118,7 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     tp = fp = fn = 0
     touched = total = 0
     components = components_on_fruit = 0
+    fruit_pixels = unknown_fruit_pixels = 0
     plane_depth = float(meta.get("agrinerf", {}).get("alignment", {}).get("plane_depth", "inf"))
     for frame in meta["frames"]:
         ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
@@ -125,6 +132,8 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
         tp += int((fruit & truth & known).sum())
         fp += int((fruit & ~truth & known).sum())
         fn += int((~fruit & truth & known).sum())
+        fruit_pixels += int(truth.sum())
+        unknown_fruit_pixels += int((truth & ~known).sum())
         parts, found = ndimage.label(fruit & known, structure=np.ones((3, 3), bool))
         components += found
         components_on_fruit += len(np.unique(parts[(parts > 0) & truth]))
@@ -140,7 +149,8 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     return (
         f"| {scene['scene']} {scene['lighting']} seed {scene['seed']} | {source} | {len(meta['frames'])} | "
         f"{precision:.3f} | {recall:.3f} | {iou:.3f} | {touched}/{total} ({touched / max(total, 1):.0%}) | "
-        f"{components_on_fruit}/{components} ({region_precision:.0%}) | {fruit_f1:.3f} |\n"
+        f"{components_on_fruit}/{components} ({region_precision:.0%}) | {fruit_f1:.3f} | "
+        f"{unknown_fruit_pixels / max(fruit_pixels, 1):.3f} |\n"
     )
 
 
@@ -160,7 +170,7 @@ def rows(args: Args) -> str:
         if args.thermal_contrast:
             configs.append((MaskMakerConfig(thermal_rule="contrast"), "thermal contrast (the earlier rule)"))
         return "".join(quality(args, thermal(c), label, thermal_view=True) for c, label in configs)
-    if not args.colour_scores:
+    if not (args.colour_scores or args.balance or args.denoise_px or args.min_region_pixels):
         meta = json.loads((dataset / "transforms.json").read_text())
         source = meta.get("agrinerf", {}).get("fruit_masks", {}).get("source", "?")
         return quality(
@@ -168,14 +178,26 @@ def rows(args: Args) -> str:
         )
     from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, colour_mask
 
-    def maker(score: float) -> Callable[[dict], np.ndarray]:
+    def maker(config: MaskMakerConfig) -> Callable[[dict], np.ndarray]:
         def masks(frame: dict) -> np.ndarray:
             rgb = np.ascontiguousarray(cv2.imread(str(dataset / frame["file_path"]))[..., ::-1])
-            return colour_mask(rgb, MaskMakerConfig(min_colour_score=score))
+            return colour_mask(rgb, config)
 
         return masks
 
-    return "".join(quality(args, maker(s), f"colour, min score {s:g}") for s in args.colour_scores)
+    default = MaskMakerConfig()
+    configs = [MaskMakerConfig(min_colour_score=s, colour_balance=b, colour_denoise_px=d,  # type: ignore[arg-type]
+                               min_region_pixels=r)
+               for s in args.colour_scores or (default.min_colour_score,)
+               for b in args.balance or (default.colour_balance,)
+               for d in args.denoise_px or (default.colour_denoise_px,)
+               for r in args.min_region_pixels or (default.min_region_pixels,)]  # fmt: skip
+    label = "colour, min score {:g}, balance {}, smoothing {:g} px, specks under {} px unknown"
+    return "".join(
+        quality(args, maker(c), label.format(c.min_colour_score, c.colour_balance, c.colour_denoise_px,
+                                             c.min_region_pixels))
+        for c in configs
+    )
 
 
 def write_oracle(args: Args) -> None:

@@ -72,6 +72,37 @@ def test_the_colour_maker_finds_a_red_fruit_not_a_tan_stake() -> None:
     assert (mask[disc > 0] == 255).mean() > 0.9 and (mask[disc == 0] == 255).sum() == 0
 
 
+def test_the_colour_maker_leaves_specks_unknown_and_keeps_the_fruit() -> None:
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, colour_mask
+
+    rgb = np.zeros((60, 80, 3), np.uint8)
+    rgb[:] = (60, 140, 50)  # leaves
+    cv2.circle(rgb, (25, 30), 5, (200, 30, 25), -1)  # a red fruit
+    rgb[10, 70] = rgb[50, 8] = (200, 30, 25)  # two pixels of chroma noise in the fruit hues
+    plain = colour_mask(rgb, MaskMakerConfig(min_region_pixels=0))
+    assert plain[10, 70] == 255 and plain[50, 8] == 255  # without the rule, noise is taught as fruit
+    mask = colour_mask(rgb, MaskMakerConfig())  # the default leaves specks under 8 px unknown
+    assert mask[10, 70] == 128 and mask[50, 8] == 128  # unknown: neither fruit nor background
+    assert mask[30, 25] == 255 and (mask == 255).sum() == (plain == 255).sum() - 2
+    assert set(np.unique(mask)) == {0, 128, 255}
+
+
+def test_the_colour_maker_balances_a_warm_dusk_light_out_of_a_wooden_stake() -> None:
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, colour_mask
+
+    rgb = np.zeros((60, 80, 3), np.float32)
+    rgb[:] = (60, 140, 50)  # leaves
+    rgb[:, 60:64] = (170, 155, 130)  # a tan stake
+    cv2.circle(rgb, (25, 30), 5, (200, 30, 25), -1)  # a red fruit
+    dusk = np.clip(rgb * np.array([0.30, 0.15, 0.06]) / 0.30, 0, 255).astype(np.uint8)  # the low sun's colour
+    stake = np.zeros((60, 80), bool)
+    stake[:, 60:64] = True
+    tinted = colour_mask(dusk, MaskMakerConfig(colour_balance="none"))
+    assert (tinted[stake] == 255).mean() > 0.5  # the warm light makes the stake a fruit's colour
+    balanced = colour_mask(dusk, MaskMakerConfig())
+    assert (balanced[stake] == 255).sum() == 0 and balanced[30, 25] == 255
+
+
 def test_the_thermal_maker_finds_a_warm_fruit_and_leaves_the_unseen_unknown() -> None:
     from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, thermal_mask
 

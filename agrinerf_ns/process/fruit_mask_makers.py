@@ -1,8 +1,9 @@
 """Built-in fruit masks from the captured frames (``agrinerf-process --fruit-mask-maker``), never from renders.
 
-- ``colour``: on the RGB frame, the fruit-colour score (red to yellow saturation, ``count/blobs.py:fruit_colour``)
-  standing out from its surroundings (difference of Gaussians in robust spreads, ``count/blobs.py:contrast``) by
-  ``colour_threshold`` is fruit, the rest background.
+- ``colour``: on the RGB frame, white-balanced (grey world), the fruit-colour score (red to yellow saturation,
+  ``count/blobs.py:fruit_colour``) standing out from its surroundings (difference of Gaussians in robust spreads,
+  ``count/blobs.py:contrast``) by ``colour_threshold`` and reaching ``min_colour_score`` is fruit, the rest
+  background; fruit regions under ``min_region_pixels`` are left unknown.
 - ``thermal``: on the thermal frame warped into the RGB camera (its temperature where the capture is radiometric),
   the fruit-sized blobs that differ from the canopy's temperature (warmer, cooler or either: ``polarity``) are fruit,
   filled as discs; the rest of the thermal camera's view is background, pixels outside its view unknown. Thermal
@@ -10,7 +11,7 @@
 - ``auto``: per frame, ``colour`` where the RGB frame is lit (its mean at least ``dark_level`` of full scale),
   ``thermal`` where it is dark and the capture has thermal frames (else ``colour``).
 
-Settings were chosen on tuning seeds only: the colour rule's on seed 0 (bright garden and orchard,
+Settings were chosen on tuning seeds only: the colour rule's on seed 0 (bright and dusk, garden and orchard,
 results/fruit-masks), the thermal rule's on the dark garden of seeds 0 and 2 and the dark orchard of seed 0
 (results/fruit-masks-dark); the rule and the settings are recorded in the dataset's ``agrinerf.fruit_masks``.
 """
@@ -24,6 +25,7 @@ from typing import Dict, List, Literal, Tuple
 import cv2
 import numpy as np
 from jaxtyping import Bool, Float, Shaped, UInt8
+from scipy import ndimage
 
 from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
@@ -54,6 +56,16 @@ class MaskMakerConfig:
     min_colour_score: float = 0.3
     """``colour``: a fruit pixel's own fruit-colour score (saturation x sqrt(value) in the fruit hues) is at least
     this: bark, stakes and dry ground are of a fruit's hue but duller."""
+    colour_balance: Literal["none", "grey-world"] = "grey-world"
+    """``colour``: white-balance the RGB frame before its colour is scored. ``grey-world`` scales each channel so
+    that its frame mean is the mean of the three: a warm low sun tints dry wood and ground into the fruit hues, the
+    balance takes the illuminant's tint out (and a foliage frame's green cast with it, the same in every light)."""
+    colour_denoise_px: float = 0.0
+    """``colour``: Gaussian sigma (pixels) the RGB frame is smoothed with before its colour is scored: a dim frame's
+    chroma noise puts single pixels of foliage in the fruit hues (0: none)."""
+    min_region_pixels: int = 8
+    """``colour``: fruit regions smaller than this many pixels are left unknown, neither fruit nor background (a
+    speck of noise is not taught as fruit, a sliver of a hidden fruit not as background; 0: all kept)."""
     thermal_rule: Literal["blobs", "contrast"] = "blobs"
     """``blobs``: fruit-sized blobs of the thermal frame (its temperature where the dataset has one), found by the
     scale-normalised Laplacian of Gaussian over the sizes of `thermal_sizes` and filled as discs; ``contrast``: the
@@ -85,10 +97,21 @@ def colour_mask(rgb: UInt8[np.ndarray, "h w 3"], config: MaskMakerConfig) -> UIn
     from agrinerf_ns.count.blobs import contrast, fruit_colour
 
     valid = np.ones(rgb.shape[:2], bool)
-    score = fruit_colour(rgb.astype(np.float32) / 255.0, valid)
+    image = rgb.astype(np.float32) / 255.0
+    if config.colour_balance == "grey-world":
+        means = image.reshape(-1, 3).mean(0)
+        image = image * (means.mean() / np.maximum(means, 1e-6))
+    if config.colour_denoise_px > 0:
+        image = cv2.GaussianBlur(image, (0, 0), config.colour_denoise_px)
+    score = fruit_colour(image, valid)
     z = contrast(score, valid, config.background_sigma)
     fruit = (z >= config.colour_threshold) & (score >= config.min_colour_score)
-    return np.where(fruit, FRUIT, BACKGROUND).astype(np.uint8)
+    mask = np.where(fruit, FRUIT, BACKGROUND).astype(np.uint8)
+    if config.min_region_pixels > 0:
+        labels, _ = ndimage.label(fruit, structure=np.ones((3, 3), bool))
+        sizes = np.bincount(labels.ravel())
+        mask[(labels > 0) & (sizes[labels] < config.min_region_pixels)] = UNKNOWN
+    return mask
 
 
 def thermal_mask(
