@@ -194,8 +194,9 @@ def rows(args: Args) -> str:
                for r in args.min_region_pixels or (default.min_region_pixels,)]  # fmt: skip
     label = "colour, min score {:g}, balance {}, smoothing {:g} px, specks under {} px unknown"
     return "".join(
-        quality(args, maker(c), label.format(c.min_colour_score, c.colour_balance, c.colour_denoise_px,
-                                             c.min_region_pixels))
+        quality(
+            args, maker(c), label.format(c.min_colour_score, c.colour_balance, c.colour_denoise_px, c.min_region_pixels)
+        )
         for c in configs
     )
 
