@@ -26,6 +26,19 @@ def test_mask_quality_rows_and_oracle(tmp_path: Path) -> None:
     assert len(rows) == 2
     recall = [float(r[5]) for r in rows]
     assert 0.0 < recall[0] <= 1.0 and recall[1] == 0.0  # a floor of 2 is above every colour score: nothing is fruit
+    # the balance and the speck rule swept beside the floor: one row each, unknown specks counted apart
+    swept = subprocess.run([sys.executable, script, "--raw", str(raw), "--dataset", str(ds), "--colour-scores", "0.3",
+                            "--balance", "none", "grey-world", "--min-region-pixels", "0", "8"],
+                           check=True, capture_output=True, text=True)  # fmt: skip
+    rows = [line.split("|") for line in swept.stdout.splitlines() if line.startswith("| orchard")]
+    settings = [[part.strip() for part in r[2].split(",")] for r in rows]
+    assert [(s[2], s[4]) for s in settings] == [("balance none", "specks under 0 px unknown"),
+                                                ("balance none", "specks under 8 px unknown"),
+                                                ("balance grey-world", "specks under 0 px unknown"),
+                                                ("balance grey-world", "specks under 8 px unknown")]  # fmt: skip
+    regions = [int(r[8].split("/")[1].split()[0]) for r in rows]
+    assert regions[1] <= regions[0] and regions[3] <= regions[2]  # specks left unknown are no longer regions
+    assert all(0.0 <= float(r[10]) <= 1.0 for r in rows)
     oracle = tmp_path / "oracle"
     subprocess.run([sys.executable, script, "--raw", str(raw), "--write-oracle", str(oracle)], check=True)
     masks = sorted(oracle.glob("*.png"))
