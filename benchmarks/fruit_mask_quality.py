@@ -25,6 +25,7 @@ import tyro
 from scipy import ndimage
 
 from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRUIT, fruit_and_known
+from agrinerf_ns.process.fruit_mask_makers import ColourBalance
 
 
 @dataclass
@@ -39,7 +40,7 @@ class Args:
     colour_scores: Tuple[float, ...] = ()
     """Instead of the dataset's masks: the colour maker's masks of its RGB frames at each of these
     ``min_colour_score`` values (the other settings default), one row each: how the setting was chosen."""
-    balance: Tuple[str, ...] = ()
+    balance: Tuple[ColourBalance, ...] = ()
     """With or instead of --colour-scores: each ``colour_balance`` (none, grey-world) swept beside each score."""
     denoise_px: Tuple[float, ...] = ()
     """With or instead of --colour-scores: each ``colour_denoise_px`` swept beside each score (default score)."""
@@ -186,8 +187,7 @@ def rows(args: Args) -> str:
         return masks
 
     default = MaskMakerConfig()
-    configs = [MaskMakerConfig(min_colour_score=s, colour_balance=b, colour_denoise_px=d,  # type: ignore[arg-type]
-                               min_region_pixels=r)
+    configs = [MaskMakerConfig(min_colour_score=s, colour_balance=b, colour_denoise_px=d, min_region_pixels=r)
                for s in args.colour_scores or (default.min_colour_score,)
                for b in args.balance or (default.colour_balance,)
                for d in args.denoise_px or (default.colour_denoise_px,)

@@ -34,6 +34,7 @@ from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
 
 MaskMaker = Literal["none", "colour", "thermal", "auto"]
+ColourBalance = Literal["none", "grey-world"]
 
 
 MIN_BLOB_SIGMA = 1.5
@@ -56,7 +57,7 @@ class MaskMakerConfig:
     min_colour_score: float = 0.3
     """``colour``: a fruit pixel's own fruit-colour score (saturation x sqrt(value) in the fruit hues) is at least
     this: bark, stakes and dry ground are of a fruit's hue but duller."""
-    colour_balance: Literal["none", "grey-world"] = "grey-world"
+    colour_balance: ColourBalance = "grey-world"
     """``colour``: white-balance the RGB frame before its colour is scored. ``grey-world`` scales each channel so
     that its frame mean is the mean of the three: a warm low sun tints dry wood and ground into the fruit hues, the
     balance takes the illuminant's tint out (and a foliage frame's green cast with it, the same in every light)."""
