@@ -180,6 +180,36 @@ def test_renders_of_a_run_without_rgb_round_trip(tmp_path: Path) -> None:
     assert np.allclose(loaded.depth, view.depth)
 
 
+@pytest.mark.slow
+def test_the_yolo_detector_gives_each_box_as_its_ellipse_where_rendered(tmp_path: Path) -> None:
+    """``--detector yolo`` with a real Ultralytics model (untrained, from its YAML; nothing downloaded): each
+    detection is the inscribed ellipse of one of the model's boxes on the view's 8-bit RGB, cut to rendered pixels."""
+    pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
+    from agrinerf_ns.count.detectors import make_detector
+    from agrinerf_ns.detect.boxes import inscribed_ellipse
+    from agrinerf_ns.detect.detector import box_predictor, configure_offline
+
+    configure_offline()
+    from ultralytics import YOLO
+
+    weights = tmp_path / "untrained.pt"
+    YOLO("yolov8n.yaml").save(str(weights))
+    rng = np.random.default_rng(0)
+    view = _plane_view(rng.random((48, 64)).astype(np.float32), rng.random((48, 64, 3)).astype(np.float32), 1.5, 60.0)
+    view.accumulation[:, :8] = 0.0  # nothing rendered there
+    detections = make_detector(DetectorConfig(detector="yolo", source="rgb", weights=weights, confidence=1e-4))(
+        view, 1.0
+    )
+    boxes, scores = box_predictor(weights, 1e-4)(
+        np.ascontiguousarray((view.rgb[..., ::-1] * 255).round().astype(np.uint8))
+    )
+    assert len(detections) == len(boxes) > 0
+    for detection, box, score in zip(detections, boxes, scores, strict=True):
+        assert detection.score == pytest.approx(score)
+        assert np.array_equal(detection.mask, inscribed_ellipse(48, 64, box) & (view.accumulation >= 0.5))
+        assert not detection.mask[:, :8].any()
+
+
 def _truth(n: int = 4) -> TruthFruit:
     centres = np.array([[0.2 * i, 0.0, 0.5] for i in range(n)])
     return TruthFruit(centres, np.full(n, 0.06), np.arange(n))

@@ -163,3 +163,70 @@ def test_the_thermal_blob_rule_fills_a_fruit_and_ignores_edges_and_leaves() -> N
     assert (mask[hole] == 255).mean() > 0.5  # "both": a cold blob in the canopy is taken for a cool fruit
     warm = thermal_mask(celsius, seen, MaskMakerConfig(polarity="warm"))
     assert (warm[hole] == 255).sum() == 0 and (warm[fruit] == 255).mean() > 0.9
+
+
+def test_yolo_boxes_become_ellipses_with_unknown_corners_and_unsure_boxes() -> None:
+    """A confident box is fruit in its inscribed ellipse and unknown in its corners; an unsure box is unknown; a box
+    under the unsure score is background; a confident fruit wins where another box's corner overlaps it."""
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, box_mask
+
+    boxes = np.array([[10, 10, 30, 30], [40, 5, 50, 15], [2, 35, 12, 45], [28, 10, 38, 30]], float)
+    mask = box_mask(48, 64, boxes, np.array([0.9, 0.1, 0.01, 0.2]), MaskMakerConfig())
+    assert mask[20, 20] == 255 and mask[10, 10] == 128 and mask[29, 11] == 128  # centre; corners
+    yy, xx = np.mgrid[0:48, 0:64] + 0.5
+    disc = (xx - 20) ** 2 + (yy - 20) ** 2 <= 100
+    assert np.array_equal(mask == 255, disc)  # the ellipse of a square box is its inscribed disc, nothing else
+    assert (mask[5:15, 40:50] == 128).all()  # unsure: neither fruit nor background
+    assert (mask[35:45, 2:12] == 0).all()  # below the unsure score: background
+    assert mask[20, 29] == 255 and mask[11, 37] == 128  # the fruit inside an unsure box's corner stays fruit
+    assert (mask[:, 55:] == 0).all()
+
+
+def test_the_yolo_maker_is_refused_before_any_output(tmp_path: Path) -> None:
+    raw = make_raw_capture(tmp_path / "raw", n=4)
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig
+
+    with pytest.raises(ValueError, match="needs --mask-maker.yolo-weights"):
+        process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False,
+                                                             fruit_mask_maker="yolo"))  # fmt: skip
+    missing = tmp_path / "best.pt"
+    with pytest.raises(ValueError, match=f"{missing}: --mask-maker.yolo-weights: no such weights file"):
+        process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False, fruit_mask_maker="yolo",
+                                                             mask_maker=MaskMakerConfig(yolo_weights=missing)))  # fmt: skip
+    assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds*"))
+
+
+@pytest.mark.slow
+def test_the_yolo_maker_writes_box_masks_from_a_real_detector(tmp_path: Path) -> None:
+    """The real Ultralytics model (untrained, built from its YAML, nothing downloaded) runs on each processed RGB frame;
+    every frame's mask is the boxes' mask of that frame's own detections, and the dataset records the rule."""
+    pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
+    import json
+
+    from agrinerf_ns.detect.detector import box_predictor, configure_offline
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, box_mask
+
+    configure_offline()
+    from ultralytics import YOLO
+
+    weights = tmp_path / "untrained.pt"
+    YOLO("yolov8n.yaml").save(str(weights))
+    raw = make_raw_capture(tmp_path / "raw", n=4)
+    settings = MaskMakerConfig(yolo_weights=weights, box_confidence=1e-4, unsure_confidence=0.0)  # untrained: low
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="given", show_progress=False,
+                                                               fruit_mask_maker="yolo", mask_maker=settings))  # fmt: skip
+    meta = json.loads((out / "transforms.json").read_text())
+    record = meta["agrinerf"]["fruit_masks"]
+    assert record["source"] == "maker:yolo" and record["settings"]["yolo_weights"] == str(weights)
+    assert record["frames"]["yolo"] + record["frames"]["thermal"] == 4
+    predict = box_predictor(weights, 0.0)
+    fruit_pixels = 0
+    for frame in meta["frames"]:
+        if frame.get("fruit_mask_camera", "rgb") != "rgb":
+            continue
+        bgr = cv2.imread(str(out / frame["file_path"]))
+        written = cv2.imread(str(out / frame["fruit_mask_file_path"]), cv2.IMREAD_GRAYSCALE)
+        assert np.array_equal(written, box_mask(*bgr.shape[:2], *predict(bgr), settings))
+        assert set(np.unique(written)) <= {0, 128, 255}
+        fruit_pixels += int((written == 255).sum())
+    assert fruit_pixels > 0  # the detector's boxes reached the masks

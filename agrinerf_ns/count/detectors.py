@@ -1,6 +1,6 @@
 """Fruit detectors for counting: ``blobs`` (OpenCV, the default; :mod:`agrinerf_ns.count.blobs`) or ``yolo``
 (weights trained by ``agrinerf-detect``; Ultralytics is the optional AGPL-3.0 extra and is imported only here,
-inside :func:`yolo_detections`, when it is asked for)."""
+by :func:`agrinerf_ns.detect.detector.box_predictor`, when it is asked for)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, det
 from agrinerf_ns.count.fruit_regions import fruit_regions
 from agrinerf_ns.count.render import RenderedView
 from agrinerf_ns.count.sources import CountSource, resolve_source
+from agrinerf_ns.detect.boxes import inscribed_ellipse
 from agrinerf_ns.images import to_uint8
 
 DetectorName = Literal["blobs", "yolo"]
@@ -70,24 +71,15 @@ def view_source(config: DetectorConfig, view: RenderedView) -> str:
 
 def yolo_detector(config: DetectorConfig) -> Detector:
     """YOLO boxes on a view's ``config.source`` image; a box's pixels are its inscribed ellipse (where rendered)."""
-    if config.weights is None or not Path(config.weights).is_file():
-        raise FileNotFoundError(f"{config.weights}: YOLO weights not found (--detector yolo needs --weights PATH)")
-    from agrinerf_ns.detect.detector import configure_offline
-    from agrinerf_ns.machine import yolo_device
+    from agrinerf_ns.detect.detector import box_predictor
 
-    configure_offline()
-    from ultralytics import YOLO
-
-    model = YOLO(str(config.weights))
-    imgsz = int(model.overrides.get("imgsz", 640))
-    device = yolo_device()
+    predict = box_predictor(config.weights, config.confidence)
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
-        image = _detector_image(view, view_source(config, view))
-        result = model.predict(image, imgsz=imgsz, conf=config.confidence, device=device, verbose=False)[0]
-        boxes = result.boxes.xyxy.cpu().numpy().reshape(-1, 4)
-        scores = result.boxes.conf.cpu().numpy().reshape(-1)
-        return [Detection(_ellipse_mask(view, box), float(s)) for box, s in zip(boxes, scores, strict=True)]
+        boxes, scores = predict(_detector_image(view, view_source(config, view)))
+        rendered = view.accumulation >= MIN_ACCUMULATION
+        return [Detection(inscribed_ellipse(*rendered.shape, box) & rendered, float(s))
+                for box, s in zip(boxes, scores, strict=True)]  # fmt: skip
 
     return detect
 
@@ -100,12 +92,3 @@ def _detector_image(view: RenderedView, source: str) -> np.ndarray:
         gray = to_uint8(view.optional_output("thermal"))
         return np.repeat(gray[..., None], 3, axis=-1)
     return np.ascontiguousarray(to_uint8(view.optional_output("rgb"))[..., ::-1])
-
-
-def _ellipse_mask(view: RenderedView, box: np.ndarray) -> np.ndarray:
-    height, width = view.depth.shape
-    y, x = np.mgrid[0:height, 0:width] + 0.5
-    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-    rx, ry = max((box[2] - box[0]) / 2, 0.5), max((box[3] - box[1]) / 2, 0.5)
-    inside = ((x - cx) / rx) ** 2 + ((y - cy) / ry) ** 2 <= 1.0
-    return inside & (view.accumulation >= MIN_ACCUMULATION)

@@ -10,10 +10,10 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
-from jaxtyping import Float
+from jaxtyping import Float, UInt8
 
 from agrinerf_ns.detect.boxes import list_images
 from agrinerf_ns.machine import yolo_device
@@ -172,6 +172,31 @@ def predict_folder(
                 (int(width), int(height)),
             )
     return detections
+
+
+BoxPredictor = Callable[[UInt8[np.ndarray, "h w 3"]], Tuple[Float[np.ndarray, "n 4"], Float[np.ndarray, " n"]]]
+"""An 8-bit BGR image -> its pixel ``x1 y1 x2 y2`` boxes and their scores."""
+
+
+def box_predictor(weights: Optional[Path], conf: float, device: str = "auto") -> BoxPredictor:
+    """Load YOLO ``weights`` once (offline) and return a function that detects on one image, keeping boxes scored
+    ``conf`` or more at the size the detector was trained at. FileNotFoundError naming ``weights`` where there is no
+    such file, ImportError with the install hint where Ultralytics is missing."""
+    if weights is None or not Path(weights).is_file():
+        raise FileNotFoundError(f"{weights}: YOLO weights not found (give the .pt file agrinerf-detect train wrote)")
+    configure_offline()
+    from ultralytics import YOLO
+
+    model = YOLO(str(weights))
+    imgsz = int(model.overrides.get("imgsz", 640))
+    where = yolo_device(device)
+
+    def predict(image: UInt8[np.ndarray, "h w 3"]) -> Tuple[Float[np.ndarray, "n 4"], Float[np.ndarray, " n"]]:
+        result = model.predict(image, imgsz=imgsz, conf=conf, device=where, verbose=False)[0]
+        boxes = result.boxes.xyxy.cpu().numpy().astype(np.float64).reshape(-1, 4)
+        return boxes, result.boxes.conf.cpu().numpy().astype(np.float64).reshape(-1)
+
+    return predict
 
 
 def _chunks(items: Sequence[Path], size: int) -> List[Sequence[Path]]:

@@ -57,7 +57,8 @@ class ProcessConfig:
     fruit_mask_maker: MaskMaker = "none"
     """Fruit masks made from the captured frames instead (agrinerf_ns/process/fruit_mask_makers.py): colour (lit RGB
     frames), thermal (temperature contrast, no light needed), auto (colour where the RGB frames are lit, thermal where
-    they are dark); none: no masks unless --fruit-masks gives them."""
+    they are dark), yolo (a YOLOv8 detector's boxes on lit RGB frames, --mask-maker.yolo-weights; the AGPL extra),
+    none: no masks unless --fruit-masks gives them."""
     mask_maker: MaskMakerConfig = field(default_factory=MaskMakerConfig)
     """Settings of the mask makers."""
     overwrite: bool = False

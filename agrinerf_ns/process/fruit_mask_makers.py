@@ -10,6 +10,10 @@
   contrast needs no light. ``--mask-maker.thermal-rule contrast`` restores the earlier per-pixel contrast rule.
 - ``auto``: per frame, ``colour`` where the RGB frame is lit (its mean at least ``dark_level`` of full scale),
   ``thermal`` where it is dark and the capture has thermal frames (else ``colour``).
+- ``yolo``: a YOLOv8 detector's boxes on the lit RGB frames (``yolo_weights``, e.g. from ``agrinerf-detect train``;
+  Ultralytics is the optional AGPL-3.0 extra): each box scored ``box_confidence`` or more is fruit in its inscribed
+  ellipse and unknown in its corners, a box scored from ``unsure_confidence`` unknown, the rest background. Dark
+  frames get ``thermal`` masks where the capture has thermal frames, as with ``auto``.
 
 Settings were chosen on tuning seeds only: the colour rule's on seed 0 (bright and dusk, garden and orchard,
 results/fruit-masks), the thermal rule's on the dark garden of seeds 0 and 2 and the dark orchard of seed 0
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, List, Literal, Tuple
+from typing import Dict, List, Literal, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -33,7 +37,7 @@ from agrinerf_ns.robust import robust_spread
 from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
 
-MaskMaker = Literal["none", "colour", "thermal", "auto"]
+MaskMaker = Literal["none", "colour", "thermal", "auto", "yolo"]
 ColourBalance = Literal["none", "grey-world"]
 
 
@@ -90,7 +94,15 @@ class MaskMakerConfig:
     background_sigma: float = 0.05
     """Scale of a pixel's surroundings, as a fraction of the image's shorter side."""
     dark_level: float = 0.04
-    """``auto``: an RGB frame whose mean is below this fraction of full scale is dark (the model's low_light_level)."""
+    """``auto``, ``yolo``: an RGB frame whose mean is below this fraction of full scale is dark (the model's
+    low_light_level)."""
+    yolo_weights: Optional[Path] = None
+    """``yolo``: the detector's weights (a ``.pt`` file; ``agrinerf-detect train`` writes one)."""
+    box_confidence: float = 0.25
+    """``yolo``: a box scored this or more is a fruit (Ultralytics' default prediction threshold)."""
+    unsure_confidence: float = 0.05
+    """``yolo``: a box scored from this up to ``box_confidence`` is left unknown: not taught as fruit, nor its
+    pixels as background."""
 
 
 def colour_mask(rgb: UInt8[np.ndarray, "h w 3"], config: MaskMakerConfig) -> UInt8[np.ndarray, "h w"]:
@@ -193,6 +205,46 @@ def canopy_value(z: Float[np.ndarray, " n"], bin_width: float = 1.0) -> float:
     return float(edges[counts.argmax()] + bin_width / 2)
 
 
+def box_mask(
+    height: int, width: int, boxes: Float[np.ndarray, "n 4"], scores: Float[np.ndarray, " n"], config: MaskMakerConfig
+) -> UInt8[np.ndarray, "h w"]:
+    """A frame's mask from a detector's pixel boxes ``x1 y1 x2 y2`` (see the module): fruit in the inscribed ellipse
+    of a confident box, unknown in its corners and in an unsure box, background elsewhere."""
+    from agrinerf_ns.detect.boxes import inscribed_ellipse
+
+    mask = np.full((height, width), BACKGROUND, np.uint8)
+    fruit = np.zeros((height, width), bool)
+    for box, score in zip(np.asarray(boxes).reshape(-1, 4), np.asarray(scores).reshape(-1), strict=True):
+        if score < config.unsure_confidence:
+            continue
+        cols = slice(max(int(np.floor(box[0])), 0), max(int(np.ceil(box[2])), 0))
+        rows = slice(max(int(np.floor(box[1])), 0), max(int(np.ceil(box[3])), 0))
+        mask[rows, cols] = UNKNOWN
+        if score >= config.box_confidence:
+            fruit |= inscribed_ellipse(height, width, box)
+    mask[fruit] = FRUIT  # a confident fruit wins over an overlapping box's corner
+    return mask
+
+
+def check_mask_maker(maker: MaskMaker, config: MaskMakerConfig) -> None:
+    """Refuse a maker that cannot run, before any output is written: ``yolo`` without its weights file (named) or
+    without Ultralytics."""
+    if maker != "yolo":
+        return
+    if config.yolo_weights is None:
+        raise ValueError(
+            "--fruit-mask-maker yolo needs --mask-maker.yolo-weights PATH (agrinerf-detect train writes one)"
+        )
+    if not Path(config.yolo_weights).is_file():
+        raise ValueError(f"{config.yolo_weights}: --mask-maker.yolo-weights: no such weights file")
+    from agrinerf_ns.detect.detector import INSTALL_HINT
+
+    try:
+        import ultralytics  # noqa: F401
+    except ImportError as err:
+        raise ValueError(f"--fruit-mask-maker yolo: {INSTALL_HINT}") from err
+
+
 def _read(path: Path, flags: int) -> np.ndarray:
     image = cv2.imread(str(path), flags)
     if image is None:
@@ -224,23 +276,32 @@ def make_fruit_masks(
     """Write a mask per frame (from the frames already written under `tmp`) and name it in the frame; returns the
     dataset's record (the rule, the settings and how many frames each maker labelled)."""
     (tmp / FOLDER).mkdir(parents=True, exist_ok=True)
-    used = {"colour": 0, "thermal": 0}
+    used = {"colour": 0, "thermal": 0, "yolo": 0}
+    predict = None
+    if maker == "yolo":
+        from agrinerf_ns.detect.detector import box_predictor
+
+        predict = box_predictor(config.yolo_weights, min(config.unsure_confidence, config.box_confidence))
     for frame, name in zip(frames, names, strict=True):
-        rgb = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)[..., ::-1]
+        bgr = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)
         has_thermal = "thermal_file_path" in frame
-        dark = float(rgb.mean()) / 255.0 < config.dark_level
-        kind = maker if maker != "auto" else ("thermal" if dark and has_thermal else "colour")
+        dark = float(bgr.mean()) / 255.0 < config.dark_level
+        lit_kind = "yolo" if maker == "yolo" else "colour"
+        kind = maker if maker in ("colour", "thermal") else ("thermal" if dark and has_thermal else lit_kind)
         if kind == "thermal":
             if not has_thermal:
                 raise ValueError(f"--fruit-mask-maker thermal: frame {frame['file_path']} has no thermal frame")
             thermal, seen = thermal_frame(tmp, frame, config)
             mask = thermal_mask(thermal, seen, config)
+        elif kind == "yolo" and predict is not None:
+            mask = box_mask(*bgr.shape[:2], *predict(bgr), config)
         else:
-            mask = colour_mask(np.ascontiguousarray(rgb), config)
+            mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
         used[kind] += 1
         frame[FRAME_KEY] = f"{FOLDER}/{name}.png"
         if kind == "thermal":  # the thermal camera's view: supervised along its rays
             frame[CAMERA_KEY] = "thermal"
         write_png(tmp / frame[FRAME_KEY], mask)
-    return {"source": f"maker:{maker}", "frames": used, "settings": asdict(config),
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}
+    return {"source": f"maker:{maker}", "frames": used, "settings": settings,
             "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit"}  # fmt: skip

@@ -29,7 +29,7 @@ from agrinerf_ns.process.dataset_writer import (
     write_transforms,
 )
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.fruit_mask_makers import make_fruit_masks
+from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks
 from agrinerf_ns.process.readers import read_triggers, read_tum
 from agrinerf_ns.process.step_events import write_event_frames
 from agrinerf_ns.process.step_fruit_masks import check_fruit_masks, find_fruit_masks, write_fruit_masks
@@ -89,6 +89,7 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
     fruit_masks = None
     if config.fruit_masks is not None and config.fruit_mask_maker != "none":
         raise ValueError("give either --fruit-masks DIR or --fruit-mask-maker, not both")
+    check_mask_maker(config.fruit_mask_maker, config.mask_maker)
     if config.fruit_masks is not None:  # every mask found and read before any output is written
         fruit_masks = find_fruit_masks(config.fruit_masks, cap.rgb.paths)
         check_fruit_masks(fruit_masks, cap.calib.rgb.width, cap.calib.rgb.height)
