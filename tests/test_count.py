@@ -404,6 +404,35 @@ def test_count_scores_against_the_synthetic_truth(tiny_capture: Tuple[Path, Path
         assert next(csv.reader(handle))[-4:] == ["x_capture", "y_capture", "z_capture", "truth_id"]
 
 
+def test_max_range_counts_and_scores_within_the_range_only(tiny_capture: Tuple[Path, Path], tmp_path: Path) -> None:
+    """``--max-range``: counted fruit farther than it from every camera are dropped, and so are the true fruit in
+    scoring (checked against the capture's true camera path). The range is set to the median distance of the visible
+    fruit, so that it splits them; fruit are counted from the truth's fruit pixels (``--source fruit``)."""
+    from agrinerf_ns.count.row_range import camera_distance
+
+    raw, data = tiny_capture
+    save_renders(oracle_renders(raw, data, fruit_mode="true"), tmp_path / "renders")
+    fruit = CountConfig(detect=DetectorConfig(source="fruit"))
+    every = main(CountArgs(out=tmp_path / "all", renders=tmp_path / "renders", truth=raw, count=fruit))
+    assert every.visible is not None and len(every.fruit) > 4
+    truth = read_truth_fruit(raw)
+    distance = camera_distance(truth.centres, np.loadtxt(raw / "truth" / "poses.txt")[:, 1:4])
+    cut = float(np.median(distance[every.visible]))
+    row = main(CountArgs(out=tmp_path / "row", renders=tmp_path / "renders", truth=raw,
+                         count=replace(fruit, max_range=cut)))  # fmt: skip
+    assert row.visible is not None and row.score is not None
+    assert (distance[row.visible] <= cut + 0.05).all() and (distance[every.visible & ~row.visible] > cut - 0.05).all()
+    assert 0 < row.visible.sum() < every.visible.sum() and row.score.visible == row.visible.sum()
+    assert 0 < len(row.fruit) < len(every.fruit)
+    renders = load_renders(tmp_path / "renders")
+    cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]).astype(np.float64))
+    assert all(camera_distance(f.centre[None], cameras)[0] <= cut for f in row.fruit)
+    assert json.loads((tmp_path / "row" / "count.json").read_text())["max_range"] == cut
+    with pytest.raises(SystemExit) as stopped:
+        main(CountArgs(out=tmp_path / "bad", renders=tmp_path / "renders", count=replace(fruit, max_range=0.0)))
+    assert stopped.value.code == 2 and not (tmp_path / "bad").exists()
+
+
 def test_surround_sides_tell_a_fruit_from_an_edge() -> None:
     """A disc of contrast on a flat background stands out on all four sides; the same disc on the border of a
     region as strong as itself stands out on two only, and the default blob detector drops such a blob."""

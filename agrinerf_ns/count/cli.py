@@ -17,6 +17,7 @@ from agrinerf_ns.count.auto_path import choose_plan
 from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count, trained_run_config
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, run_count
 from agrinerf_ns.count.render import CountInputError
+from agrinerf_ns.count.row_range import check_range
 
 
 @dataclass
@@ -54,6 +55,7 @@ class CountArgs:
 
 def main(args: CountArgs) -> CountResult:
     try:
+        check_range(args.count.max_range)  # before any run is loaded
         if args.path in ("field", "fruit") and args.renders is None:
             if args.config is None:
                 raise ValueError("give --config RUN/config.yml (or the run folder)")

@@ -17,6 +17,7 @@ from agrinerf_ns.count.components import ComponentConfig, find_fruit
 from agrinerf_ns.count.fruit_score import read_truth_fruit
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, raw_training_frames, score_result, write_count
 from agrinerf_ns.count.render import CountInputError, WorldFrame, dataset_folder, relative_path
+from agrinerf_ns.count.row_range import fruit_in_range
 from agrinerf_ns.count.sources import CountSource, field_outputs, resolve_source
 from agrinerf_ns.count.volume import SampledField, VolumeConfig, render_depth_views, sample_field
 
@@ -135,17 +136,19 @@ def run_field_count(
         CONSOLE.print(f"[yellow]Counting from RGB: {info['source_note']}", soft_wrap=True)
     if "warning" in info:
         CONSOLE.print(f"[yellow]{config_path}: {info['warning']}", soft_wrap=True)
+    cameras_ds = frame.to_dataset(cameras.camera_to_worlds[:, :3, 3].cpu().numpy().astype(np.float64))
+    result.fruit = fruit_in_range(result.fruit, cameras_ds, score.max_range)
     data = getattr(datamanager.config, "data", None)
     dataset = dataset_folder(Path(data)) if data else None
     if truth is not None:
         if dataset is None:
             raise CountInputError(f"{config_path}: the run does not name its dataset folder, needed to score it")
         names = [relative_path(Path(p), dataset) for p in datamanager.train_dataset.image_filenames]
-        score_result(result, dataset, raw_training_frames(dataset, names), Path(truth), score)
-    info |= {"run": str(config_path), "method": loaded.method, "step": loaded.step, "settings": asdict(config)}
+        score_result(result, dataset, raw_training_frames(dataset, names), Path(truth), score, cameras_ds)
+    info |= {"run": str(config_path), "method": loaded.method, "step": loaded.step, "settings": asdict(config),
+             "max_range": score.max_range}  # fmt: skip
     with atomic_output_dir(out, overwrite) as tmp:
         surface = frame.to_dataset(sampled.points()[:: max(1, len(sampled.flat) // 200_000)])
-        cameras_ds = frame.to_dataset(cameras.camera_to_worlds[:, :3, 3].cpu().numpy())
         title = f"{len(result.fruit)} fruit counted in the field on '{info['source']}', {loaded.method}"
         write_count(tmp, result, frame, surface, cameras_ds, title, info, score, truth, f"field on {info['source']}")
     s = result.score

@@ -43,6 +43,7 @@ from agrinerf_ns.count.render import (
     render_loaded_run,
     render_run,
 )
+from agrinerf_ns.count.row_range import fruit_in_range, in_range
 from agrinerf_ns.count.sources import resolve_source
 from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
@@ -77,6 +78,10 @@ class CountConfig:
     well_seen_views: int = 2
     """Scoring: see ``well_seen_share`` (two: the views a 3D count needs; fixed apart from the counter's own
     ``--min-views``, so that changing the counter does not move the denominator)."""
+    max_range: Optional[float] = None
+    """Count only the row the rig drove: fruit farther than this from every camera (dataset units: metres with
+    metric poses) are left out of the count and, in scoring, of the truth (``count/row_range.py``). The rig's standoff
+    from the row plus half the row spacing cuts midway between rows; None: every fruit, the next row's too."""
 
 
 @dataclass
@@ -140,18 +145,38 @@ def score_against_truth(renders: RenderSet, result: CountResult, raw: Path, conf
     """Fill ``result.score`` and ``result.to_capture`` against the synthetic capture ``raw``."""
     if renders.dataset is None:
         raise CountInputError(f"{raw}: the renders do not name their dataset folder, needed to score them")
-    score_result(result, renders.dataset, training_frames(renders), raw, config)
+    score_result(result, renders.dataset, training_frames(renders), raw, config, camera_centres(renders))
 
 
-def score_result(result: CountResult, dataset: Path, train: Sequence[str], raw: Path, config: CountConfig) -> None:
+def camera_centres(renders: RenderSet) -> Float[np.ndarray, "n 3"]:
+    """Every rendered view's camera centre, in the dataset's frame."""
+    return renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]).astype(np.float64))
+
+
+def score_result(
+    result: CountResult,
+    dataset: Path,
+    train: Sequence[str],
+    raw: Path,
+    config: CountConfig,
+    cameras: Optional[Float[np.ndarray, "c 3"]] = None,
+) -> None:
     """Fill ``result.score``, ``result.to_capture``, ``result.truth`` and ``result.visible`` against the synthetic
-    capture ``raw`` (``train``: the raw frame stems of the run's training views; ``dataset``: its dataset folder)."""
+    capture ``raw`` (``train``: the raw frame stems of the run's training views; ``dataset``: its dataset folder;
+    ``cameras``: the run's camera centres in the dataset's frame, which ``config.max_range`` measures from)."""
     truth = read_truth_fruit(raw)
     result.truth, result.visible = truth, visible_fruit(raw, train, truth, config.min_visible_pixels)
     result.to_capture = align_to_capture(dataset, raw) if config.align == "poses" else Similarity.identity()
+    near = np.ones(len(truth.ids), bool)
+    if config.max_range is not None:
+        if cameras is None:
+            raise ValueError("scoring with --max-range needs the run's camera centres")
+        capture_range = config.max_range * result.to_capture.scale
+        near = in_range(truth.centres, result.to_capture.apply(np.asarray(cameras, np.float64)), capture_range)
+        result.visible = result.visible & near
     well_seen = None
     if (Path(raw) / TRUE_DEPTH_DIR).is_dir():
-        well_seen = well_seen_fruit(raw, train, truth, config.well_seen_share, config.well_seen_views)
+        well_seen = well_seen_fruit(raw, train, truth, config.well_seen_share, config.well_seen_views) & near
     result.score = score_fruit(
         result.to_capture.apply(_centres(result.fruit)), truth, result.visible, config.match_distance,
         _temperatures(result.fruit), well_seen,
@@ -248,18 +273,19 @@ def run_count(
             )
         with Progress(console=CONSOLE, transient=True) as progress:
             result = count_fruit(renders, config, progress)
+        result.fruit = fruit_in_range(result.fruit, camera_centres(renders), config.max_range)
         result.depth_spread = spread
         if truth is not None:
             score_against_truth(renders, result, Path(truth), config)
         _write_outputs(tmp, renders, result, config, truth, run_config or renders_dir)
-    _print_summary(out, result)
+    _print_summary(out, result, config.max_range)
     return result
 
 
 def _write_outputs(
     tmp: Path, renders: RenderSet, result: CountResult, config: CountConfig, truth: Optional[Path], source: Any
 ) -> None:
-    cameras = renders.frame.to_dataset(np.stack([v.origins[0, 0] for v in renders.views]))
+    cameras = camera_centres(renders)
     title = (
         f"{len(result.fruit)} fruit counted on '{config.detect.source}' ({config.detect.detector}), "
         f"{len(renders.views)} views of {renders.method or 'the run'}"
@@ -273,6 +299,7 @@ def _write_outputs(
         "cluster": asdict(config.cluster),
         "merge_distance": result.merge_distance,
         "depth_spread": result.depth_spread,
+        "max_range": config.max_range,
         "detections": len(result.detections),
         "detections_per_view": result.detections_per_view,
     }
@@ -330,7 +357,8 @@ def write_count(
                     "truth": str(truth),
                     "detector": detector,
                     "min views per fruit": config.cluster.min_views,
-                    "visible": f">= {config.min_visible_pixels} pixels in a training view",
+                    "visible": f">= {config.min_visible_pixels} pixels in a training view"
+                    + ("" if config.max_range is None else f", within {config.max_range:g} of a camera"),
                     "well seen": f">= {config.well_seen_share:g} of its disc in >= {config.well_seen_views} "
                     "training views",
                     "alignment": f"{config.align} (camera residual RMS {result.to_capture.residual_rms:.3f})",
@@ -340,7 +368,7 @@ def write_count(
     (tmp / "count.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
 
 
-def _print_summary(out: Path, result: CountResult) -> None:
+def _print_summary(out: Path, result: CountResult, max_range: Optional[float] = None) -> None:
     CONSOLE.print(
         f"[bold green]{len(result.fruit)} fruit[/bold green] from {len(result.detections)} detections in "
         f"{len(result.detections_per_view)} views -> {out}",
@@ -349,13 +377,17 @@ def _print_summary(out: Path, result: CountResult) -> None:
     if result.score is not None:
         s = result.score
         CONSOLE.print(
-            f"against the visible truth ({s.visible} fruit): count error {s.count_error:+.1%}, precision "
+            f"against the visible truth ({s.visible} fruit{_within(max_range)}): count error {s.count_error:+.1%}, precision "
             f"{s.precision:.2f}, recall {s.recall:.2f}, F1 {s.f1:.2f} at {s.match_distance:g} m",
             soft_wrap=True,
         )
         if s.well_seen >= 0:
             CONSOLE.print(
-                f"against the well-seen truth ({s.well_seen} fruit): count error {s.count_error_well_seen:+.1%}, "
+                f"against the well-seen truth ({s.well_seen} fruit{_within(max_range)}): count error {s.count_error_well_seen:+.1%}, "
                 f"recall {s.recall_well_seen:.2f}, F1 {s.f1_well_seen:.2f}",
                 soft_wrap=True,
             )
+
+
+def _within(max_range: Optional[float]) -> str:
+    return "" if max_range is None else f" within {max_range:g} of a camera"
