@@ -226,7 +226,8 @@ def test_the_yolo_maker_writes_box_masks_from_a_real_detector(tmp_path: Path) ->
             continue
         bgr = cv2.imread(str(out / frame["file_path"]))
         written = cv2.imread(str(out / frame["fruit_mask_file_path"]), cv2.IMREAD_GRAYSCALE)
-        assert np.array_equal(written, box_mask(*bgr.shape[:2], *predict(bgr), settings))
+        boxes, scores = predict(bgr)
+        assert np.array_equal(written, box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, settings))
         assert set(np.unique(written)) <= {0, 128, 255}
         fruit_pixels += int((written == 255).sum())
     assert fruit_pixels > 0  # the detector's boxes reached the masks

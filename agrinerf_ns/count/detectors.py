@@ -78,7 +78,8 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     def detect(view: RenderedView, scale: float) -> List[Detection]:
         boxes, scores = predict(_detector_image(view, view_source(config, view)))
         rendered = view.accumulation >= MIN_ACCUMULATION
-        return [Detection(inscribed_ellipse(*rendered.shape, box) & rendered, float(s))
+        height, width = rendered.shape
+        return [Detection(inscribed_ellipse(height, width, box) & rendered, float(s))
                 for box, s in zip(boxes, scores, strict=True)]  # fmt: skip
 
     return detect

@@ -294,7 +294,8 @@ def make_fruit_masks(
             thermal, seen = thermal_frame(tmp, frame, config)
             mask = thermal_mask(thermal, seen, config)
         elif kind == "yolo" and predict is not None:
-            mask = box_mask(*bgr.shape[:2], *predict(bgr), config)
+            boxes, scores = predict(bgr)
+            mask = box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, config)
         else:
             mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
         used[kind] += 1
