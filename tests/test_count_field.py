@@ -14,6 +14,7 @@ from helpers.fruit_field import assert_finds_the_known_fruit, fruit_model
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.components import ComponentConfig
 from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
+from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.count.render import CountInputError, WorldFrame
 from agrinerf_ns.count.volume import DepthView, VolumeConfig, VoxelGrid, views_seeing
 
@@ -92,6 +93,14 @@ def test_a_run_without_thermal_frames_counts_from_rgb_and_says_so(rgb_run: Path,
             )
         )
     assert "no 'thermal' output" in capsys.readouterr().out
+    # --max-range on the field path: a range past the scene keeps the count, one shorter than any fruit's leaves none
+    counts = {}
+    for name, max_range in (("far", 1e6), ("near", 1e-3)):
+        main(CountArgs(out=tmp_path / name, config=rgb_run.parent, path="field", field=FieldCountConfig(volume=SMALL_GRID),
+                       count=CountConfig(max_range=max_range)))  # fmt: skip
+        counts[name] = json.loads((tmp_path / name / "count.json").read_text())
+        assert counts[name]["max_range"] == max_range
+    assert counts["far"]["fruit"] == report["fruit"] and counts["near"]["fruit"] == 0
 
 
 def test_the_default_path_counts_a_lit_run_in_its_rgb_views_by_rays(rgb_run: Path, tmp_path: Path, capsys) -> None:
