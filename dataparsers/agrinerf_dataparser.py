@@ -12,7 +12,8 @@ the thermal and event frames (and their valid masks) and hands their paths to th
 - ``"modalities"``: the tuple of modalities that are both present and requested, among ("rgb", "thermal", "events").
 - ``"agrinerf"``: the dataset's top-level ``agrinerf`` block (a dict; empty when the file has none).
 - ``"rgb_level"``: the split's mean RGB value as a fraction of full scale (:func:`rgb_level`): how much light the
-  RGB camera got, which decides the model's low-light routing (``low_light_level``).
+  RGB camera got, which decides the model's low-light routing (``low_light_level``); ``"rgb_gain"``: the factor the
+  dataset scales every RGB frame by (``dark_rgb_target``; 1: as they are).
 - ``"temperature_filenames"``: the frames' linear temperature images (``thermal_temperature_path``: 16-bit PNG in
   centikelvin, ``agrinerf_ns.temperature``) and ``"temperature_stats"`` (dict of floats ``mean_c``, ``std_c``,
   ``min_c``, ``max_c``, degrees C), only when the thermal frames are loaded and the dataset has temperatures (its
@@ -72,6 +73,13 @@ class AgriNeRFDataParserConfig(NerfstudioDataParserConfig):
     """target class to instantiate"""
     modalities: Tuple[Modality, ...] = ALL_MODALITIES
     """Modalities to load when the dataset has them; a modality the dataset lacks is simply absent."""
+    dark_rgb_target: Optional[float] = None
+    """Where the dataset's RGB frames are dark (their mean below `dark_rgb_level` of full scale), scale them so that
+    their mean reaches this fraction of full scale (clipped at 1; metadata ``rgb_gain``), so that the RGB loss shapes
+    the scene as a lit frame's does: a few DN of signal under noise average out over many views (RawNeRF's
+    observation). None: the frames as they are, whose loss is then a few DN deep."""
+    dark_rgb_level: float = 0.04
+    """A mean RGB level (fraction of full scale) below which the frames are dark (the model's ``low_light_level``)."""
 
 
 @dataclass
@@ -146,6 +154,7 @@ class AgriNeRFDataParser(Nerfstudio):
         metadata["modalities"] = modalities
         metadata["agrinerf"] = dict(block)
         metadata["rgb_level"] = rgb_level(outputs.image_filenames)
+        metadata["rgb_gain"] = self._rgb_gain(frames, data_dir)
         metadata["metres_per_unit"] = metres_per_unit(block, meta, outputs)
         if "ply_file_path" in meta and "points3D_xyz" not in outputs.metadata:
             # SfM points (ns-process-data's sparse_pc.ply): where the model's first full-resolution box goes
@@ -161,6 +170,19 @@ class AgriNeRFDataParser(Nerfstudio):
         metadata.update(_timing(frames, kept, block, outputs, meta, data_dir, transforms_path))
         outputs.metadata.update(metadata)
         return outputs
+
+    def _rgb_gain(self, frames: List[Dict[str, Any]], data_dir: Path) -> float:
+        """The factor every RGB frame of every split is scaled by (`dark_rgb_target`); 1 for lit frames or when
+        off. One level over all frames, so that held-out frames are scaled as the training frames are."""
+        target = self.config.dark_rgb_target
+        if target is None:
+            return 1.0
+        if not 0.0 < target <= 1.0:
+            raise ValueError(f"dark_rgb_target must be in (0, 1], got {target}")
+        level = rgb_level([self._get_fname(Path(f["file_path"]), data_dir) for f in frames])
+        if not level < self.config.dark_rgb_level:  # lit (or no frames: NaN)
+            return 1.0
+        return target / max(level, 1.0 / 255.0)
 
 
 def metres_per_unit(block: Dict[str, Any], meta: Dict[str, Any], outputs: DataparserOutputs) -> Optional[float]:

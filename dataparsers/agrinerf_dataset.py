@@ -151,6 +151,12 @@ class AgriNeRFDataset(InputDataset):
         "fruit_thermal",
     ]
 
+    def get_image_float32(self, image_idx: int) -> Float[Tensor, "h w 3"]:
+        """The RGB frame in [0, 1], scaled by the dataparser's ``rgb_gain`` (dark frames brightened; clipped at 1)."""
+        image = super().get_image_float32(image_idx)
+        gain = float(self.metadata.get("rgb_gain", 1.0))
+        return image if gain == 1.0 else (image * gain).clamp(0.0, 1.0)
+
     def get_metadata(self, data: Dict) -> Dict[str, Any]:
         """Returns the thermal/event frames and masks of ``data["image_idx"]`` at the size of ``data["image"]``."""
         image_idx = data["image_idx"]

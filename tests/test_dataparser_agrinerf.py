@@ -240,3 +240,25 @@ def test_rgb_level_is_the_mean_value_of_the_splits_frames(tmp_path: Path, scale:
     assert len(outputs.image_filenames) <= 8  # every frame is read: the level is their exact mean
     assert outputs.metadata["rgb_level"] == pytest.approx(float(np.mean(means)), rel=1e-9)
     assert (outputs.metadata["rgb_level"] < 0.04) is (scale < 0.1)
+
+
+def test_dark_rgb_frames_are_scaled_to_the_target_level(tmp_path: Path) -> None:
+    """``dark_rgb_target``: frames of 3 DN are scaled (both splits alike) so that their mean is the target, and clipped
+    at 1; the raw level that decides the model's low-light routing is kept; lit frames and the default stay as they
+    are."""
+    from agrinerf_ns.dataparsers.agrinerf_dataset import AgriNeRFDataset
+
+    dark = write_tridata(tmp_path / "dark", fill={"rgb": 3})
+    plain = AgriNeRFDataset(_outputs(dark))
+    assert plain.metadata["rgb_gain"] == 1.0 and float(plain[0]["image"].mean()) == pytest.approx(3 / 255)
+    for split in ("train", "val"):
+        outputs = _outputs(dark, split=split, dark_rgb_target=0.2, train_split_fraction=0.75)
+        assert outputs.metadata["rgb_level"] == pytest.approx(3 / 255)  # the routing still sees a dark capture
+        assert outputs.metadata["rgb_gain"] == pytest.approx(0.2 * 255 / 3)
+        assert float(AgriNeRFDataset(outputs)[0]["image"].mean()) == pytest.approx(0.2, abs=1e-4)
+    clipped = AgriNeRFDataset(_outputs(dark, dark_rgb_target=1.0))[0]["image"]
+    assert float(clipped.max()) == 1.0
+    lit = write_tridata(tmp_path / "lit", fill={"rgb": 120})
+    assert _outputs(lit, dark_rgb_target=0.2).metadata["rgb_gain"] == 1.0
+    with pytest.raises(ValueError, match="dark_rgb_target must be in"):
+        _outputs(dark, dark_rgb_target=1.5)
