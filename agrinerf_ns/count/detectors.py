@@ -73,7 +73,7 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     """YOLO boxes on a view's ``config.source`` image; a box's pixels are its inscribed ellipse (where rendered)."""
     from agrinerf_ns.detect.detector import box_predictor
 
-    predict = box_predictor(config.weights, config.confidence)
+    predict = box_predictor(config.weights, config.confidence, hint="--detector yolo needs --weights PATH")
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
         boxes, scores = predict(_detector_image(view, view_source(config, view)))

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 from jaxtyping import Float, UInt8
@@ -143,13 +143,8 @@ def predict_folder(
     images = list_images(image_dir)
     if not images:
         raise FileNotFoundError(f"{image_dir}: empty render folder (no .png/.jpg images to detect on)")
-    if not Path(weights).is_file():
-        raise FileNotFoundError(f"{weights}: detector weights not found")
-    configure_offline()
-    from ultralytics import YOLO
-
-    model = YOLO(str(weights))
-    imgsz = imgsz or int(model.overrides.get("imgsz", 640))
+    model, trained_size = load_yolo(weights)
+    imgsz = imgsz or trained_size
     detections = {}
     for chunk in _chunks(images, 16):
         for path, result in zip(
@@ -178,17 +173,22 @@ BoxPredictor = Callable[[UInt8[np.ndarray, "h w 3"]], Tuple[Float[np.ndarray, "n
 """An 8-bit BGR image -> its pixel ``x1 y1 x2 y2`` boxes and their scores."""
 
 
-def box_predictor(weights: Optional[Path], conf: float, device: str = "auto") -> BoxPredictor:
-    """Load YOLO ``weights`` once (offline) and return a function that detects on one image, keeping boxes scored
-    ``conf`` or more at the size the detector was trained at. FileNotFoundError naming ``weights`` where there is no
-    such file, ImportError with the install hint where Ultralytics is missing."""
+def load_yolo(weights: Optional[Path], hint: str = "") -> Tuple[Any, int]:
+    """The YOLO model of ``weights``, loaded offline, and the image size it was trained at. FileNotFoundError naming
+    ``weights`` (and ``hint``, what the caller's user gives them with) where there is no such file."""
     if weights is None or not Path(weights).is_file():
-        raise FileNotFoundError(f"{weights}: YOLO weights not found (give the .pt file agrinerf-detect train wrote)")
+        raise FileNotFoundError(f"{weights}: YOLO weights not found" + (f" ({hint})" if hint else ""))
     configure_offline()
     from ultralytics import YOLO
 
     model = YOLO(str(weights))
-    imgsz = int(model.overrides.get("imgsz", 640))
+    return model, int(model.overrides.get("imgsz", 640))
+
+
+def box_predictor(weights: Optional[Path], conf: float, device: str = "auto", hint: str = "") -> BoxPredictor:
+    """Load YOLO ``weights`` once (:func:`load_yolo`) and return a function that detects on one image, keeping boxes
+    scored ``conf`` or more at the size the detector was trained at."""
+    model, imgsz = load_yolo(weights, hint)
     where = yolo_device(device)
 
     def predict(image: UInt8[np.ndarray, "h w 3"]) -> Tuple[Float[np.ndarray, "n 4"], Float[np.ndarray, " n"]]:

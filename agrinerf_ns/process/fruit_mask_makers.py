@@ -281,7 +281,9 @@ def make_fruit_masks(
     if maker == "yolo":
         from agrinerf_ns.detect.detector import box_predictor
 
-        predict = box_predictor(config.yolo_weights, min(config.unsure_confidence, config.box_confidence))
+        predict = box_predictor(
+            config.yolo_weights, min(config.unsure_confidence, config.box_confidence), hint="--mask-maker.yolo-weights"
+        )
     for frame, name in zip(frames, names, strict=True):
         bgr = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)
         has_thermal = "thermal_file_path" in frame
