@@ -17,6 +17,11 @@ from typing import Dict, Iterable, Literal, Tuple
 Modality = Literal["rgb", "thermal", "events"]
 ALL_MODALITIES: Tuple[Modality, ...] = ("rgb", "thermal", "events")
 
+DARK_RGB_LEVEL = 0.04
+"""RGB frames whose mean is below this fraction of full scale (about 10 DN of 255) are dark: mostly noise. The one
+default of the model's ``low_light_level``, the mask makers' ``dark_level`` and the dataparser's ``dark_rgb_level``
+(the synthetic scenes' frames average 3 DN in the dark and 42-96 DN at dusk and by day)."""
+
 TABLE_IV_ABLATIONS: Dict[str, Tuple[Modality, ...]] = {
     "RGB": ("rgb",),
     "RGB+Events": ("rgb", "events"),

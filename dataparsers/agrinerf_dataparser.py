@@ -48,7 +48,7 @@ from agrinerf_ns.dataparsers.fruit_masks import fruit_mask_paths
 from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
 from agrinerf_ns.fruit_mask_format import CAMERA_KEY as FRUIT_MASK_CAMERA_KEY
 from agrinerf_ns.fruit_mask_format import FRAME_KEY as FRUIT_MASK_KEY
-from agrinerf_ns.modalities import ALL_MODALITIES, Modality
+from agrinerf_ns.modalities import ALL_MODALITIES, DARK_RGB_LEVEL, Modality
 from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
 from agrinerf_ns.views import evenly_spaced
@@ -78,7 +78,7 @@ class AgriNeRFDataParserConfig(NerfstudioDataParserConfig):
     their mean reaches this fraction of full scale (clipped at 1; metadata ``rgb_gain``), so that the RGB loss shapes
     the scene as a lit frame's does: a few DN of signal under noise average out over many views (RawNeRF's
     observation). None: the frames as they are, whose loss is then a few DN deep."""
-    dark_rgb_level: float = 0.04
+    dark_rgb_level: float = DARK_RGB_LEVEL
     """A mean RGB level (fraction of full scale) below which the frames are dark (the model's ``low_light_level``)."""
 
 

@@ -10,7 +10,7 @@ from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.config_utils import to_immutable_dict
 from nerfstudio.models.base_model import ModelConfig
 
-from agrinerf_ns.modalities import ALL_MODALITIES, Modality
+from agrinerf_ns.modalities import ALL_MODALITIES, DARK_RGB_LEVEL, Modality
 from agrinerf_ns.model.vm_encoding import VMLookup
 
 
@@ -86,7 +86,7 @@ class AgriNeRFSettings(ModelConfig):
     on it, since the thermal routes into the density lowered the RGB reconstruction in most scenes measured
     (docs/model.md, Loss routing). All 1 with `thermal_camera_output` False is the paper's loss as written. A term left out of the dict
     counts as 1."""
-    low_light_level: float = 0.04
+    low_light_level: float = DARK_RGB_LEVEL
     """Low-light routing: where the training RGB frames' mean value is below this fraction of full scale (dataparser
     metadata `rgb_level`; 0.04 is about 10 DN of 255), the thermal-camera term moves the density at full strength,
     whatever `density_gradient_scales` says of it: frames of a few DN are mostly noise and give the density little,

@@ -33,6 +33,7 @@ from scipy import ndimage
 
 from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
+from agrinerf_ns.modalities import DARK_RGB_LEVEL
 from agrinerf_ns.robust import robust_spread
 from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
@@ -93,7 +94,7 @@ class MaskMakerConfig:
     scene's, it halves the false fruit where the other side holds sky gaps or warm ground (results/fruit-masks-dark)."""
     background_sigma: float = 0.05
     """Scale of a pixel's surroundings, as a fraction of the image's shorter side."""
-    dark_level: float = 0.04
+    dark_level: float = DARK_RGB_LEVEL
     """``auto``, ``yolo``: an RGB frame whose mean is below this fraction of full scale is dark (the model's
     low_light_level)."""
     yolo_weights: Optional[Path] = None
