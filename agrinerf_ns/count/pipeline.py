@@ -377,14 +377,14 @@ def _print_summary(out: Path, result: CountResult, max_range: Optional[float] = 
     if result.score is not None:
         s = result.score
         CONSOLE.print(
-            f"against the visible truth ({s.visible} fruit{_within(max_range)}): count error {s.count_error:+.1%}, precision "
-            f"{s.precision:.2f}, recall {s.recall:.2f}, F1 {s.f1:.2f} at {s.match_distance:g} m",
+            f"against the visible truth ({s.visible} fruit{_within(max_range)}): count error {s.count_error:+.1%}, "
+            f"precision {s.precision:.2f}, recall {s.recall:.2f}, F1 {s.f1:.2f} at {s.match_distance:g} m",
             soft_wrap=True,
         )
         if s.well_seen >= 0:
             CONSOLE.print(
-                f"against the well-seen truth ({s.well_seen} fruit{_within(max_range)}): count error {s.count_error_well_seen:+.1%}, "
-                f"recall {s.recall_well_seen:.2f}, F1 {s.f1_well_seen:.2f}",
+                f"against the well-seen truth ({s.well_seen} fruit{_within(max_range)}): count error "
+                f"{s.count_error_well_seen:+.1%}, recall {s.recall_well_seen:.2f}, F1 {s.f1_well_seen:.2f}",
                 soft_wrap=True,
             )
 
