@@ -23,9 +23,15 @@ import tyro
 
 from agrinerf_ns.lab.count_tables import bootstrap_mean
 
-MEASURES = ("f1", "precision", "recall", "count_error", "f1_well_seen", "recall_well_seen", "count_error_well_seen",
-            "mean_temperature_error")  # fmt: skip
-COLUMNS = ("scene", "lighting", "seed", "role", "label", "counted", "visible", "well_seen", *MEASURES, "folder")
+TIERS = ("visible", "countable", "well_seen")
+"""The tiers of truth (``agrinerf_ns.count.fruit_score.TIERS``)."""
+LOOSE = ("0.1", "0.15")
+"""The looser match distances (metres) of count.json's ``tiers``, beside the count's own 0.05 m."""
+MEASURES = ("f1", "precision", "recall", "count_error", "f1_countable", "recall_countable", "count_error_countable",
+            "f1_well_seen", "recall_well_seen", "count_error_well_seen", "mean_temperature_error",
+            *(f"f1{'' if t == 'visible' else '_' + t}@{d}" for t in TIERS for d in LOOSE))  # fmt: skip
+COLUMNS = ("scene", "lighting", "seed", "role", "label", "counted", "visible", "countable", "well_seen", *MEASURES,
+           "folder")  # fmt: skip
 
 
 @dataclass
@@ -49,14 +55,18 @@ def read_row(label: str, folder: Path, reporting_from: int) -> Dict[str, object]
     if not truth.is_absolute():  # counts written before count.json resolved it: relative to where they ran
         truth = folder.resolve().parent / truth
     scene = json.loads((truth / "truth" / "scene.json").read_text())["config"]
-    score = report["score"]
+    score = dict(report["score"])
+    for tier in TIERS:  # the looser match distances (counts written before the tiers: NaN)
+        for distance in LOOSE:
+            entry = report.get("tiers", {}).get(tier, {}).get(distance, {})
+            score[f"f1{'' if tier == 'visible' else '_' + tier}@{distance}"] = entry.get("f1", float("nan"))
     return {
         "scene": scene["scene"],
         "lighting": scene["lighting"],
         "seed": int(scene["seed"]),
         "role": "reporting" if int(scene["seed"]) >= reporting_from else "tuning",
         "label": label,
-        **{k: score.get(k, float("nan")) for k in ("counted", "visible", "well_seen", *MEASURES)},
+        **{k: score.get(k, float("nan")) for k in ("counted", "visible", "countable", "well_seen", *MEASURES)},
         "folder": str(folder),
     }
 
@@ -65,7 +75,9 @@ def _fmt(value: object) -> str:
     return f"{value:.3f}" if isinstance(value, float) else str(value)
 
 
-SHOWN = ("f1", "f1_well_seen", "count_error", "count_error_well_seen", "mean_temperature_error")
+SHOWN = ("f1_countable", "f1_countable@0.1", "f1_countable@0.15", "count_error_countable", "f1", "f1_well_seen",
+         "count_error", "count_error_well_seen", "mean_temperature_error")  # fmt: skip
+"""The pooled table's columns: the countable tier (the targets') at 0.05, 0.10 and 0.15 m first."""
 
 
 def _groups(rows: Sequence[Dict[str, object]]) -> Dict[tuple, List[Dict[str, object]]]:

@@ -18,9 +18,11 @@ def _count(root: Path, name: str, scene: str, seed: int, f1: float, truth_relati
     folder.mkdir()
     score = {"counted": 10, "visible": 20, "well_seen": 12, "f1": f1, "precision": 0.5, "recall": 0.5,
              "count_error": -0.5, "f1_well_seen": f1 + 0.1, "recall_well_seen": 0.6, "count_error_well_seen": -0.2,
-             "mean_temperature_error": 0.5}  # fmt: skip
+             "mean_temperature_error": 0.5, "countable": 16, "f1_countable": f1 + 0.05, "recall_countable": 0.55,
+             "count_error_countable": -0.3}  # fmt: skip
+    tiers = {"countable": {"0.1": {"f1": f1 + 0.2}, "0.15": {"f1": f1 + 0.3}}}
     truth = f"raw-{name}" if truth_relative else str(raw)
-    (folder / "count.json").write_text(json.dumps({"truth": truth, "score": score, "method": "m"}))
+    (folder / "count.json").write_text(json.dumps({"truth": truth, "score": score, "method": "m", "tiers": tiers}))
     return folder
 
 
@@ -43,6 +45,11 @@ def test_reporting_runs_are_pooled_and_tuning_runs_kept_apart(tmp_path: Path) ->
     assert [(r["scene"], r["seed"], r["role"]) for r in rows] == [
         ("garden", "100", "reporting"), ("orchard", "101", "reporting"), ("orchard", "0", "tuning")
     ]  # fmt: skip
-    assert "| bright | reporting | run | garden:100, orchard:101 | 0.30 [" in (out / "counts.md").read_text()
+    # the countable tier first, at 0.05, 0.10 and 0.15 m (from count.json's tiers), then the count error
+    assert "| bright | reporting | run | garden:100, orchard:101 | 0.35 [" in (out / "counts.md").read_text()
+    assert float(reporting["f1_countable@0.1"]) == pytest.approx(0.5)
+    assert float(reporting["f1_countable@0.15"]) == pytest.approx(0.6)
+    assert float(reporting["count_error_countable"]) == pytest.approx(-0.3)
+    assert reporting["f1@0.1"] == "nan"  # a tier the count did not write stays unknown, never zero
     with pytest.raises(SystemExit, match="LABEL=FOLDER"):
         table.main(table.TableArgs([str(folders[0])], out))

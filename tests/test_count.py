@@ -234,6 +234,32 @@ def test_scoring_is_one_on_the_truth_and_zero_in_empty_space() -> None:
     assert (found.well_seen, found.recall_well_seen, found.precision) == (2, 0.5, 1.0)
     assert found.f1_well_seen == pytest.approx(2 / 3) and found.count_error_well_seen == 0.0
     assert score_fruit(truth.centres, truth, match_distance=0.05).well_seen == -1  # not computed
+    # the countable tier sits between them: fruit 0-2 countable, a count of fruit 1 and 2 finds two of three
+    tiered = score_fruit(truth.centres[1:3], truth, well_seen=np.array([True, True, False, False]),
+                         countable=np.array([True, True, True, False]), match_distance=0.05)  # fmt: skip
+    assert (tiered.countable, tiered.recall_countable, tiered.count_error_countable) == (3, 2 / 3, -1 / 3)
+    assert tiered.f1_countable == pytest.approx(0.8) and tiered.recall_well_seen == 0.5
+
+
+def test_tier_scores_give_every_tier_at_every_match_distance() -> None:
+    from agrinerf_ns.count.fruit_score import TIER_DISTANCES, tier_scores
+
+    truth = _truth()
+    # fruit 0 placed 0.08 m off, fruit 1 0.12 m off, fruit 2 exactly; fruit 3 never counted
+    counted = truth.centres[:3] + np.array([[0.08, 0.0, 0.0], [0.0, 0.12, 0.0], [0.0, 0.0, 0.0]])
+    tiers = {"visible": np.ones(4, bool), "countable": np.array([True, True, True, False]),
+             "well_seen": np.array([False, True, True, False])}  # fmt: skip
+    table = tier_scores(counted, truth, tiers)
+    assert list(table) == ["visible", "countable", "well_seen"] and list(table["visible"]) == ["0.05", "0.1", "0.15"]
+    assert TIER_DISTANCES == (0.05, 0.10, 0.15)
+    hits = {"0.05": 1, "0.1": 2, "0.15": 3}  # a looser match takes the fruit placed farther off
+    for d, n in hits.items():
+        assert table["visible"][d]["precision"] == pytest.approx(n / 3)
+        assert table["visible"][d]["recall"] == pytest.approx(n / 4)
+        assert table["countable"][d]["recall"] == pytest.approx(n / 3)
+    assert table["well_seen"]["0.05"]["recall"] == 0.5 and table["well_seen"]["0.15"]["recall"] == 1.0
+    assert (table["visible"]["0.05"]["truth"], table["countable"]["0.05"]["truth"]) == (4, 3)
+    assert table["countable"]["0.05"]["count_error"] == 0.0 and table["visible"]["0.1"]["count_error"] == -0.25
 
 
 def _write_truth_capture(raw: Path, truth: TruthFruit) -> None:
@@ -400,6 +426,13 @@ def test_count_scores_against_the_synthetic_truth(tiny_capture: Tuple[Path, Path
     report = json.loads((tmp_path / "count" / "count.json").read_text())
     assert report["score"]["visible"] == result.score.visible and set(report["f1_at_distance"]) >= {"0.05", "0.1"}
     assert "| f1 |" in (tmp_path / "count" / "score.md").read_text()
+    # the three tiers of truth, each at 0.05, 0.10 and 0.15 m, nested: well seen within countable within visible
+    tiers = report["tiers"]
+    assert list(tiers) == ["visible", "countable", "well_seen"] and list(tiers["countable"]) == ["0.05", "0.1", "0.15"]
+    sizes = [tiers[t]["0.05"]["truth"] for t in tiers]
+    assert sizes[0] == result.score.visible and sizes[0] >= sizes[1] >= sizes[2] and sizes[1] == result.score.countable
+    assert tiers["countable"]["0.05"]["f1"] == pytest.approx(result.score.f1_countable)
+    assert "| countable | " in (tmp_path / "count" / "score.md").read_text()
     with open(tmp_path / "count" / "fruits.csv") as handle:
         assert next(csv.reader(handle))[-4:] == ["x_capture", "y_capture", "z_capture", "truth_id"]
 

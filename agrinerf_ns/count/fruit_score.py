@@ -6,11 +6,14 @@ the 3D distance) within ``match_distance``: a match to a visible fruit is a true
 match a false positive (a match to a fruit no training view shows is neither), a visible fruit with no match a false
 negative. The count error is (counted - visible) / visible.
 
-"Visible" takes in fruit that show a sliver of a few pixels behind the leaves once. A stricter denominator beside it
-asks what a counter from views can be held to: a fruit is *well seen* when at least ``min_share`` of its disc (its
-true radius at the depth its pixels show, through the RGB camera's focal length) shows in at least ``min_views``
-training views, the views a 3D count needs. The ``*_well_seen`` scores are recall, F1 and count error over those
-fruit; a match to any visible fruit still counts as correct for precision.
+"Visible" takes in fruit that show a sliver of a few pixels behind the leaves once. Two stricter tiers of truth
+stand beside it (:data:`TIERS`), each by the share of a fruit's disc a training view shows (its pixels over the disc
+its true radius covers at the depth they show, through the RGB camera's focal length): a fruit is *countable* when at
+least ``min_share`` (a quarter) of its disc shows in at least one training view, the fruit an annotator would mark,
+and *well seen* when it does so in at least two, the views a 3D count needs. The ``*_countable`` and ``*_well_seen``
+scores are recall, F1 and count error over those fruit; a match to any visible fruit still counts as correct for
+precision, so precision is one figure for every tier. :func:`tier_scores` gives every tier at several match
+distances (the anchors match more loosely than 0.05 m).
 
 The fruit map is in the dataset's frame, the truth in the capture's: with ``align="poses"`` the dataset's cameras are
 fit to the capture's true ones (``truth/poses.txt``, matched by timestamp) by a similarity (rotation from their
@@ -36,6 +39,10 @@ FRUIT_IDS_DIR = Path("truth") / "fruit_ids"
 TRUE_DEPTH_DIR = Path("truth") / "depth"
 TRUE_POSES = Path("truth") / "poses.txt"
 Align = Literal["poses", "none"]
+TIERS = ("visible", "countable", "well_seen")
+"""The tiers of truth a count is scored against, loosest first (see the module)."""
+TIER_DISTANCES = (0.05, 0.10, 0.15)
+"""Match distances (capture units, metres) every tier is reported at."""
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,13 @@ class CountScore:
     mean_temperature_error: float = float("nan")
     """Mean absolute difference of the true positives' temperatures from their true fruit's (degrees C; NaN without
     counted or true temperatures)."""
+    countable: int = -1
+    """The countable true fruit (-1: not computed, the capture has no true depth)."""
+    recall_countable: float = float("nan")
+    f1_countable: float = float("nan")
+    """F1 of ``precision`` and ``recall_countable``."""
+    count_error_countable: float = float("nan")
+    """(counted - countable) / countable."""
     well_seen: int = -1
     """The well-seen true fruit (-1: not computed, the capture has no true depth)."""
     recall_well_seen: float = float("nan")
@@ -186,23 +200,29 @@ def disc_shares(raw: Path, stem: str, truth: TruthFruit, focal: float) -> Dict[i
     return shares
 
 
-def well_seen_fruit(
-    raw: Path, frames: Iterable[str], truth: TruthFruit, min_share: float = 0.25, min_views: int = 2
-) -> Bool[np.ndarray, " n"]:
-    """Which true fruit show at least ``min_share`` of their disc (:func:`disc_shares`) in at least ``min_views`` of
-    the ``frames`` (raw RGB frame stems)."""
+def disc_views(raw: Path, frames: Iterable[str], truth: TruthFruit, min_share: float = 0.25) -> np.ndarray:
+    """Per true fruit, the number of ``frames`` (raw RGB frame stems) that show at least ``min_share`` of its disc
+    (:func:`disc_shares`): 1 or more is countable, 2 or more well seen."""
     from agrinerf_ns.process.readers import read_calibration
 
     camera = read_calibration(Path(raw) / "calib.yaml").rgb
     focal = 0.5 * float(camera.K[0, 0] + camera.K[1, 1])
     frames = list(frames)
     if not frames:
-        raise CountInputError(f"{Path(raw) / FRUIT_IDS_DIR}: no training frames to decide which fruit are well seen")
+        raise CountInputError(f"{Path(raw) / FRUIT_IDS_DIR}: no training frames to decide how well fruit are seen")
     views = np.zeros(len(truth.ids), dtype=np.int64)
     for stem in frames:
         for k, share in disc_shares(raw, stem, truth, focal).items():
             views[k] += int(share >= min_share)
-    return views >= min_views
+    return views
+
+
+def well_seen_fruit(
+    raw: Path, frames: Iterable[str], truth: TruthFruit, min_share: float = 0.25, min_views: int = 2
+) -> Bool[np.ndarray, " n"]:
+    """Which true fruit show at least ``min_share`` of their disc (:func:`disc_shares`) in at least ``min_views`` of
+    the ``frames`` (raw RGB frame stems): with ``min_views=1`` the countable fruit."""
+    return disc_views(raw, frames, truth, min_share) >= min_views
 
 
 def score_fruit(
@@ -212,10 +232,12 @@ def score_fruit(
     match_distance: float = 0.05,
     temperatures: Optional[Float[np.ndarray, " m"]] = None,
     well_seen: Optional[Bool[np.ndarray, " n"]] = None,
+    countable: Optional[Bool[np.ndarray, " n"]] = None,
 ) -> CountScore:
     """Count error and precision / recall / F1 of ``predicted`` centres (capture frame) against the visible true
     fruit (all of them when ``visible`` is None); with the counted fruit's ``temperatures`` (degrees C, NaN where
-    unknown) also their mean error on the true positives; with ``well_seen`` also the scores over those fruit."""
+    unknown) also their mean error on the true positives; with ``countable`` and ``well_seen`` also the scores over
+    those fruit."""
     visible = np.ones(len(truth.ids), dtype=bool) if visible is None else np.asarray(visible, bool)
     rows, cols = match_fruit(predicted, truth.centres, match_distance)
     counted = len(np.asarray(predicted).reshape(-1, 3))
@@ -229,16 +251,9 @@ def score_fruit(
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
     errors = np.linalg.norm(np.asarray(predicted).reshape(-1, 3)[rows[tp_mask]] - truth.centres[cols[tp_mask]], axis=1)
     strict: Dict[str, Union[int, float]] = {}
-    if well_seen is not None:
-        well_seen = np.asarray(well_seen, bool)
-        n_well = int(well_seen.sum())
-        recall_well = int(well_seen[cols].sum()) / n_well if n_well else 0.0
-        strict = {
-            "well_seen": n_well,
-            "recall_well_seen": recall_well,
-            "f1_well_seen": 2 * precision * recall_well / (precision + recall_well) if precision + recall_well else 0.0,
-            "count_error_well_seen": (counted - n_well) / n_well if n_well else float("nan"),
-        }
+    for name, tier in (("countable", countable), ("well_seen", well_seen)):
+        if tier is not None:
+            strict |= _tier_fields(name, np.asarray(tier, bool), cols, counted, precision)
     return CountScore(
         counted=counted,
         visible=n_visible,
@@ -255,6 +270,46 @@ def score_fruit(
         mean_temperature_error=_temperature_error(temperatures, truth, rows[tp_mask], cols[tp_mask]),
         **strict,  # type: ignore[arg-type]
     )
+
+
+def _tier_fields(
+    name: str, tier: Bool[np.ndarray, " n"], cols: np.ndarray, counted: int, precision: float
+) -> Dict[str, Union[int, float]]:
+    """A stricter tier's count, recall, F1 (with the count's one ``precision``) and count error (``cols``: the true
+    fruit matched)."""
+    n = int(tier.sum())
+    recall = int(tier[cols].sum()) / n if n else 0.0
+    return {
+        name: n,
+        f"recall_{name}": recall,
+        f"f1_{name}": 2 * precision * recall / (precision + recall) if precision + recall else 0.0,
+        f"count_error_{name}": (counted - n) / n if n else float("nan"),
+    }
+
+
+def tier_scores(
+    predicted: Float[np.ndarray, "m 3"],
+    truth: TruthFruit,
+    tiers: Dict[str, Bool[np.ndarray, " n"]],
+    distances: Iterable[float] = TIER_DISTANCES,
+) -> Dict[str, Dict[str, Dict[str, float]]]:
+    """``{tier: {distance: {truth, precision, recall, f1, count_error}}}`` for each tier of ``tiers`` (which must
+    hold ``visible``, the fruit precision is judged against) at each match distance."""
+    out: Dict[str, Dict[str, Dict[str, float]]] = {name: {} for name in tiers}
+    for distance in distances:
+        score = score_fruit(predicted, truth, tiers["visible"], distance, well_seen=tiers.get("well_seen"),
+                            countable=tiers.get("countable"))  # fmt: skip
+        for name in tiers:
+            suffix = "" if name == "visible" else f"_{name}"
+            n = score.visible if name == "visible" else int(getattr(score, name))
+            out[name][f"{distance:g}"] = {
+                "truth": float(n),
+                "precision": score.precision,
+                "recall": float(getattr(score, f"recall{suffix}")),
+                "f1": float(getattr(score, f"f1{suffix}")),
+                "count_error": float(getattr(score, f"count_error{suffix}")),
+            }
+    return out
 
 
 def _temperature_error(

@@ -26,13 +26,14 @@ from agrinerf_ns.count.fruit_score import (
     TruthFruit,
     align_to_capture,
     dataset_frames,
+    disc_views,
     match_fruit,
     raw_stem,
     read_split,
     read_truth_fruit,
     score_fruit,
+    tier_scores,
     visible_fruit,
-    well_seen_fruit,
 )
 from agrinerf_ns.count.lift import LiftedDetection, lift_detection
 from agrinerf_ns.count.render import (
@@ -73,8 +74,9 @@ class CountConfig:
     min_visible_pixels: int = 3
     """Scoring: a true fruit is visible when this many of its pixels show in a training view."""
     well_seen_share: float = 0.25
-    """Scoring: a true fruit is also scored as *well seen* (the ``*_well_seen`` scores) when this share of its disc
-    shows in at least ``well_seen_views`` training views (``fruit_score.well_seen_fruit``)."""
+    """Scoring: a true fruit is also scored as *countable* (the ``*_countable`` scores) when this share of its disc
+    shows in a training view, and as *well seen* (``*_well_seen``) when it shows in at least ``well_seen_views``
+    training views (``fruit_score.disc_views``)."""
     well_seen_views: int = 2
     """Scoring: see ``well_seen_share`` (two: the views a 3D count needs; fixed apart from the counter's own
     ``--min-views``, so that changing the counter does not move the denominator)."""
@@ -97,6 +99,8 @@ class CountResult:
     truth: Optional[TruthFruit] = None
     visible: Optional[np.ndarray] = None
     """Which true fruit a training view shows."""
+    tiers: Dict[str, np.ndarray] = field(default_factory=dict)
+    """Each tier of truth scored (``fruit_score.TIERS``): which true fruit it holds."""
     depth_spread: float = float("nan")
     """:func:`depth_spread` of the renders."""
 
@@ -174,12 +178,14 @@ def score_result(
         capture_range = config.max_range * result.to_capture.scale
         near = in_range(truth.centres, result.to_capture.apply(np.asarray(cameras, np.float64)), capture_range)
         result.visible = result.visible & near
-    well_seen = None
+    result.tiers = {"visible": result.visible}
     if (Path(raw) / TRUE_DEPTH_DIR).is_dir():
-        well_seen = well_seen_fruit(raw, train, truth, config.well_seen_share, config.well_seen_views) & near
+        views = disc_views(raw, train, truth, config.well_seen_share)
+        result.tiers["countable"] = (views >= 1) & result.visible
+        result.tiers["well_seen"] = (views >= config.well_seen_views) & result.visible
     result.score = score_fruit(
         result.to_capture.apply(_centres(result.fruit)), truth, result.visible, config.match_distance,
-        _temperatures(result.fruit), well_seen,
+        _temperatures(result.fruit), result.tiers.get("well_seen"), result.tiers.get("countable"),
     )  # fmt: skip
 
 
@@ -344,6 +350,8 @@ def write_count(
         report["f1_at_distance"] = {
             f"{d:g}": score_fruit(capture_centres, result.truth, result.visible, d).f1 for d in SCORE_DISTANCES
         } if result.truth is not None else {}  # fmt: skip
+        tiers = tier_scores(capture_centres, result.truth, result.tiers) if result.truth is not None else {}
+        report["tiers"] = tiers
         report["alignment"] = {
             "mode": config.align,
             "scale": result.to_capture.scale,
@@ -359,10 +367,12 @@ def write_count(
                     "min views per fruit": config.cluster.min_views,
                     "visible": f">= {config.min_visible_pixels} pixels in a training view"
                     + ("" if config.max_range is None else f", within {config.max_range:g} of a camera"),
+                    "countable": f">= {config.well_seen_share:g} of its disc in >= 1 training view",
                     "well seen": f">= {config.well_seen_share:g} of its disc in >= {config.well_seen_views} "
                     "training views",
                     "alignment": f"{config.align} (camera residual RMS {result.to_capture.residual_rms:.3f})",
                 },
+                tiers,
             )
         )
     (tmp / "count.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
@@ -381,12 +391,15 @@ def _print_summary(out: Path, result: CountResult, max_range: Optional[float] = 
             f"precision {s.precision:.2f}, recall {s.recall:.2f}, F1 {s.f1:.2f} at {s.match_distance:g} m",
             soft_wrap=True,
         )
-        if s.well_seen >= 0:
-            CONSOLE.print(
-                f"against the well-seen truth ({s.well_seen} fruit{_within(max_range)}): count error "
-                f"{s.count_error_well_seen:+.1%}, recall {s.recall_well_seen:.2f}, F1 {s.f1_well_seen:.2f}",
-                soft_wrap=True,
-            )
+        for tier, n in (("countable", s.countable), ("well-seen", s.well_seen)):
+            key = tier.replace("-", "_")
+            if n >= 0:
+                CONSOLE.print(
+                    f"against the {tier} truth ({n} fruit{_within(max_range)}): count error "
+                    f"{getattr(s, 'count_error_' + key):+.1%}, recall {getattr(s, 'recall_' + key):.2f}, "
+                    f"F1 {getattr(s, 'f1_' + key):.2f}",
+                    soft_wrap=True,
+                )
 
 
 def _within(max_range: Optional[float]) -> str:

@@ -161,8 +161,11 @@ def draw_map(
     plt.close(fig)
 
 
-def score_markdown(score: CountScore, settings: Dict[str, object]) -> str:
-    """The score as a small Markdown table with the settings it was computed at."""
+def score_markdown(
+    score: CountScore, settings: Dict[str, object], tiers: Optional[Dict[str, Dict[str, Dict[str, float]]]] = None
+) -> str:
+    """The score as a small Markdown table with the settings it was computed at; with ``tiers``
+    (``fruit_score.tier_scores``) first a table of every tier of truth at every match distance."""
 
     def fmt(value: object) -> str:
         if isinstance(value, float):
@@ -171,4 +174,20 @@ def score_markdown(score: CountScore, settings: Dict[str, object]) -> str:
 
     rows = [f"| {key} | {fmt(value)} |" for key, value in score.as_dict().items()]
     notes = [f"- {key}: {value}" for key, value in settings.items()]
-    return "\n".join(["| measure | value |", "|---|---|", *rows, "", *notes]) + "\n"
+    return "\n".join([*tier_markdown(tiers or {}), "| measure | value |", "|---|---|", *rows, "", *notes]) + "\n"
+
+
+def tier_markdown(tiers: Dict[str, Dict[str, Dict[str, float]]]) -> List[str]:
+    """Lines of a Markdown table: per tier of truth its fruit, F1 (precision / recall) at each match distance and the
+    count error (empty without tiers)."""
+    if not tiers:
+        return []
+    distances = list(next(iter(tiers.values())))
+    lines = ["| truth | fruit | " + " | ".join(f"F1 (P / R) at {d} m" for d in distances) + " | count error |",
+             "|---|---|" + "---|" * len(distances) + "---|"]  # fmt: skip
+    for tier, by_distance in tiers.items():
+        cells = [f"{s['f1']:.2f} ({s['precision']:.2f} / {s['recall']:.2f})" for s in by_distance.values()]
+        first = next(iter(by_distance.values()))
+        error = "nan" if math.isnan(first["count_error"]) else f"{first['count_error']:+.0%}"
+        lines.append(f"| {tier.replace('_', ' ')} | {int(first['truth'])} | " + " | ".join(cells) + f" | {error} |")
+    return [*lines, ""]
