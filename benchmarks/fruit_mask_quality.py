@@ -55,6 +55,9 @@ class Args:
     """With --blob-thresholds: fruit warmer than the canopy (warm), cooler (cool) or either (both)."""
     thermal_contrast: bool = False
     """Also a row of the thermal maker's earlier rule (``--thermal-rule contrast``), scored the same way."""
+    body_views: Tuple[int, ...] = ()
+    """Instead of the dataset's masks: the ``bodies`` rule's masks of its thermal frames (every frame, placed in 3D
+    with the dataset's poses), one row per ``bodies.min_views``, scored in the thermal camera's view."""
     write_oracle: Optional[Path] = None
     """Write the truth's masks here (8-bit, named like the raw RGB frames) and stop."""
 
@@ -155,9 +158,45 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     )
 
 
+def dataset_views(raw: Path, dataset: Path) -> list:
+    """Each dataset frame's warped thermal view (``fruit_mask_makers.thermal_views``) from its pose in
+    ``transforms.json`` (OpenGL axes, as written) and the capture's calibration."""
+    from agrinerf_ns.process.fruit_mask_makers import thermal_views
+    from agrinerf_ns.process.readers import read_calibration
+
+    meta = json.loads((dataset / "transforms.json").read_text())
+    c2w = np.stack([np.asarray(f["transform_matrix"], np.float64) for f in meta["frames"]]) @ np.diag([1, -1, -1, 1.0])
+    plane_depth = float(meta.get("agrinerf", {}).get("alignment", {}).get("plane_depth", "inf"))
+    posed = np.ones(len(meta["frames"]), bool)
+    return thermal_views(meta["frames"], c2w, posed, read_calibration(raw / "calib.yaml"), plane_depth)
+
+
+def body_rows(args: Args) -> str:
+    """The ``bodies`` rule's rows (``--body-views``)."""
+    assert args.dataset is not None
+    from dataclasses import replace
+
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, thermal_body_masks
+
+    frames = json.loads((args.dataset / "transforms.json").read_text())["frames"]
+    views = dataset_views(args.raw, args.dataset)
+    out = ""
+    for n in args.body_views:
+        config = MaskMakerConfig(thermal_rule="bodies")
+        config = replace(config, bodies=replace(config.bodies, min_views=n))
+        masks, record = thermal_body_masks(args.dataset, frames, list(range(len(frames))), config, views)
+        by_path = {frame["file_path"]: masks[i] for i, frame in enumerate(frames)}
+        label = (f"thermal bodies, {n} views (polarity {record['polarity']}; bodies {record['bodies_per_side']}; "
+                 f"dropped {record['dropped']})")  # fmt: skip
+        out += quality(args, lambda frame, found=by_path: found[frame["file_path"]], label, thermal_view=True)
+    return out
+
+
 def rows(args: Args) -> str:
     assert args.dataset is not None
     dataset = args.dataset
+    if args.body_views:
+        return body_rows(args)
     if args.blob_thresholds or args.thermal_contrast:
         from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, thermal_frame, thermal_mask
 

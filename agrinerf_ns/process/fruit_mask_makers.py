@@ -22,7 +22,7 @@ results/fruit-masks), the thermal rule's on the dark garden of seeds 0 and 2 and
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Tuple
 
@@ -34,6 +34,8 @@ from scipy import ndimage
 from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
 from agrinerf_ns.modalities import DARK_RGB_LEVEL
+from agrinerf_ns.process.readers import RigCalib
+from agrinerf_ns.process.thermal_bodies import Blob, BodySettings, FrameGeometry, decide_bodies
 from agrinerf_ns.robust import robust_spread
 from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
@@ -72,8 +74,11 @@ class MaskMakerConfig:
     min_region_pixels: int = 8
     """``colour``: fruit regions smaller than this many pixels are left unknown, neither fruit nor background (a
     speck of noise is not taught as fruit, a sliver of a hidden fruit not as background; 0: all kept)."""
-    thermal_rule: Literal["blobs", "contrast"] = "blobs"
-    """``blobs``: fruit-sized blobs of the thermal frame (its temperature where the dataset has one), found by the
+    thermal_rule: Literal["bodies", "blobs", "contrast"] = "bodies"
+    """``bodies``: the fruit-sized blobs of every thermal frame, decided in 3D across the capture with its poses
+    (`process/thermal_bodies.py`: a body seen at one place in several frames, near the leaves' temperature, above the
+    ground, on the side of the leaves' temperature where the capture's bodies are; no polarity to set);
+    ``blobs``: fruit-sized blobs of the thermal frame (its temperature where the dataset has one), found by the
     scale-normalised Laplacian of Gaussian over the sizes of `thermal_sizes` and filled as discs; ``contrast``: the
     pixels standing out from their surroundings at `background_sigma` by `thermal_threshold`, the rule before
     (rings at a fruit's rim and bands along every large warm or cool edge once fruit are wider than the
@@ -89,9 +94,11 @@ class MaskMakerConfig:
     tree row's frames) by at least this many robust spreads, on its own side: a cluster of leaves against the sky is
     a blob too, but at the leaves' temperature."""
     polarity: Literal["warm", "cool", "both"] = "both"
-    """Thermal fruit warmer than their surroundings, cooler, or either. A property of the scene that the user knows
-    (fruit keep the day's heat into the night; the synthetic scenes draw warm or cool fruit per seed): set to the
-    scene's, it halves the false fruit where the other side holds sky gaps or warm ground (results/fruit-masks-dark)."""
+    """``blobs``, ``contrast``: thermal fruit warmer than their surroundings, cooler, or either (the synthetic scenes
+    draw warm or cool fruit per seed; set to the scene's, it halves the false fruit where the other side holds sky
+    gaps or warm ground: results/fruit-masks-dark). ``bodies`` reads the side from the capture instead."""
+    bodies: BodySettings = field(default_factory=BodySettings)
+    """``bodies``: how blobs are placed and judged in 3D."""
     background_sigma: float = 0.05
     """Scale of a pixel's surroundings, as a fraction of the image's shorter side."""
     dark_level: float = DARK_RGB_LEVEL
@@ -136,7 +143,7 @@ def thermal_mask(
     if not seen.any():
         return np.full(thermal.shape, UNKNOWN, np.uint8)
     thermal = thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
-    if config.thermal_rule == "blobs":
+    if config.thermal_rule != "contrast":  # one frame: the bodies rule has only its blobs
         fruit = thermal_blobs(thermal, seen, config)
     else:
         from agrinerf_ns.count.blobs import contrast
@@ -150,26 +157,45 @@ def thermal_mask(
 def thermal_blobs(
     thermal: Float[np.ndarray, "h w"], seen: Bool[np.ndarray, "h w"], config: MaskMakerConfig
 ) -> Bool[np.ndarray, "h w"]:
-    """Discs of the fruit-sized blobs of a thermal frame: scikit-image's scale-normalised Laplacian of Gaussian
-    (`blob_log`) on the frame in robust spreads (median and 1.4826 MAD over the seen pixels, the unseen ones set to
-    the median so the view's border is no blob), warm blobs on it and cool ones on its negative, each a disc of
-    radius sqrt(2) sigma: a blob responds to the Laplacian at its own scale and an edge does not, so the rims of large
+    """Discs of the fruit-sized blobs of a thermal frame (:func:`thermal_blob_list`) on the side(s) of
+    ``config.polarity``, each of radius sqrt(2) sigma."""
+    sides = {"warm": (1.0,), "cool": (-1.0,), "both": (1.0, -1.0)}[config.polarity]
+    return blob_discs(thermal.shape, seen, [b for b in thermal_blob_list(thermal, seen, config) if b.sign in sides])
+
+
+def blob_discs(shape: Tuple[int, ...], seen: Bool[np.ndarray, "h w"], blobs: List[Blob]) -> Bool[np.ndarray, "h w"]:
+    """The seen pixels of the blobs' discs (radius sqrt(2) sigma)."""
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+    fruit = np.zeros(shape[:2], bool)
+    for b in blobs:
+        fruit |= (rows - b.row) ** 2 + (cols - b.col) ** 2 <= 2.0 * b.sigma**2
+    return fruit & seen
+
+
+def thermal_blob_list(
+    thermal: Float[np.ndarray, "h w"], seen: Bool[np.ndarray, "h w"], config: MaskMakerConfig, frame: int = 0
+) -> List[Blob]:
+    """The fruit-sized blobs of a thermal frame on both sides of the canopy's temperature: scikit-image's
+    scale-normalised Laplacian of Gaussian (`blob_log`) on the frame in robust spreads (median and 1.4826 MAD over
+    the seen pixels, the unseen ones set to the median so the view's border is no blob), warm blobs on it and cool
+    ones on its negative: a blob responds to the Laplacian at its own scale and an edge does not, so the rims of large
     warm or cool regions, which a local contrast marks, are not fruit. A blob whose median is near the canopy's value
     (`canopy_value`) is leaves, not fruit (`MaskMakerConfig.min_canopy_offset`)."""
     from skimage.feature import blob_log
 
     values = thermal[seen].astype(np.float64)
+    if values.size == 0:
+        return []
     median = float(np.median(values))
     spread = max(robust_spread(values, median), 1e-6)
     z = np.where(seen, (thermal - median) / spread, 0.0)
     short = min(thermal.shape)
     # a disc of diameter d is found at sigma d / (2 sqrt 2)
     low, high = (max(MIN_BLOB_SIGMA, f * short / (2.0 * np.sqrt(2.0))) for f in config.thermal_sizes)
-    signs = {"warm": (1.0,), "cool": (-1.0,), "both": (1.0, -1.0)}[config.polarity]
-    fruit = np.zeros(thermal.shape, bool)
     rows, cols = np.mgrid[0 : thermal.shape[0], 0 : thermal.shape[1]]
     canopy = canopy_value(z[seen])
-    for sign in signs:
+    found: List[Blob] = []
+    for sign in (1.0, -1.0):
         for row, col, sigma in blob_log(np.clip(sign * z, 0.0, None), min_sigma=low, max_sigma=high, num_sigma=12,
                                         threshold=config.blob_threshold, log_scale=True):  # fmt: skip
             disc = ((rows - row) ** 2 + (cols - col) ** 2 <= 2.0 * sigma**2) & seen
@@ -177,9 +203,10 @@ def thermal_blobs(
                 continue  # cut by the frame's or the view's border: a band of sky or ground there looks like a blob
             if curvature_ratio(z, row, col, sigma) > MAX_CURVATURE_RATIO:
                 continue  # a ridge (a band of sky, a stake) answers the Laplacian too, with one curvature only
-            if sign * (float(np.median(z[disc])) - canopy) >= config.min_canopy_offset:
-                fruit |= disc
-    return fruit
+            offset = float(np.median(z[disc])) - canopy
+            if sign * offset >= config.min_canopy_offset:
+                found.append(Blob(frame, float(row), float(col), float(sigma), sign, offset * spread))
+    return found
 
 
 def curvature_ratio(z: Float[np.ndarray, "h w"], row: float, col: float, sigma: float) -> float:
@@ -259,7 +286,7 @@ def thermal_frame(
     """A frame's thermal image in the RGB plane and where the thermal camera saw. For the ``blobs`` rule its
     temperature (degrees C) where the dataset has one, a physical contrast that the 8-bit frame's local rescaling
     (Fieldscale) bends; else the 8-bit frame."""
-    if config.thermal_rule == "blobs" and TEMPERATURE_KEY in frame:
+    if config.thermal_rule != "contrast" and TEMPERATURE_KEY in frame:
         celsius, seen = decode_celsius(_read(folder / frame[TEMPERATURE_KEY], cv2.IMREAD_UNCHANGED))
         return celsius, seen
     thermal = _read(folder / frame["thermal_file_path"], cv2.IMREAD_GRAYSCALE)
@@ -272,10 +299,16 @@ def thermal_frame(
 
 
 def make_fruit_masks(
-    tmp: Path, frames: List[Dict], names: List[str], maker: MaskMaker, config: MaskMakerConfig
+    tmp: Path,
+    frames: List[Dict],
+    names: List[str],
+    maker: MaskMaker,
+    config: MaskMakerConfig,
+    geometry: Optional[List[Optional[FrameGeometry]]] = None,
 ) -> dict:
     """Write a mask per frame (from the frames already written under `tmp`) and name it in the frame; returns the
-    dataset's record (the rule, the settings and how many frames each maker labelled)."""
+    dataset's record (the rule, the settings and how many frames each maker labelled). ``geometry``: each frame's
+    thermal view (None where the frame has no pose), which the ``bodies`` rule needs."""
     (tmp / FOLDER).mkdir(parents=True, exist_ok=True)
     used = {"colour": 0, "thermal": 0, "yolo": 0}
     predict = None
@@ -285,22 +318,26 @@ def make_fruit_masks(
         predict = box_predictor(
             config.yolo_weights, min(config.unsure_confidence, config.box_confidence), hint="--mask-maker.yolo-weights"
         )
-    for frame, name in zip(frames, names, strict=True):
-        bgr = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)
-        has_thermal = "thermal_file_path" in frame
-        dark = float(bgr.mean()) / 255.0 < config.dark_level
-        lit_kind = "yolo" if maker == "yolo" else "colour"
-        kind = maker if maker in ("colour", "thermal") else ("thermal" if dark and has_thermal else lit_kind)
+    kinds = [_mask_kind(tmp, frame, maker, config) for frame in frames]
+    thermal_index = [i for i, kind in enumerate(kinds) if kind == "thermal"]
+    record: dict = {}
+    bodies: Dict[int, np.ndarray] = {}
+    if thermal_index and config.thermal_rule == "bodies":
+        bodies, record["bodies"] = thermal_body_masks(tmp, frames, thermal_index, config, geometry)
+    for i, (frame, name, kind) in enumerate(zip(frames, names, kinds, strict=True)):
         if kind == "thermal":
-            if not has_thermal:
-                raise ValueError(f"--fruit-mask-maker thermal: frame {frame['file_path']} has no thermal frame")
-            thermal, seen = thermal_frame(tmp, frame, config)
-            mask = thermal_mask(thermal, seen, config)
-        elif kind == "yolo" and predict is not None:
-            boxes, scores = predict(bgr)
-            mask = box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, config)
+            if i in bodies:
+                mask = bodies[i]
+            else:
+                thermal, seen = thermal_frame(tmp, frame, config)
+                mask = thermal_mask(thermal, seen, config)
         else:
-            mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
+            bgr = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)
+            if kind == "yolo" and predict is not None:
+                boxes, scores = predict(bgr)
+                mask = box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, config)
+            else:
+                mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
         used[kind] += 1
         frame[FRAME_KEY] = f"{FOLDER}/{name}.png"
         if kind == "thermal":  # the thermal camera's view: supervised along its rays
@@ -308,4 +345,103 @@ def make_fruit_masks(
         write_png(tmp / frame[FRAME_KEY], mask)
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}
     return {"source": f"maker:{maker}", "frames": used, "settings": settings,
-            "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit"}  # fmt: skip
+            "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit", **record}  # fmt: skip
+
+
+def _mask_kind(tmp: Path, frame: Dict, maker: MaskMaker, config: MaskMakerConfig) -> str:
+    """Which maker labels a frame: ``thermal`` for a dark frame with a thermal frame under ``auto`` and ``yolo``."""
+    has_thermal = "thermal_file_path" in frame
+    if maker == "thermal" and not has_thermal:
+        raise ValueError(f"--fruit-mask-maker thermal: frame {frame['file_path']} has no thermal frame")
+    if maker in ("colour", "thermal"):
+        return maker
+    dark = float(_read(tmp / frame["file_path"], cv2.IMREAD_COLOR).mean()) / 255.0 < config.dark_level
+    return "thermal" if dark and has_thermal else ("yolo" if maker == "yolo" else "colour")
+
+
+def thermal_views(
+    frames: List[Dict],
+    c2w: Float[np.ndarray, "n 4 4"],
+    posed: Bool[np.ndarray, " n"],
+    calib: RigCalib,
+    plane_depth: float,
+) -> List[Optional[FrameGeometry]]:
+    """Each frame's warped thermal view: the RGB camera's pose (OpenCV axes) at the thermal frame's own time
+    (``thermal_timestamp``; the RGB poses interpolated), the thermal camera's centre beside it; None for a frame
+    without a pose or a capture without a thermal camera."""
+    from agrinerf_ns.trajectory import CameraTrajectory
+
+    index = np.flatnonzero(posed)
+    if calib.thermal is None or len(index) == 0:
+        return [None] * len(frames)
+    times = np.array([float(frames[i]["timestamp"]) for i in index])
+    order = np.flatnonzero(np.diff(times, prepend=-np.inf) > 0)  # strictly increasing samples
+    trajectory = CameraTrajectory(times[order], c2w[index[order]])
+    rotation, shift = calib.thermal.T_cam_rgb[:3, :3], calib.thermal.T_cam_rgb[:3, 3]
+    centre = -rotation.T @ shift  # the thermal camera's centre in the RGB camera's frame
+    views: List[Optional[FrameGeometry]] = [None] * len(frames)
+    for i in index:
+        pose = np.eye(4)
+        pose[:3] = trajectory.poses_at(np.array(float(frames[i].get("thermal_timestamp", frames[i]["timestamp"]))))
+        views[i] = FrameGeometry(calib.rgb.K, pose, centre, plane_depth)
+    return views
+
+
+def thermal_body_masks(
+    tmp: Path,
+    frames: List[Dict],
+    index: List[int],
+    config: MaskMakerConfig,
+    geometry: Optional[List[Optional[FrameGeometry]]],
+) -> Tuple[Dict[int, np.ndarray], dict]:
+    """The ``bodies`` rule's masks of the frames ``index`` (``process/thermal_bodies.py``): fruit on the blobs decided
+    fruit, unknown on the blobs of the fruit's side that no other frame confirms (a fruit seen once is not taught as
+    background), background on the rest of the thermal camera's view; with the decision's record."""
+    if geometry is None:
+        raise ValueError("--mask-maker.thermal-rule bodies needs the frames' poses")
+    posed = [i for i in index if geometry[i] is not None]
+    images = {i: thermal_frame(tmp, frames[i], config) for i in index}
+    radiometric = all(TEMPERATURE_KEY in frames[i] for i in posed)
+    found, record = body_masks([images[i] for i in posed], [geometry[i] for i in posed], config, radiometric)  # type: ignore[misc]
+    masks = dict(zip(posed, found, strict=True))
+    for i in index:
+        if i not in masks:  # no pose: the frame is dropped; its mask says nothing
+            masks[i] = np.full(images[i][0].shape, UNKNOWN, np.uint8)
+    return masks, record
+
+
+def body_masks(
+    images: List[Tuple[Shaped[np.ndarray, "h w"], Bool[np.ndarray, "h w"]]],
+    views: List[FrameGeometry],
+    config: MaskMakerConfig,
+    radiometric: bool,
+) -> Tuple[List[np.ndarray], dict]:
+    """The ``bodies`` rule on consecutive thermal frames (each its image, degrees C where ``radiometric`` else 8-bit,
+    and where the thermal camera saw) and their views: a mask per frame and the decision's record."""
+    blobs: List[Blob] = []
+    for k, (thermal, seen) in enumerate(images):
+        thermal = thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
+        blobs += thermal_blob_list(thermal, seen, config, frame=k)
+    decision = decide_bodies(blobs, views, config.bodies, radiometric)
+    sides = (1.0, -1.0) if decision.polarity is None else ((1.0,) if decision.polarity == "warm" else (-1.0,))
+    by_frame: Dict[int, List[int]] = {}
+    for j, b in enumerate(blobs):
+        by_frame.setdefault(b.frame, []).append(j)
+    masks = []
+    for k, (thermal, seen) in enumerate(images):
+        own = by_frame.get(k, [])
+        fruit = blob_discs(thermal.shape, seen, [blobs[j] for j in own if decision.fruit[j]])
+        # a blob of the fruit's side that no other frame confirms may be a fruit seen once: neither fruit nor background
+        once = [blobs[j] for j in own if not decision.placed[j] and blobs[j].sign in sides]
+        unsure = blob_discs(thermal.shape, seen, once) & ~fruit
+        mask = np.where(~seen, UNKNOWN, np.where(fruit, FRUIT, np.where(unsure, UNKNOWN, BACKGROUND)))
+        masks.append(mask.astype(np.uint8))
+    record = {
+        "polarity": decision.polarity or "both (undecided)",
+        "bodies_per_side": decision.bodies,
+        "blobs": len(blobs),
+        "fruit_blobs": int(decision.fruit.sum()),
+        "dropped": decision.dropped,
+        "ground_height": decision.ground,
+    }
+    return masks, record

@@ -29,7 +29,7 @@ from agrinerf_ns.process.dataset_writer import (
     write_transforms,
 )
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks
+from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks, thermal_views
 from agrinerf_ns.process.readers import read_triggers, read_tum
 from agrinerf_ns.process.step_events import write_event_frames
 from agrinerf_ns.process.step_fruit_masks import check_fruit_masks, find_fruit_masks, write_fruit_masks
@@ -144,11 +144,11 @@ def _process(
         meta["events"] = write_event_frames(raw, tmp, cap, config, names, frames, progress)
         modalities.append("events")
 
-    if config.fruit_mask_maker != "none":
-        meta["fruit_masks"] = make_fruit_masks(tmp, frames, names, config.fruit_mask_maker, config.mask_maker)
-
     keep = np.array([i not in dropped for i in range(n)])
     c2w, pose_meta = estimate_poses(raw, tmp, cap, config, frames, keep, progress)
+    if config.fruit_mask_maker != "none":  # after the poses: the thermal bodies rule places blobs in 3D
+        views = thermal_views(frames, c2w, np.asarray(pose_meta["has_pose"]) & keep, calib, config.plane_depth)
+        meta["fruit_masks"] = make_fruit_masks(tmp, frames, names, config.fruit_mask_maker, config.mask_maker, views)
     for i in range(n):
         if keep[i] and not pose_meta["has_pose"][i]:
             dropped[i] = "no pose" if pose_meta["source"] == "given" else "not registered by SfM"

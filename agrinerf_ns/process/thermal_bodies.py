@@ -1,0 +1,299 @@
+"""Thermal fruit decided in 3D, across the frames of a capture (``--mask-maker.thermal-rule bodies``).
+
+One thermal frame cannot tell a fruit from warm ground, bark or a gap of cold sky: each is a blob a few degrees off
+the leaves, on either side of their temperature (results/fruit-masks-dark). Across the capture, with the frames'
+poses, they differ:
+
+- **A fruit is a body at one place.** Each blob of a frame (``thermal_blob_list``: both sides of the canopy's
+  temperature) is placed along its thermal ray at the depth where blobs of the same side, of a consistent size, show
+  in the most neighbouring frames (a plane sweep over the ray). A blob that no neighbour sees there is noise, a
+  glint or a sky gap whose shape changes as the rig moves.
+- **Fruit are not far off the leaves' temperature.** A blob whose median is more than ``max_offset_c`` from the
+  canopy (on a radiometric capture) is the sky or a machine, not a fruit.
+- **Ground is a plane below the plants.** The placed blobs' heights (along the cameras' mean up direction) hold a
+  sharp low peak where warm or cool ground shows: blobs at or below it are ground (:func:`ground_height`).
+- **The scene's fruit sit on one side of the leaves' temperature.** Of the blobs left, the side with the more
+  bodies is the fruit's (:func:`decide_polarity`), so the polarity is read from the capture, not set by the user.
+
+Depths are searched in steps of the camera spacing (``depth_range`` in camera steps), so the rule needs no metric
+scale and works on SfM poses as on odometry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, List, Literal, Optional, Sequence, Tuple
+
+import numpy as np
+from jaxtyping import Bool, Float
+
+Side = Literal["warm", "cool"]
+
+
+@dataclass(frozen=True)
+class Blob:
+    """A fruit-sized blob of one thermal frame (warped into the RGB plane)."""
+
+    frame: int
+    row: float
+    col: float
+    sigma: float
+    """Laplacian scale (pixels); the blob's disc has radius sqrt(2) sigma."""
+    sign: float
+    """+1 warmer than the canopy, -1 cooler."""
+    offset: float
+    """Median over its disc minus the canopy's value, in the frame's units (degrees C where radiometric)."""
+
+
+@dataclass(frozen=True)
+class BodySettings:
+    """How blobs are placed and judged in 3D."""
+
+    neighbours: int = 4
+    """Frames either side of a blob's frame searched for it."""
+    min_views: int = 3
+    """A blob is a body when it shows at one place in this many frames, its own included."""
+    depth_range: Tuple[float, float] = (4.0, 150.0)
+    """Depths searched along a blob's ray, in steps of the median camera spacing (a 7.5 cm step: 0.3-11 m)."""
+    depths: int = 96
+    """Depths searched (log-spaced)."""
+    match_px: float = 2.0
+    """A neighbour's blob supports a depth when its centre lies within this many pixels, or 0.5 sigma, of the
+    blob's projection there."""
+    size_ratio: float = 1.6
+    """... and its size at its depth is within this factor of the blob's."""
+    max_offset_c: float = 8.0
+    """Radiometric frames: a blob more than this many degrees C off the canopy is not a fruit (night sky, engines;
+    fruit stay within a few degrees of the leaves)."""
+    body_radius: float = 1.0
+    """Placed blobs within this many camera steps of a body's first blob are that body."""
+    ground_bin: float = 0.5
+    """Height histogram bin for the ground peak, in camera steps."""
+    ground_margin: float = 1.5
+    """Blobs less than this many camera steps above the ground peak are ground."""
+    polarity_margin: float = 1.5
+    """One side is the fruit's when it holds this many times the other side's bodies; else both are kept."""
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """Where a warped thermal frame's pixels look: the thermal camera's centre and the RGB camera's orientation and
+    intrinsics (the frame is warped into the RGB plane at ``plane_depth``)."""
+
+    K: Float[np.ndarray, "3 3"]
+    rgb_c2w: Float[np.ndarray, "4 4"]
+    """RGB camera to world (OpenCV axes) at the thermal frame's time."""
+    thermal_centre: Float[np.ndarray, "3"]
+    """The thermal camera's centre in the RGB camera's frame."""
+    plane_depth: float = float("inf")
+
+    def rays(self, rows: np.ndarray, cols: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+        """World origins and unit directions of the thermal rays through warped pixels (rows, cols)."""
+        pixels = np.stack([cols, rows, np.ones_like(cols)], -1).astype(np.float64)
+        on_plane = pixels @ np.linalg.inv(self.K).T  # RGB camera frame, z = 1
+        if np.isfinite(self.plane_depth):
+            direction = on_plane * self.plane_depth - self.thermal_centre
+        else:
+            direction = on_plane
+        rot, centre = self.rgb_c2w[:3, :3], self.rgb_c2w[:3, 3]
+        world = direction @ rot.T
+        world /= np.linalg.norm(world, axis=-1, keepdims=True)
+        origin = np.broadcast_to(centre + rot @ self.thermal_centre, world.shape)
+        return origin, world
+
+    def project(self, points: Float[np.ndarray, "n 3"]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Warped pixels (rows, cols) where the thermal camera sees world ``points``, and their distance from it
+        (NaN rows behind it)."""
+        rot, centre = self.rgb_c2w[:3, :3], self.rgb_c2w[:3, 3]
+        x = (points - centre) @ rot  # RGB camera frame
+        c = self.thermal_centre
+        d = x - c
+        if np.isfinite(self.plane_depth):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = (self.plane_depth - c[2]) / d[:, 2]
+            on_plane = c + s[:, None] * d
+        else:
+            on_plane = d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uv = on_plane @ self.K.T
+            cols, rows = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]
+        behind = d[:, 2] <= 1e-9
+        rows[behind], cols[behind] = np.nan, np.nan
+        return rows, cols, np.linalg.norm(d, axis=-1)
+
+
+@dataclass(frozen=True)
+class Placed:
+    """Blobs placed in 3D (NaN rows: no depth where ``min_views`` frames see them)."""
+
+    points: Float[np.ndarray, "n 3"]
+    views: np.ndarray
+    """Frames that show each blob at its depth, its own included."""
+
+
+def place_blobs(blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settings: BodySettings) -> Placed:
+    """Each blob at the depth along its ray where blobs of its side and size show in the most neighbouring frames
+    (see the module)."""
+    n = len(blobs)
+    points = np.full((n, 3), np.nan)
+    views = np.ones(n, np.int64)
+    by_frame: Dict[int, List[int]] = {}
+    for k, b in enumerate(blobs):
+        by_frame.setdefault(b.frame, []).append(k)
+    arrays = {
+        f: (np.array([blobs[k].row for k in ks]), np.array([blobs[k].col for k in ks]),
+            np.array([blobs[k].sigma for k in ks]), np.array([blobs[k].sign for k in ks]))
+        for f, ks in by_frame.items()
+    }  # fmt: skip
+    step = camera_step(geometry)
+    depths = step * np.geomspace(*settings.depth_range, settings.depths)
+    for k, b in enumerate(blobs):
+        origin, direction = geometry[b.frame].rays(np.array([b.row]), np.array([b.col]))
+        along = origin[0] + depths[:, None] * direction[0]  # depths x 3
+        size = b.sigma * depths  # the blob's extent at each depth (pixel sigma x distance, up to the focal length)
+        support = np.ones(len(depths), np.int64)
+        matched: List[Tuple[int, np.ndarray]] = []  # per neighbour frame: its matched blob (index or -1) per depth
+        for f in range(b.frame - settings.neighbours, b.frame + settings.neighbours + 1):
+            if f == b.frame or f not in arrays:
+                continue
+            rows, cols, dist = geometry[f].project(along)
+            r, c, s, sign = arrays[f]
+            gap = np.hypot(rows[:, None] - r[None], cols[:, None] - c[None])  # depths x blobs
+            ratio = (s[None] * dist[:, None]) / np.maximum(size[:, None], 1e-12)
+            ok = (gap <= np.maximum(settings.match_px, 0.5 * s[None])) & (sign[None] == b.sign)
+            ok &= (ratio <= settings.size_ratio) & (ratio >= 1.0 / settings.size_ratio)
+            gap = np.where(ok, gap, np.inf)
+            match = np.where(ok.any(axis=1), np.argmin(gap, axis=1), -1)
+            support += match >= 0
+            matched.append((f, match))
+        best = int(np.argmax(support))
+        views[k] = int(support[best])
+        if support[best] >= settings.min_views:
+            origins, directions = [origin[0]], [direction[0]]
+            for f, match in matched:
+                if match[best] >= 0:
+                    j = by_frame[f][int(match[best])]
+                    o, d = geometry[f].rays(np.array([blobs[j].row]), np.array([blobs[j].col]))
+                    origins.append(o[0])
+                    directions.append(d[0])
+            points[k] = closest_point(np.stack(origins), np.stack(directions))
+    return Placed(points, views)
+
+
+def closest_point(origins: Float[np.ndarray, "m 3"], directions: Float[np.ndarray, "m 3"]) -> Float[np.ndarray, "3"]:
+    """The point nearest to every ray (least squares; unit ``directions``)."""
+    eye = np.eye(3)
+    projectors = eye[None] - directions[:, :, None] * directions[:, None, :]
+    return np.linalg.lstsq(projectors.sum(0), np.einsum("mij,mj->i", projectors, origins), rcond=None)[0]
+
+
+def group_bodies(points: Float[np.ndarray, "n 3"], radius: float) -> np.ndarray:
+    """One label per placed blob (-1 where a row is NaN): blobs within ``radius`` of a body's first blob are that body
+    (one fruit seen from many frames is one body)."""
+    labels = np.full(len(points), -1, np.int64)
+    centres: List[np.ndarray] = []
+    for k in np.flatnonzero(np.isfinite(points[:, 0])):
+        if centres:
+            gaps = np.linalg.norm(np.stack(centres) - points[k], axis=1)
+            nearest = int(np.argmin(gaps))
+            if gaps[nearest] <= radius:
+                labels[k] = nearest
+                continue
+        labels[k] = len(centres)
+        centres.append(points[k])
+    return labels
+
+
+def camera_step(geometry: Sequence[FrameGeometry]) -> float:
+    """The median distance between consecutive cameras (the unit of depth and height; 1 for a single frame)."""
+    centres = np.stack([g.rgb_c2w[:3, 3] for g in geometry])
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else 1.0
+
+
+def up_direction(geometry: Sequence[FrameGeometry]) -> Float[np.ndarray, "3"]:
+    """The cameras' mean up direction in the world (OpenCV cameras look down +z with +y down)."""
+    up = -np.mean([g.rgb_c2w[:3, 1] for g in geometry], axis=0)
+    return up / max(float(np.linalg.norm(up)), 1e-12)
+
+
+def ground_height(heights: Float[np.ndarray, " n"], bin_width: float, min_count: int = 5) -> Optional[float]:
+    """The height of the ground among the bodies' ``heights``: the lowest bin of ``bin_width`` that holds at least
+    ``min_count`` bodies and at least three times the median occupied bin (a plane puts its bodies at one height,
+    fruit spread over the canopy's); None where no bin stands out."""
+    heights = heights[np.isfinite(heights)]
+    if heights.size < min_count:
+        return None
+    edges = np.arange(heights.min(), heights.max() + bin_width, bin_width)
+    if len(edges) < 2:
+        return None
+    counts, edges = np.histogram(heights, bins=edges)
+    occupied = counts[counts > 0]
+    peaks = np.flatnonzero((counts >= min_count) & (counts >= 3.0 * np.median(occupied)))
+    if peaks.size == 0:
+        return None
+    k = int(peaks[0])
+    return float(edges[k + 1])  # the top of the ground's bin
+
+
+def decide_polarity(signs: Float[np.ndarray, " n"], margin: float) -> Tuple[Optional[Side], Dict[str, int]]:
+    """The fruit's side from the bodies' ``signs`` (+1 warm, -1 cool): the side with ``margin`` times the other's
+    bodies, else None (both kept); with the bodies per side."""
+    counts = {"warm": int(np.sum(signs > 0)), "cool": int(np.sum(signs < 0))}
+    if counts["warm"] >= margin * max(counts["cool"], 1) and counts["warm"] > 0:
+        return "warm", counts
+    if counts["cool"] >= margin * max(counts["warm"], 1) and counts["cool"] > 0:
+        return "cool", counts
+    return None, counts
+
+
+def _per_body(values: Float[np.ndarray, " n"], labels: np.ndarray, keep: Bool[np.ndarray, " n"]) -> np.ndarray:
+    """The mean of ``values`` over each body's kept blobs (one value per body)."""
+    keep = keep & (labels >= 0)
+    if not keep.any():
+        return np.zeros(0)
+    ids, inverse = np.unique(labels[keep], return_inverse=True)
+    return np.bincount(inverse, weights=values[keep]) / np.bincount(inverse)
+
+
+@dataclass
+class BodyDecision:
+    """Which blobs are fruit, and why the others are not (for the dataset's record)."""
+
+    fruit: Bool[np.ndarray, " n"]
+    placed: Bool[np.ndarray, " n"]
+    """Blobs seen at one place in ``min_views`` frames."""
+    polarity: Optional[Side]
+    bodies: Dict[str, int]
+    dropped: Dict[str, int]
+    ground: Optional[float]
+
+
+def decide_bodies(
+    blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settings: BodySettings, radiometric: bool
+) -> BodyDecision:
+    """Which ``blobs`` are fruit (see the module)."""
+    n = len(blobs)
+    if n == 0:
+        return BodyDecision(np.zeros(0, bool), np.zeros(0, bool), None, {"warm": 0, "cool": 0}, {}, None)
+    placed = place_blobs(blobs, geometry, settings)
+    signs = np.array([b.sign for b in blobs])
+    offsets = np.array([b.offset for b in blobs])
+    body = np.isfinite(placed.points[:, 0])
+    plausible = np.abs(offsets) <= settings.max_offset_c if radiometric else np.ones(n, bool)
+    step = camera_step(geometry)
+    labels = group_bodies(placed.points, settings.body_radius * step)
+    heights = placed.points @ up_direction(geometry)
+    ground = ground_height(_per_body(heights, labels, body & plausible), settings.ground_bin * step)
+    above = np.ones(n, bool) if ground is None else ~(heights <= ground + settings.ground_margin * step)
+    candidate = body & plausible & above
+    polarity, counts = decide_polarity(_per_body(signs, labels, candidate), settings.polarity_margin)
+    side = np.ones(n, bool) if polarity is None else signs == (1.0 if polarity == "warm" else -1.0)
+    dropped = {
+        "not placed": int((~body).sum()),
+        "too far off the canopy": int((body & ~plausible).sum()),
+        "ground": int((body & plausible & ~above).sum()),
+        "other side": int((candidate & ~side).sum()),
+    }
+    return BodyDecision(candidate & side, body, polarity, counts, dropped, ground)

@@ -1,0 +1,105 @@
+"""The thermal ``bodies`` rule: fruit decided in 3D across frames, the polarity read from the capture.
+
+A tiny thermal row is ray-cast here: a canopy plane at leaf temperature with gaps of cold sky, round fruit just in
+front of it, warm ground below it with warm patches of fruit size, cold sky above it. Its cameras move along the row
+as a rig does. One frame cannot tell the ground's patches from warm fruit or the sky's gaps from cool fruit; the
+rule must, for fruit warmer and fruit cooler than the leaves, without being told which.
+"""
+
+from typing import List, Tuple
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from agrinerf_ns.process.fruit_mask_makers import FRUIT, MaskMakerConfig, body_masks
+from agrinerf_ns.process.thermal_bodies import FrameGeometry, decide_polarity, ground_height
+
+LEAF, SKY, GROUND, PATCH = 15.0, 0.0, 18.5, 21.0
+CANOPY_Y, CANOPY_Z = 2.0, (0.55, 1.6)
+WIDTH, HEIGHT, FOCAL = 160, 120, 200.0
+K = np.array([[FOCAL, 0, WIDTH / 2], [0, FOCAL, HEIGHT / 2], [0, 0, 1.0]])
+THERMAL_CENTRE = np.array([0.05, 0.0, 0.0])  # beside the RGB camera, as on a rig
+RNG = np.random.default_rng(3)
+FRUIT_XZ = np.column_stack([RNG.uniform(-0.9, 0.9, 14), RNG.uniform(0.7, 1.45, 14)])
+GAP_XZ = np.column_stack([RNG.uniform(-0.9, 0.9, 8), RNG.uniform(0.7, 1.45, 8)])
+PATCH_XY = np.column_stack([RNG.uniform(-1.4, 1.4, 40), RNG.uniform(2.1, 3.2, 40)])
+
+
+def _pose(x: float) -> np.ndarray:
+    """RGB camera to world (OpenCV axes): at (x, 0, 0.8), looking along +y (the row), level."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])
+    c2w[:3, 3] = [x, 0.0, 0.8]
+    return c2w
+
+
+def _render(view: FrameGeometry, fruit_c: float, index: int) -> Tuple[np.ndarray, np.ndarray]:
+    """Temperature and true fruit of one warped thermal frame."""
+    rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    origin, direction = view.rays(rows.ravel(), cols.ravel())
+    image = np.full(rows.size, SKY)
+    truth = np.zeros(rows.size, bool)
+    # ground z = 0 (only rays going down reach it), with warm patches of fruit size
+    t_ground = np.where(direction[:, 2] < -1e-9, -origin[:, 2] / np.minimum(direction[:, 2], -1e-9), np.inf)
+    hit = origin + np.where(np.isfinite(t_ground), t_ground, 0.0)[:, None] * direction
+    patch = (np.hypot(hit[:, None, 0] - PATCH_XY[None, :, 0], hit[:, None, 1] - PATCH_XY[None, :, 1]) < 0.045).any(1)
+    ground = np.isfinite(t_ground)
+    image[ground] = np.where(patch, PATCH, GROUND)[ground]
+    # the canopy: a plane at CANOPY_Y with gaps of sky, in front of whatever lies behind it
+    t_canopy = (CANOPY_Y - origin[:, 1]) / direction[:, 1]
+    on = origin + t_canopy[:, None] * direction
+    in_gap = (np.hypot(on[:, None, 0] - GAP_XZ[None, :, 0], on[:, None, 2] - GAP_XZ[None, :, 1]) < 0.05).any(1)
+    leaf = (on[:, 2] > CANOPY_Z[0]) & (on[:, 2] < CANOPY_Z[1]) & ~in_gap & (t_canopy < t_ground)
+    texture = 0.3 * np.sin(7.0 * on[:, 0]) * np.cos(5.0 * on[:, 2])
+    image[leaf] = LEAF + texture[leaf]
+    behind_gap = in_gap & (t_canopy < t_ground)
+    image[behind_gap] = SKY
+    # fruit: discs of radius 4 cm facing the row, 8 cm in front of the canopy
+    t_fruit = (CANOPY_Y - 0.08 - origin[:, 1]) / direction[:, 1]
+    at = origin + t_fruit[:, None] * direction
+    on_fruit = (np.hypot(at[:, None, 0] - FRUIT_XZ[None, :, 0], at[:, None, 2] - FRUIT_XZ[None, :, 1]) < 0.04).any(1)
+    image[on_fruit] = fruit_c
+    truth[on_fruit] = True
+    noise = np.random.default_rng(index).normal(0, 0.1, rows.size)
+    return (image + noise).reshape(HEIGHT, WIDTH).astype(np.float32), truth.reshape(HEIGHT, WIDTH)
+
+
+def _capture(fruit_c: float, frames: int = 14) -> Tuple[List[FrameGeometry], List[np.ndarray], List[np.ndarray]]:
+    views = [FrameGeometry(K, _pose(x), THERMAL_CENTRE) for x in np.linspace(-0.45, 0.45, frames)]
+    rendered = [_render(v, fruit_c, k) for k, v in enumerate(views)]
+    return views, [r[0] for r in rendered], [r[1] for r in rendered]
+
+
+@pytest.mark.parametrize(("fruit_c", "side"), [(LEAF + 3.0, "warm"), (LEAF - 3.0, "cool")])
+def test_bodies_find_the_fruit_not_the_ground_or_the_sky_on_either_side(fruit_c: float, side: str) -> None:
+    views, images, truths = _capture(fruit_c)
+    seen = np.ones((HEIGHT, WIDTH), bool)
+    masks, record = body_masks([(im, seen) for im in images], views, MaskMakerConfig(), radiometric=True)
+    assert record["polarity"] == side, record
+    fruit = np.stack(masks) == FRUIT
+    truth = np.stack(truths)
+    assert truth.sum() > 500  # the scene shows its fruit
+    precision = (fruit & truth).sum() / max(fruit.sum(), 1)
+    recall = (fruit & truth).sum() / truth.sum()
+    assert precision > 0.7 and recall > 0.5, (precision, recall, record)
+    # every fruit region lies on a fruit: none on the ground's patches or in the sky's gaps
+    regions, found = ndimage.label(fruit)
+    assert found > 30 and all(truth[regions == r].any() for r in range(1, found + 1))
+    assert record["dropped"]["ground"] > 0 and record["ground_height"] is not None
+    # the per-frame rule (both sides, as the default was) takes the ground's patches or the sky's gaps for fruit
+    from agrinerf_ns.process.fruit_mask_makers import thermal_mask
+
+    blobs = np.stack([thermal_mask(im, seen, MaskMakerConfig(thermal_rule="blobs")) == FRUIT for im in images])
+    regions, found = ndimage.label(blobs)
+    assert sum(not truth[regions == r].any() for r in range(1, found + 1)) > 10
+
+
+def test_the_ground_is_the_low_peak_of_heights_and_the_polarity_needs_a_margin() -> None:
+    rng = np.random.default_rng(0)
+    heights = np.concatenate([rng.normal(0.0, 0.01, 40), rng.uniform(0.5, 1.5, 60)])
+    ground = ground_height(heights, 0.05)
+    assert ground is not None and 0.0 < ground < 0.1
+    assert ground_height(rng.uniform(0.5, 1.5, 60), 0.05) is None  # fruit alone: no plane
+    assert decide_polarity(np.array([1.0] * 30 + [-1.0] * 10), 1.5)[0] == "warm"
+    assert decide_polarity(np.array([1.0] * 12 + [-1.0] * 10), 1.5)[0] is None  # too close to call: both kept
