@@ -306,6 +306,7 @@ def _write_outputs(
         "merge_distance": result.merge_distance,
         "depth_spread": result.depth_spread,
         "max_range": config.max_range,
+        "poses": renders.poses,
         "detections": len(result.detections),
         "detections_per_view": result.detections_per_view,
     }

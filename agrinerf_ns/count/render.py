@@ -12,8 +12,9 @@ So a pixel's surface point is ``origin + direction * depth`` in Nerfstudio's (da
 
 from __future__ import annotations
 
+import copy
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Dict, List, Optional, Sequence
 
@@ -143,6 +144,9 @@ class RenderSet:
     dark: Optional[bool] = None
     """Whether the run's RGB frames are dark by its model's low-light rule (None: not known, e.g. a render folder
     written before it was recorded); it decides the view path's ``auto`` source."""
+    poses: Dict[str, str] = field(default_factory=dict)
+    """Where the rendered views' poses come from: the dataset's pose ``source`` (odometry ``given``, ``sfm-rgb``,
+    ...) and, per split, whether the run's pose refinement was applied (:func:`refined_camera`)."""
 
     def outputs(self) -> RunOutputs:
         """The sources its views hold (those of the first: every view of a run renders the same outputs)."""
@@ -193,6 +197,8 @@ def render_loaded_run(
             dataset = datasets[split]
             for index in range(0 if dataset is None else len(dataset)):
                 camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
+                if split == "train":  # the poses the field was trained at, refined where the run refined them
+                    camera = refined_camera(run.pipeline.model, camera, index)
                 with torch.no_grad():
                     rays = camera.generate_rays(camera_indices=0, keep_shape=True)
                     outputs = run.pipeline.model.get_outputs_for_camera(camera)
@@ -201,10 +207,46 @@ def render_loaded_run(
                     view.file_path = relative_path(Path(dataset.image_filenames[index]), dataset_dir)
                 views.append(view)
                 progress.advance(task)
-    result = RenderSet(views, frame, dataset_dir, config_path, run.method, rgb_frames_dark(run.pipeline.model))
+    result = RenderSet(views, frame, dataset_dir, config_path, run.method, rgb_frames_dark(run.pipeline.model),
+                       pose_record(run.pipeline.model, dataset_dir))  # fmt: skip
     if out_dir is not None:
         save_renders(result, Path(out_dir))
     return result
+
+
+def refinement_mode(model: Any) -> str:
+    """The run's pose refinement (Nerfstudio's camera optimizer mode; ``off`` without one)."""
+    optimizer = getattr(model, "camera_optimizer", None)
+    return str(getattr(getattr(optimizer, "config", None), "mode", "off"))
+
+
+def refined_camera(model: Any, camera: Any, index: int) -> Any:
+    """Training camera ``index`` at the pose the run refined it to (Nerfstudio applies the camera optimizer to
+    training rays only, so a render at the dataset's pose would sit where the field was not fitted); unchanged when
+    the run did not refine poses."""
+    import torch
+
+    if refinement_mode(model) == "off":
+        return camera
+    adjusted = copy.copy(camera)
+    adjusted.metadata = {**(camera.metadata or {}), "cam_idx": index}
+    with torch.no_grad():
+        adjusted.camera_to_worlds = model.camera_optimizer.apply_to_camera(adjusted)
+    return adjusted
+
+
+def pose_record(model: Any, dataset_dir: Optional[Path]) -> Dict[str, str]:
+    """Where the views' poses come from (:attr:`RenderSet.poses`)."""
+    source = "unknown"
+    if dataset_dir is not None and (dataset_dir / "transforms.json").is_file():
+        try:
+            meta = json.loads((dataset_dir / "transforms.json").read_text()).get("agrinerf", {})
+            source = str(meta.get("poses", {}).get("source", "unknown"))
+        except (json.JSONDecodeError, AttributeError):
+            pass
+    mode = refinement_mode(model)
+    train = "as in the dataset" if mode == "off" else f"refined by the run ({mode})"
+    return {"source": source, "train_views": train, "eval_views": "as in the dataset"}
 
 
 def dataset_folder(data: Path) -> Path:
@@ -268,6 +310,7 @@ def save_renders(renders: RenderSet, out_dir: Path) -> None:
         "dataparser_transform": renders.frame.transform.tolist(),
         "dataparser_scale": renders.frame.scale,
         "rgb_dark": renders.dark,
+        "poses": renders.poses,
         "views": [{"name": v.name, "split": v.split, "file_path": v.file_path} for v in renders.views],
     }
     (out_dir / RENDERS_JSON).write_text(json.dumps(meta, indent=1) + "\n")
@@ -318,4 +361,4 @@ def load_renders(folder: Path) -> RenderSet:
             )
     dataset = Path(meta["dataset"]) if meta.get("dataset") else None
     config = Path(meta["config"]) if meta.get("config") else None
-    return RenderSet(views, frame, dataset, config, meta.get("method"), meta.get("rgb_dark"))
+    return RenderSet(views, frame, dataset, config, meta.get("method"), meta.get("rgb_dark"), meta.get("poses", {}))
