@@ -180,7 +180,7 @@ def render_held_out(config_path: Path, raw: Path, max_views: int) -> List[HeldOu
     """Render ``max_views`` evenly spaced eval views of a trained run with every output its model has, beside the
     captured frames and the clean truth."""
     from agrinerf_ns.checkpoint_eval import TruthImages
-    from agrinerf_ns.detect.render_views import load_run, render_camera
+    from agrinerf_ns.run_loading import load_run, render_camera
     from agrinerf_ns.views import evenly_spaced
 
     run = load_run(config_path)

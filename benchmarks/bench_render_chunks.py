@@ -51,7 +51,7 @@ class Args:
 def render_in_process(config: Path, chunk: int, views: int, out: Path) -> Dict[str, float]:
     """Load the run with ``chunk`` rays per chunk, render ``views`` held-out views (all outputs), save them to ``out``
     (``.npz``); returns seconds spent rendering and peak RSS (MiB) after loading and after rendering."""
-    from agrinerf_ns.detect.render_views import load_run, render_camera
+    from agrinerf_ns.run_loading import load_run, render_camera
     from agrinerf_ns.views import evenly_spaced
 
     run = load_run(config, eval_num_rays_per_chunk=chunk)

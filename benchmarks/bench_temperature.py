@@ -102,7 +102,7 @@ def machine() -> str:
 def main(args: Args) -> Dict:
     import torch
 
-    from agrinerf_ns.detect.render_views import load_run, render_camera
+    from agrinerf_ns.run_loading import load_run, render_camera
 
     run = load_run(args.config)
     model = run.pipeline.model

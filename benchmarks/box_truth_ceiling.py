@@ -22,9 +22,9 @@ import torch
 import tyro
 
 from agrinerf_ns.count.render import WorldFrame
-from agrinerf_ns.detect.render_views import load_run
 from agrinerf_ns.lab.count_oracle import oracle_renders
 from agrinerf_ns.model.grid_mapping import box_voxel, smallest_box
+from agrinerf_ns.run_loading import load_run
 
 
 @dataclass

@@ -33,7 +33,7 @@ class Args:
 
 
 def main(args: Args) -> str:
-    from agrinerf_ns.detect.render_views import load_run
+    from agrinerf_ns.run_loading import load_run
 
     config = trained_run_config(args.run)
     frame = WorldFrame.read(config.parent / "dataparser_transforms.json")

@@ -19,9 +19,9 @@ import imageio.v3 as iio
 import numpy as np
 import tyro
 
-from agrinerf_ns.count.blobs import BlobConfig
-from agrinerf_ns.count.fruit_regions import fruit_regions
 from agrinerf_ns.count.render import load_renders
+from agrinerf_ns.fruit.blobs import BlobConfig
+from agrinerf_ns.fruit.regions import fruit_regions
 
 
 @dataclass

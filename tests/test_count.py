@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from helpers.tiny_scene import cast_sphere_view
 
-from agrinerf_ns.count.blobs import BlobConfig, detect_blobs, surround_sides
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
 from agrinerf_ns.count.detectors import DetectorConfig, view_source
@@ -37,6 +36,7 @@ from agrinerf_ns.count.render import (
     save_renders,
 )
 from agrinerf_ns.count.support import keep_supported, views_showing
+from agrinerf_ns.fruit.blobs import BlobConfig, detect_blobs, surround_sides
 from agrinerf_ns.lab.count_diagnose import diagnose
 from agrinerf_ns.lab.count_oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
@@ -186,8 +186,8 @@ def test_the_yolo_detector_gives_each_box_as_its_ellipse_where_rendered(tmp_path
     detection is the inscribed ellipse of one of the model's boxes on the view's 8-bit RGB, cut to rendered pixels."""
     pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
     from agrinerf_ns.count.detectors import make_detector
-    from agrinerf_ns.detect.boxes import inscribed_ellipse
-    from agrinerf_ns.detect.detector import box_predictor, configure_offline
+    from agrinerf_ns.fruit.ellipse import inscribed_ellipse
+    from agrinerf_ns.fruit.yolo import box_predictor, configure_offline
 
     configure_offline()
     from ultralytics import YOLO

@@ -1,5 +1,5 @@
 """`agrinerf-count --source fruit` on the view path: the regions of a view's rendered fruit probability, touching
-fruit split apart, sized in the dataset's units (`agrinerf_ns/count/fruit_regions.py`)."""
+fruit split apart, sized in the dataset's units (`agrinerf_ns/fruit/regions.py`)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from typing import List, Tuple
 import numpy as np
 import pytest
 
-from agrinerf_ns.count.blobs import BlobConfig
-from agrinerf_ns.count.fruit_regions import fruit_regions, split_touching
 from agrinerf_ns.count.render import RenderedView
+from agrinerf_ns.fruit.blobs import BlobConfig
+from agrinerf_ns.fruit.regions import fruit_regions, split_touching
 
 SIZE, FOCAL, DEPTH = 64, 64.0, 1.0
 CONFIG = BlobConfig(min_diameter=0.1, max_diameter=0.3)

@@ -15,10 +15,11 @@ import pytest
 from agrinerf_ns.detect.boxes import MissingTruthError, SceneTruth, list_images
 from agrinerf_ns.detect.detector import DetectorConfig
 from agrinerf_ns.detect.eval_plan import MethodSpec, SceneSpec, check_scene
-from agrinerf_ns.detect.render_views import MissingOutputError, load_run, render_pipeline_views
+from agrinerf_ns.detect.render_views import MissingOutputError, render_pipeline_views
 from agrinerf_ns.detect.settings import EvalSettings
 from agrinerf_ns.lab.paper_cli import entrypoint
 from agrinerf_ns.lab.paper_eval import evaluate_plan
+from agrinerf_ns.run_loading import load_run
 
 
 @pytest.fixture(scope="module")

@@ -203,7 +203,7 @@ def test_the_yolo_maker_writes_box_masks_from_a_real_detector(tmp_path: Path) ->
     pytest.importorskip("ultralytics", reason="optional [detect] extra: scripts/install_detect.sh")
     import json
 
-    from agrinerf_ns.detect.detector import box_predictor, configure_offline
+    from agrinerf_ns.fruit.yolo import box_predictor, configure_offline
     from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, box_mask
 
     configure_offline()

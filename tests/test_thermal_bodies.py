@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from agrinerf_ns.fruit.thermal_bodies import FrameGeometry, decide_polarity, ground_height
 from agrinerf_ns.process.fruit_mask_makers import FRUIT, MaskMakerConfig, body_masks
-from agrinerf_ns.process.thermal_bodies import FrameGeometry, decide_polarity, ground_height
 
 LEAF, SKY, GROUND, PATCH = 15.0, 0.0, 18.5, 21.0
 CANOPY_Y, CANOPY_Z = 2.0, (0.55, 1.6)

@@ -2,7 +2,7 @@
 the rendered depth, fuse them across views into fruit, and score the fruit map against a synthetic capture's truth.
 
 One module per job: :mod:`~agrinerf_ns.count.render` (views with depth and rays, cached as ``.npz``),
-:mod:`~agrinerf_ns.count.blobs` and :mod:`~agrinerf_ns.count.detectors` (fruit masks per view; the default needs only
+:mod:`~agrinerf_ns.fruit.blobs` and :mod:`~agrinerf_ns.count.detectors` (fruit masks per view; the default needs only
 OpenCV, YOLO is the optional AGPL extra, imported lazily), :mod:`~agrinerf_ns.count.lift` (pixels to a 3D centre and
 diameter), :mod:`~agrinerf_ns.count.cluster` (detections to fruit), :mod:`~agrinerf_ns.count.fruit_score` (against the
 truth), :mod:`~agrinerf_ns.count.write` (CSV, PLY, map), :mod:`~agrinerf_ns.count.pipeline` (the steps in order),

@@ -64,7 +64,7 @@ def main(args: CountArgs) -> CountResult:
         config = trained_run_config(args.config) if args.config is not None else None
         count, loaded = args.count, None
         if args.path == "auto" and config is not None:
-            from agrinerf_ns.detect.render_views import load_run
+            from agrinerf_ns.run_loading import load_run
 
             loaded = load_run(config)  # loaded once: the plan reads its model, the chosen path counts it
             plan = choose_plan(loaded.pipeline.model)

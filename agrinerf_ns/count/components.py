@@ -6,7 +6,7 @@ filter over the grid, normalised by the voxels it covers), in units of the robus
 difference over all of them; a voxel beyond ``threshold`` is a fruit voxel. With ``polarity both`` warm and cool
 voxels are grouped apart (a seed's fruit are all warmer or all cooler than its leaves, the ground and bark can be
 either). Source ``fruit``: the fruit head's probability reaches ``fruit_probability``. RGB: the fruit-colour score
-of :func:`agrinerf_ns.count.blobs.fruit_colour` (red to yellow saturation after
+of :func:`agrinerf_ns.fruit.colour_score.fruit_colour` (red to yellow saturation after
 scaling the voxels' 99th brightness percentile to 1), warm polarity only.
 
 *Fruit-sized*: a 26-connected component of fruit voxels is a fruit when its diameter (``2 sqrt(5 l1)``, with l1 the
@@ -19,16 +19,16 @@ rule for a fruit visible from the capture).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Literal, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.count.cluster import Fruit
 from agrinerf_ns.count.volume import SampledField, mask_of, views_showing_pixels
+from agrinerf_ns.fruit.contrast import Polarity
 from agrinerf_ns.robust import robust_spread
 
-Polarity = Literal["both", "warm", "cool"]
 DIAMETER_PER_SD = 2.0 * np.sqrt(5.0)
 """A solid ball's diameter over the standard deviation of its points along any axis."""
 
@@ -88,7 +88,7 @@ def _feature(sampled: SampledField) -> Float[np.ndarray, " n"]:
     """One value per voxel: the source output, or the fruit-colour score of the RGB output."""
     if sampled.source != "rgb" or len(sampled.feature) == 0:
         return sampled.feature[:, 0].astype(np.float32)
-    from agrinerf_ns.count.blobs import fruit_colour
+    from agrinerf_ns.fruit.colour_score import fruit_colour
 
     rgb = sampled.feature.astype(np.float32).reshape(-1, 1, 3)
     return fruit_colour(rgb, np.ones(rgb.shape[:2], bool))[:, 0]

@@ -1,6 +1,6 @@
-"""Fruit detectors for counting: ``blobs`` (OpenCV, the default; :mod:`agrinerf_ns.count.blobs`) or ``yolo``
+"""Fruit detectors for counting: ``blobs`` (OpenCV, the default; :mod:`agrinerf_ns.fruit.blobs`) or ``yolo``
 (weights trained by ``agrinerf-detect``; Ultralytics is the optional AGPL-3.0 extra and is imported only here,
-by :func:`agrinerf_ns.detect.detector.box_predictor`, when it is asked for)."""
+by :func:`agrinerf_ns.fruit.yolo.box_predictor`, when it is asked for)."""
 
 from __future__ import annotations
 
@@ -11,11 +11,12 @@ from typing import Annotated, Callable, List, Literal, Optional
 import numpy as np
 import tyro
 
-from agrinerf_ns.count.blobs import MIN_ACCUMULATION, BlobConfig, Detection, detect_blobs
-from agrinerf_ns.count.fruit_regions import fruit_regions
 from agrinerf_ns.count.render import RenderedView
 from agrinerf_ns.count.sources import CountSource, resolve_source
-from agrinerf_ns.detect.boxes import inscribed_ellipse
+from agrinerf_ns.fruit.blobs import BlobConfig, Detection, detect_blobs
+from agrinerf_ns.fruit.ellipse import inscribed_ellipse
+from agrinerf_ns.fruit.regions import fruit_regions
+from agrinerf_ns.fruit.view import MIN_ACCUMULATION
 from agrinerf_ns.images import to_uint8
 
 DetectorName = Literal["blobs", "yolo"]
@@ -71,7 +72,7 @@ def view_source(config: DetectorConfig, view: RenderedView) -> str:
 
 def yolo_detector(config: DetectorConfig) -> Detector:
     """YOLO boxes on a view's ``config.source`` image; a box's pixels are its inscribed ellipse (where rendered)."""
-    from agrinerf_ns.detect.detector import box_predictor
+    from agrinerf_ns.fruit.yolo import box_predictor
 
     predict = box_predictor(config.weights, config.confidence, hint="--detector yolo needs --weights PATH")
 

@@ -22,7 +22,7 @@ from agrinerf_ns.count.sources import CountSource, field_outputs, resolve_source
 from agrinerf_ns.count.volume import SampledField, VolumeConfig, render_depth_views, sample_field
 
 if TYPE_CHECKING:
-    from agrinerf_ns.detect.render_views import LoadedRun
+    from agrinerf_ns.run_loading import LoadedRun
 
 
 @dataclass(frozen=True)
@@ -116,8 +116,8 @@ def run_field_count(
 ) -> Tuple[CountResult, Dict[str, Any]]:
     """Count the fruit of the trained run at ``run`` (folder or config.yml) in 3D and write ``out`` atomically; with
     ``truth`` (a synthetic capture) also score it (``score``: match distance, alignment, visibility); ``loaded``: the
-    run already loaded (``agrinerf_ns.detect.render_views.load_run``)."""
-    from agrinerf_ns.detect.render_views import load_run
+    run already loaded (``agrinerf_ns.run_loading.load_run``)."""
+    from agrinerf_ns.run_loading import load_run
 
     config_path = trained_run_config(run)
     out = Path(out)

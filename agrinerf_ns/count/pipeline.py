@@ -15,7 +15,6 @@ from rich.console import Console
 from rich.progress import Progress
 
 from agrinerf_ns.atomic import atomic_output_dir
-from agrinerf_ns.count.blobs import MIN_ACCUMULATION
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector, view_source
 from agrinerf_ns.count.fruit_score import (
@@ -48,9 +47,10 @@ from agrinerf_ns.count.row_range import fruit_in_range, in_range
 from agrinerf_ns.count.sources import resolve_source
 from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
+from agrinerf_ns.fruit.view import MIN_ACCUMULATION
 
 if TYPE_CHECKING:
-    from agrinerf_ns.detect.render_views import LoadedRun
+    from agrinerf_ns.run_loading import LoadedRun
 
 CONSOLE = Console()
 FLAT_DEPTH = 0.02
@@ -247,7 +247,7 @@ def run_count(
 ) -> CountResult:
     """Render the run at ``run_config`` (or read ``renders_dir``), count its fruit and write ``out`` atomically:
     fruits.csv, fruits.ply, fruit_map.png, count.json, with ``truth`` also score.md; renders/ when ``save_renders``;
-    ``loaded``: the run at ``run_config`` already loaded (``agrinerf_ns.detect.render_views.load_run``)."""
+    ``loaded``: the run at ``run_config`` already loaded (``agrinerf_ns.run_loading.load_run``)."""
     if (run_config is None) == (renders_dir is None):
         raise ValueError("give exactly one of --config RUN/config.yml and --renders FOLDER")
     out = Path(out)

@@ -25,7 +25,7 @@ from agrinerf_ns.count.errors import CountInputError
 from agrinerf_ns.count.sources import RunOutputs, rgb_frames_dark
 
 if TYPE_CHECKING:
-    from agrinerf_ns.detect.render_views import LoadedRun
+    from agrinerf_ns.run_loading import LoadedRun
 
 RENDERS_JSON = "renders.json"
 OPTIONAL_OUTPUTS = ("thermal", "temperature", "fruit", "fruit_depth")
@@ -164,7 +164,7 @@ def render_run(
     Raises :class:`CountInputError` naming the config when the model renders no ``depth`` (checked on the first
     view) or the run folder lacks ``dataparser_transforms.json``.
     """
-    from agrinerf_ns.detect.render_views import load_run
+    from agrinerf_ns.run_loading import load_run
 
     config_path = Path(config_path)
     transforms = config_path.parent / "dataparser_transforms.json"
@@ -178,7 +178,7 @@ def render_run(
 def render_loaded_run(
     run: "LoadedRun", out_dir: Optional[Path] = None, splits: Sequence[str] = ("train", "eval")
 ) -> RenderSet:
-    """:func:`render_run` of a run already loaded (``agrinerf_ns.detect.render_views.load_run``), e.g. one whose field a
+    """:func:`render_run` of a run already loaded (``agrinerf_ns.run_loading.load_run``), e.g. one whose field a
     count has just sampled: the checkpoint is not read twice."""
     import torch
     from rich.progress import Progress

@@ -19,11 +19,10 @@ import numpy as np
 from jaxtyping import Bool, Float, Int
 
 from agrinerf_ns.count.render import CountInputError, WorldFrame
+from agrinerf_ns.fruit.view import MIN_ACCUMULATION
 
 CHUNK = 1 << 18
 """Points per field evaluation."""
-MIN_ACCUMULATION = 0.5
-"""Rendered pixels below this accumulation are sky or nothing: no surface point, no visibility."""
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The paper's Table III from the fruit head: the rendered fruit channel's regions as box detections.
 
 Beside a detector on rendered images (YOLO, the AGPL extra), a run with a fruit head needs none: in each held-out
-view the regions of its rendered ``fruit`` probability (`agrinerf_ns.count.fruit_regions`, the same regions the count
+view the regions of its rendered ``fruit`` probability (`agrinerf_ns.fruit.regions`, the same regions the count
 lifts into 3D) are the detections, each boxed by its pixels' extent and scored by its mean probability, and are
 matched against the scene's true boxes as YOLO's are (`box_metrics`). The views come from `agrinerf-count`'s render
 folder (``OUT/renders``), which holds the held-out cameras at the training resolution, so nothing is rendered again.
@@ -17,8 +17,6 @@ from typing import Dict, List, Sequence, Tuple
 import numpy as np
 from jaxtyping import Float
 
-from agrinerf_ns.count.blobs import BlobConfig
-from agrinerf_ns.count.fruit_regions import fruit_regions
 from agrinerf_ns.count.render import RenderedView, load_renders
 from agrinerf_ns.detect.bootstrap import (
     BOOTSTRAP_RESAMPLES,
@@ -32,6 +30,8 @@ from agrinerf_ns.detect.bootstrap import (
 )
 from agrinerf_ns.detect.box_metrics import DetectionMetrics, ImageBoxes, rates, score_detections
 from agrinerf_ns.detect.boxes import MIN_BOX_PIXELS, SceneTruth, yolo_to_xyxy
+from agrinerf_ns.fruit.blobs import BlobConfig
+from agrinerf_ns.fruit.regions import fruit_regions
 
 
 def channel_boxes(

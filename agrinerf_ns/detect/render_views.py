@@ -1,7 +1,8 @@
 """Render a trained Nerfstudio method's views to image files for detection.
 
-Generic over methods: the saved run is loaded with Nerfstudio's ``eval_setup`` (:func:`load_run`) and each camera of
-the chosen split is rendered with ``pipeline.model.get_outputs_for_camera`` (:func:`render_pipeline_views`).
+Generic over methods: the saved run is loaded with Nerfstudio's ``eval_setup``
+(:func:`agrinerf_ns.run_loading.load_run`) and each camera of the chosen split is rendered with
+``pipeline.model.get_outputs_for_camera`` (:func:`render_pipeline_views`).
 ``output="rgb"`` writes the (H, W, 3) colour, ``"thermal"`` the (H, W, 1) cross-spectral channel in [0, 1]
 (AgriNeRF's thermal head) as 8-bit PNGs named by the frame's stem, so :mod:`agrinerf_ns.detect.boxes` finds their
 true boxes.
@@ -10,12 +11,12 @@ true boxes.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Literal, Optional
+from typing import List, Literal, Optional
 
 from agrinerf_ns.images import to_uint8
-from agrinerf_ns.views import evenly_spaced, rays_per_chunk
+from agrinerf_ns.run_loading import LoadedRun, load_run, render_camera
+from agrinerf_ns.views import evenly_spaced
 
 Output = Literal["rgb", "thermal"]
 Split = Literal["eval", "train"]
@@ -23,46 +24,6 @@ Split = Literal["eval", "train"]
 
 class MissingOutputError(ValueError):
     """The method does not render the requested output (for example no ``thermal`` for a cross-spectral run)."""
-
-
-@dataclass
-class LoadedRun:
-    """A trained run loaded for rendering."""
-
-    config_path: Path
-    method: Optional[str]
-    """The config's ``method_name`` (Nerfstudio types it optional)."""
-    pipeline: Any
-    checkpoint: Path
-    step: int
-
-
-def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -> LoadedRun:
-    """Load a saved Nerfstudio run (config.yml + latest checkpoint) with its train and eval datasets, rendering
-    ``eval_num_rays_per_chunk`` rays at once (None: :func:`agrinerf_ns.views.rays_per_chunk`)."""
-    from agrinerf_ns import compat
-
-    compat.activate()
-    from nerfstudio.utils.eval_utils import eval_setup
-
-    config_path = Path(config_path)
-    if not config_path.is_file():
-        raise FileNotFoundError(
-            f"{config_path}: no such Nerfstudio run config (outputs/<name>/<method>/<time>/config.yml)"
-        )
-    config, pipeline, checkpoint, step = eval_setup(
-        config_path, eval_num_rays_per_chunk=rays_per_chunk(eval_num_rays_per_chunk), test_mode="test"
-    )
-    return LoadedRun(config_path, config.method_name, pipeline, Path(checkpoint), int(step))
-
-
-def render_camera(run: LoadedRun, dataset: Any, index: int) -> Dict[str, Any]:
-    """Every output of the run's model (tensors of shape (H, W, C)) at camera ``index`` of ``dataset``, no gradients."""
-    import torch
-
-    camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
-    with torch.no_grad():
-        return run.pipeline.model.get_outputs_for_camera(camera)
 
 
 def render_pipeline_views(

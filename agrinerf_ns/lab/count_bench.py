@@ -38,7 +38,7 @@ from agrinerf_ns.lab.results import seed_base
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.field_count import FieldCountConfig
-    from agrinerf_ns.detect.render_views import LoadedRun
+    from agrinerf_ns.run_loading import LoadedRun
 
 VIEW_SOURCES: Tuple[CountSource, ...] = VIEW_ORDER
 VIEW_PLACEMENTS: Dict[str, bool] = {"views": False, "views-rays": True}
@@ -126,7 +126,7 @@ def count_run_rows(
     ``field_config``: the field path's `FieldCountConfig` (None: its defaults)."""
     from agrinerf_ns.count.field_count import FieldCountConfig, trained_run_config
     from agrinerf_ns.count.sources import field_outputs
-    from agrinerf_ns.detect.render_views import load_run
+    from agrinerf_ns.run_loading import load_run
 
     config = trained_run_config(config)
     frame = WorldFrame.read(config.parent / "dataparser_transforms.json")

@@ -17,12 +17,12 @@ from typing import Dict, List, Optional
 from agrinerf_ns.detect.boxes import list_images
 from agrinerf_ns.detect.eval_plan import SceneSpec, check_scene
 from agrinerf_ns.detect.figure import PanelBoxes, detection_figure
-from agrinerf_ns.detect.render_views import LoadedRun
 from agrinerf_ns.detect.score_folder import score_render_folder
 from agrinerf_ns.detect.settings import EvalSettings
 from agrinerf_ns.detect.training import train_scene_detectors, trained_scene_detectors
 from agrinerf_ns.lab.paper_render_cache import cached_render, slug
 from agrinerf_ns.lab.paper_tables import ResultRow, machine_note, write_tables
+from agrinerf_ns.run_loading import LoadedRun
 
 
 @dataclass
@@ -37,7 +37,7 @@ def evaluate_scene(
     """Check the scene (:func:`~agrinerf_ns.detect.eval_plan.check_scene`), then render, train detectors, detect and
     score every method.
 
-    ``runs``: runs already loaded (:func:`~agrinerf_ns.detect.render_views.load_run`) by config path; others are loaded
+    ``runs``: runs already loaded (:func:`~agrinerf_ns.run_loading.load_run`) by config path; others are loaded
     here. Each is released once its views are rendered (one pipeline in memory at a time).
     """
     check_scene(scene, settings.min_box_pixels)

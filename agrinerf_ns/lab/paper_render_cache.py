@@ -9,8 +9,9 @@ from typing import Dict
 
 from agrinerf_ns.detect.boxes import list_images
 from agrinerf_ns.detect.eval_plan import MethodSpec
-from agrinerf_ns.detect.render_views import LoadedRun, Split, load_run, render_pipeline_views
+from agrinerf_ns.detect.render_views import Split, render_pipeline_views
 from agrinerf_ns.detect.settings import EvalSettings
+from agrinerf_ns.run_loading import LoadedRun, load_run
 
 
 def slug(text: str) -> str:

@@ -1,8 +1,8 @@
 """Built-in fruit masks from the captured frames (``agrinerf-process --fruit-mask-maker``), never from renders.
 
 - ``colour``: on the RGB frame, white-balanced (grey world), the fruit-colour score (red to yellow saturation,
-  ``count/blobs.py:fruit_colour``) standing out from its surroundings (difference of Gaussians in robust spreads,
-  ``count/blobs.py:contrast``) by ``colour_threshold`` and reaching ``min_colour_score`` is fruit, the rest
+  ``fruit/colour_score.py``) standing out from its surroundings (difference of Gaussians in robust spreads,
+  ``fruit/contrast.py``) by ``colour_threshold`` and reaching ``min_colour_score`` is fruit, the rest
   background; fruit regions under ``min_region_pixels`` are left unknown.
 - ``thermal``: on the thermal frame warped into the RGB camera (its temperature where the capture is radiometric),
   the fruit-sized blobs that differ from the canopy's temperature (warmer, cooler or either: ``polarity``) are fruit,
@@ -31,29 +31,21 @@ import numpy as np
 from jaxtyping import Bool, Float, Shaped, UInt8
 from scipy import ndimage
 
+from agrinerf_ns.fruit.colour_score import fruit_colour
+from agrinerf_ns.fruit.contrast import Polarity, contrast
+from agrinerf_ns.fruit.ellipse import inscribed_ellipse
+from agrinerf_ns.fruit.thermal_blobs import Blob, blob_discs, thermal_blob_list, thermal_blobs
+from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, decide_bodies
+from agrinerf_ns.fruit.yolo import INSTALL_HINT, box_predictor
 from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
 from agrinerf_ns.modalities import DARK_RGB_LEVEL
 from agrinerf_ns.process.readers import RigCalib
-from agrinerf_ns.process.thermal_bodies import Blob, BodySettings, FrameGeometry, decide_bodies
-from agrinerf_ns.robust import robust_spread
 from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
 
 MaskMaker = Literal["none", "colour", "thermal", "auto", "yolo"]
 ColourBalance = Literal["none", "grey-world"]
-
-
-MIN_BLOB_SIGMA = 1.5
-"""The ``blobs`` rule's smallest scale in pixels (a disc about 4 px across) on any frame size: below it the Laplacian
-answers single noisy pixels."""
-
-
-MAX_CURVATURE_RATIO = 3.0
-"""A ``blobs`` blob whose principal curvatures differ by more than this factor is a ridge, not a fruit
-(`curvature_ratio`; `count.blobs.elongation` measures a mask's shape instead)."""
-MIN_DISC_SHARE = 0.9
-"""A ``blobs`` blob whose disc lies less than this share inside the seen frame is not taken."""
 
 
 @dataclass(frozen=True)
@@ -76,7 +68,7 @@ class MaskMakerConfig:
     speck of noise is not taught as fruit, a sliver of a hidden fruit not as background; 0: all kept)."""
     thermal_rule: Literal["bodies", "blobs", "contrast"] = "bodies"
     """``bodies``: the fruit-sized blobs of every thermal frame, decided in 3D across the capture with its poses
-    (`process/thermal_bodies.py`: a body seen at one place in several frames, near the leaves' temperature, above the
+    (`fruit/thermal_bodies.py`: a body seen at one place in several frames, near the leaves' temperature, above the
     ground, on the side of the leaves' temperature where the capture's bodies are; no polarity to set);
     ``blobs``: fruit-sized blobs of the thermal frame (its temperature where the dataset has one), found by the
     scale-normalised Laplacian of Gaussian over the sizes of `thermal_sizes` and filled as discs; ``contrast``: the
@@ -93,7 +85,7 @@ class MaskMakerConfig:
     """``blobs``: a blob's median differs from the canopy's value (the mode of the frame's values: leaves fill a
     tree row's frames) by at least this many robust spreads, on its own side: a cluster of leaves against the sky is
     a blob too, but at the leaves' temperature."""
-    polarity: Literal["warm", "cool", "both"] = "both"
+    polarity: Polarity = "both"
     """``blobs``, ``contrast``: thermal fruit warmer than their surroundings, cooler, or either (the synthetic scenes
     draw warm or cool fruit per seed; set to the scene's, it halves the false fruit where the other side holds sky
     gaps or warm ground: results/fruit-masks-dark). ``bodies`` reads the side from the capture instead."""
@@ -115,8 +107,6 @@ class MaskMakerConfig:
 
 def colour_mask(rgb: UInt8[np.ndarray, "h w 3"], config: MaskMakerConfig) -> UInt8[np.ndarray, "h w"]:
     """Fruit where the fruit colour stands out (see the module)."""
-    from agrinerf_ns.count.blobs import contrast, fruit_colour
-
     valid = np.ones(rgb.shape[:2], bool)
     image = rgb.astype(np.float32) / 255.0
     if config.colour_balance == "grey-world":
@@ -144,93 +134,13 @@ def thermal_mask(
         return np.full(thermal.shape, UNKNOWN, np.uint8)
     thermal = thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
     if config.thermal_rule != "contrast":  # one frame: the bodies rule has only its blobs
-        fruit = thermal_blobs(thermal, seen, config)
+        fruit = thermal_blobs(thermal, seen, sizes=config.thermal_sizes, polarity=config.polarity,
+                              threshold=config.blob_threshold, min_canopy_offset=config.min_canopy_offset)  # fmt: skip
     else:
-        from agrinerf_ns.count.blobs import contrast
-
         z = contrast(thermal, seen, config.background_sigma)
         t = config.thermal_threshold
         fruit = {"warm": z >= t, "cool": z <= -t, "both": np.abs(z) >= t}[config.polarity]
     return np.where(~seen, UNKNOWN, np.where(fruit, FRUIT, BACKGROUND)).astype(np.uint8)
-
-
-def thermal_blobs(
-    thermal: Float[np.ndarray, "h w"], seen: Bool[np.ndarray, "h w"], config: MaskMakerConfig
-) -> Bool[np.ndarray, "h w"]:
-    """Discs of the fruit-sized blobs of a thermal frame (:func:`thermal_blob_list`) on the side(s) of
-    ``config.polarity``, each of radius sqrt(2) sigma."""
-    sides = {"warm": (1.0,), "cool": (-1.0,), "both": (1.0, -1.0)}[config.polarity]
-    return blob_discs(thermal.shape, seen, [b for b in thermal_blob_list(thermal, seen, config) if b.sign in sides])
-
-
-def blob_discs(shape: Tuple[int, ...], seen: Bool[np.ndarray, "h w"], blobs: List[Blob]) -> Bool[np.ndarray, "h w"]:
-    """The seen pixels of the blobs' discs (radius sqrt(2) sigma)."""
-    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
-    fruit = np.zeros(shape[:2], bool)
-    for b in blobs:
-        fruit |= (rows - b.row) ** 2 + (cols - b.col) ** 2 <= 2.0 * b.sigma**2
-    return fruit & seen
-
-
-def thermal_blob_list(
-    thermal: Float[np.ndarray, "h w"], seen: Bool[np.ndarray, "h w"], config: MaskMakerConfig, frame: int = 0
-) -> List[Blob]:
-    """The fruit-sized blobs of a thermal frame on both sides of the canopy's temperature: scikit-image's
-    scale-normalised Laplacian of Gaussian (`blob_log`) on the frame in robust spreads (median and 1.4826 MAD over
-    the seen pixels, the unseen ones set to the median so the view's border is no blob), warm blobs on it and cool
-    ones on its negative: a blob responds to the Laplacian at its own scale and an edge does not, so the rims of large
-    warm or cool regions, which a local contrast marks, are not fruit. A blob whose median is near the canopy's value
-    (`canopy_value`) is leaves, not fruit (`MaskMakerConfig.min_canopy_offset`)."""
-    from skimage.feature import blob_log
-
-    values = thermal[seen].astype(np.float64)
-    if values.size == 0:
-        return []
-    median = float(np.median(values))
-    spread = max(robust_spread(values, median), 1e-6)
-    z = np.where(seen, (thermal - median) / spread, 0.0)
-    short = min(thermal.shape)
-    # a disc of diameter d is found at sigma d / (2 sqrt 2)
-    low, high = (max(MIN_BLOB_SIGMA, f * short / (2.0 * np.sqrt(2.0))) for f in config.thermal_sizes)
-    rows, cols = np.mgrid[0 : thermal.shape[0], 0 : thermal.shape[1]]
-    canopy = canopy_value(z[seen])
-    found: List[Blob] = []
-    for sign in (1.0, -1.0):
-        for row, col, sigma in blob_log(np.clip(sign * z, 0.0, None), min_sigma=low, max_sigma=high, num_sigma=12,
-                                        threshold=config.blob_threshold, log_scale=True):  # fmt: skip
-            disc = ((rows - row) ** 2 + (cols - col) ** 2 <= 2.0 * sigma**2) & seen
-            if disc.sum() < MIN_DISC_SHARE * 2.0 * np.pi * sigma**2:
-                continue  # cut by the frame's or the view's border: a band of sky or ground there looks like a blob
-            if curvature_ratio(z, row, col, sigma) > MAX_CURVATURE_RATIO:
-                continue  # a ridge (a band of sky, a stake) answers the Laplacian too, with one curvature only
-            offset = float(np.median(z[disc])) - canopy
-            if sign * offset >= config.min_canopy_offset:
-                found.append(Blob(frame, float(row), float(col), float(sigma), sign, offset * spread))
-    return found
-
-
-def curvature_ratio(z: Float[np.ndarray, "h w"], row: float, col: float, sigma: float) -> float:
-    """The ratio of the larger to the smaller principal curvature of ``z`` smoothed at ``sigma`` at (row, col): about
-    1 at the centre of a round blob, large along a ridge (the Hessian test of Lowe's SIFT)."""
-    from scipy import ndimage
-
-    reach = int(np.ceil(4 * sigma)) + 1
-    r0, c0 = max(0, int(row) - reach), max(0, int(col) - reach)
-    window = z[r0 : int(row) + reach + 1, c0 : int(col) + reach + 1]
-    at = (int(row) - r0, int(col) - c0)
-    drr, dcc, drc = (float(ndimage.gaussian_filter(window, sigma, order=o)[at]) for o in ((2, 0), (0, 2), (1, 1)))
-    curvatures = np.abs(np.linalg.eigvalsh(np.array([[drr, drc], [drc, dcc]])))
-    return float(curvatures.max() / max(float(curvatures.min()), 1e-12))
-
-
-def canopy_value(z: Float[np.ndarray, " n"], bin_width: float = 1.0) -> float:
-    """The most common value of ``z`` (robust spreads), the centre of the fullest bin of ``bin_width``: bins as wide as
-    a spread hold the canopy's noisy values together, so a sky clipped to one value does not outnumber them."""
-    edges = np.arange(float(z.min()), float(z.max()) + bin_width, bin_width)
-    if len(edges) < 2:
-        return float(z.min())
-    counts, edges = np.histogram(z, bins=edges)
-    return float(edges[counts.argmax()] + bin_width / 2)
 
 
 def box_mask(
@@ -238,8 +148,6 @@ def box_mask(
 ) -> UInt8[np.ndarray, "h w"]:
     """A frame's mask from a detector's pixel boxes ``x1 y1 x2 y2`` (see the module): fruit in the inscribed ellipse
     of a confident box, unknown in its corners and in an unsure box, background elsewhere."""
-    from agrinerf_ns.detect.boxes import inscribed_ellipse
-
     mask = np.full((height, width), BACKGROUND, np.uint8)
     fruit = np.zeros((height, width), bool)
     for box, score in zip(np.asarray(boxes).reshape(-1, 4), np.asarray(scores).reshape(-1), strict=True):
@@ -265,8 +173,6 @@ def check_mask_maker(maker: MaskMaker, config: MaskMakerConfig) -> None:
         )
     if not Path(config.yolo_weights).is_file():
         raise ValueError(f"{config.yolo_weights}: --mask-maker.yolo-weights: no such weights file")
-    from agrinerf_ns.detect.detector import INSTALL_HINT
-
     try:
         import ultralytics  # noqa: F401
     except ImportError as err:
@@ -313,8 +219,6 @@ def make_fruit_masks(
     used = {"colour": 0, "thermal": 0, "yolo": 0}
     predict = None
     if maker == "yolo":
-        from agrinerf_ns.detect.detector import box_predictor
-
         predict = box_predictor(
             config.yolo_weights, min(config.unsure_confidence, config.box_confidence), hint="--mask-maker.yolo-weights"
         )
@@ -394,7 +298,7 @@ def thermal_body_masks(
     config: MaskMakerConfig,
     geometry: Optional[List[Optional[FrameGeometry]]],
 ) -> Tuple[Dict[int, np.ndarray], dict]:
-    """The ``bodies`` rule's masks of the frames ``index`` (``process/thermal_bodies.py``): fruit on the blobs decided
+    """The ``bodies`` rule's masks of the frames ``index`` (``fruit/thermal_bodies.py``): fruit on the blobs decided
     fruit, unknown on the blobs of the fruit's side that no other frame confirms (a fruit seen once is not taught as
     background), background on the rest of the thermal camera's view; with the decision's record."""
     if geometry is None:
@@ -421,7 +325,8 @@ def body_masks(
     blobs: List[Blob] = []
     for k, (thermal, seen) in enumerate(images):
         thermal = thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
-        blobs += thermal_blob_list(thermal, seen, config, frame=k)
+        blobs += thermal_blob_list(thermal, seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
+                                   min_canopy_offset=config.min_canopy_offset, frame=k)  # fmt: skip
     decision = decide_bodies(blobs, views, config.bodies, radiometric)
     sides = (1.0, -1.0) if decision.polarity is None else ((1.0,) if decision.polarity == "warm" else (-1.0,))
     by_frame: Dict[int, List[int]] = {}

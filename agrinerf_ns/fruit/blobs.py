@@ -1,27 +1,25 @@
-"""The default fruit detector: fruit-sized blobs of local contrast, found with OpenCV (no learnt weights, no AGPL).
+"""The default fruit detector of a rendered view: fruit-sized blobs of local contrast, found with OpenCV (no learnt
+weights, no AGPL).
 
 A view is reduced to one feature image: the cross-spectral ``thermal`` output itself (fruit differ from the leaves
-around them in temperature, warmer or cooler) or, for ``rgb``, a fruit-colour score (saturation where the hue is red
-to yellow, after stretching the view's brightness so that a dark render is not black). Local contrast is a
-difference of Gaussians in units of its robust spread over the view; connected components beyond ``threshold`` whose
-metric size, from the rendered depth, is that of a fruit are the detections.
+around them in temperature, warmer or cooler) or, for ``rgb``, a fruit-colour score
+(:func:`agrinerf_ns.fruit.colour_score.fruit_colour`). Local contrast (:func:`agrinerf_ns.fruit.contrast.contrast`) is
+a difference of Gaussians in units of its robust spread over the view; connected components beyond ``threshold``
+whose metric size, from the rendered depth, is that of a fruit are the detections.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Literal, Optional
+from typing import List, Optional
 
 import cv2
 import numpy as np
 from jaxtyping import Bool, Float
 
-from agrinerf_ns.count.render import RenderedView
-from agrinerf_ns.robust import robust_spread
-
-Polarity = Literal["both", "warm", "cool"]
-MIN_ACCUMULATION = 0.5
-"""Pixels whose accumulation is below this (sky, nothing rendered) are never fruit."""
+from agrinerf_ns.fruit.colour_score import MAX_HUE_DEG, MIN_HUE_DEG, fruit_colour
+from agrinerf_ns.fruit.contrast import Polarity, contrast
+from agrinerf_ns.fruit.view import MIN_ACCUMULATION, View
 
 
 @dataclass(frozen=True)
@@ -56,12 +54,12 @@ class BlobConfig:
     0: no test)."""
     fruit_probability: float = 0.5
     """``fruit``: a pixel whose rendered fruit probability reaches this is fruit (0.5: the head's BCE boundary)."""
-    min_hue_deg: float = -20.0
+    min_hue_deg: float = MIN_HUE_DEG
     """``rgb``: fruit hues span ``min_hue_deg`` .. ``max_hue_deg`` (0 = red, 60 = yellow, 120 = green)."""
-    max_hue_deg: float = 70.0
+    max_hue_deg: float = MAX_HUE_DEG
 
 
-def feature_image(view: RenderedView, source: str) -> Float[np.ndarray, "h w"]:
+def feature_image(view: View, source: str) -> Float[np.ndarray, "h w"]:
     """The image a view's fruit stand out in: ``temperature`` (degrees C), ``thermal`` (cross-spectral output) or
     ``rgb`` (fruit-colour score)."""
     if source in ("temperature", "thermal"):
@@ -71,49 +69,13 @@ def feature_image(view: RenderedView, source: str) -> Float[np.ndarray, "h w"]:
     return fruit_colour(view.optional_output("rgb"), view.accumulation >= MIN_ACCUMULATION)
 
 
-def fruit_colour(
-    rgb: Float[np.ndarray, "h w 3"], valid: Bool[np.ndarray, "h w"], config: BlobConfig = BlobConfig()
-) -> Float[np.ndarray, "h w"]:
-    """Saturation where the hue is a fruit's (red to yellow), after scaling the view so its 99th percentile of
-    brightness over ``valid`` pixels is 1."""
-    rgb = np.clip(np.nan_to_num(rgb.astype(np.float32)), 0.0, None)
-    peak = float(np.percentile(rgb.max(-1)[valid], 99)) if valid.any() else 1.0
-    rgb = np.clip(rgb / max(peak, 1e-6), 0.0, 1.0)
-    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)  # float input: H in degrees [0, 360), S and V in [0, 1]
-    hue = np.where(hsv[..., 0] > 180.0, hsv[..., 0] - 360.0, hsv[..., 0])
-    in_band = (hue >= config.min_hue_deg) & (hue <= config.max_hue_deg)
-    return np.where(in_band, hsv[..., 1] * np.sqrt(hsv[..., 2]), 0.0).astype(np.float32)
-
-
-def contrast(
-    feature: Float[np.ndarray, "h w"], valid: Bool[np.ndarray, "h w"], background_sigma: float
-) -> Float[np.ndarray, "h w"]:
-    """Difference of Gaussians (about one pixel against ``background_sigma`` x the shorter side) over the valid
-    pixels only (normalised convolution), divided by its robust spread (1.4826 MAD) over them."""
-    weight = valid.astype(np.float32)
-    values = np.where(valid, feature, 0.0).astype(np.float32)
-
-    def blur(sigma: float) -> np.ndarray:
-        num = cv2.GaussianBlur(values, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        den = cv2.GaussianBlur(weight, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        return num / np.maximum(den, 1e-6)
-
-    sigma_bg = max(2.0, background_sigma * min(feature.shape))
-    dog = blur(0.7) - blur(sigma_bg)
-    dog[~valid] = 0.0
-    if not valid.any():
-        return dog
-    spread = robust_spread(dog[valid])
-    return dog / max(spread, 1e-6)
-
-
-def valid_pixels(view: RenderedView, feature: Float[np.ndarray, "h w"]) -> Bool[np.ndarray, "h w"]:
+def valid_pixels(view: View, feature: Float[np.ndarray, "h w"]) -> Bool[np.ndarray, "h w"]:
     """The pixels of ``view`` a detection may use: rendered surface (accumulation), a finite positive depth to lift
     it with, and a finite ``feature``."""
     return (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(feature)
 
 
-def detect_blobs(view: RenderedView, source: str, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
+def detect_blobs(view: View, source: str, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
     """Fruit-sized blobs of ``source`` in ``view``; ``scale`` is the dataparser scale (Nerfstudio units per dataset
     unit), so that sizes are compared in the dataset's units."""
     feature = feature_image(view, source)
@@ -166,7 +128,7 @@ def elongation(mask: Bool[np.ndarray, "h w"]) -> float:
     return float(np.sqrt(high / low))
 
 
-def blob_diameter(mask: Bool[np.ndarray, "h w"], view: RenderedView, scale: float) -> Optional[float]:
+def blob_diameter(mask: Bool[np.ndarray, "h w"], view: View, scale: float) -> Optional[float]:
     """A blob's diameter in dataset units: that of the disk of its area, at its median depth."""
     depths = view.depth[mask]
     depths = depths[np.isfinite(depths) & (depths > 0)]

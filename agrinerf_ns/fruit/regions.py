@@ -11,11 +11,11 @@ from jaxtyping import Bool
 from scipy import ndimage
 from skimage.segmentation import watershed
 
-from agrinerf_ns.count.blobs import BlobConfig, Detection, blob_diameter, elongation, valid_pixels
-from agrinerf_ns.count.render import RenderedView
+from agrinerf_ns.fruit.blobs import BlobConfig, Detection, blob_diameter, elongation, valid_pixels
+from agrinerf_ns.fruit.view import View
 
 
-def fruit_regions(view: RenderedView, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
+def fruit_regions(view: View, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
     """The fruit of ``view`` from its ``fruit`` output; ``scale`` is the dataparser scale (Nerfstudio units per
     dataset unit), so that sizes are compared in the dataset's units (``config``'s diameters and elongation; its
     ``fruit_probability`` makes a pixel fruit)."""
@@ -40,7 +40,7 @@ def fruit_regions(view: RenderedView, scale: float, config: BlobConfig = BlobCon
     return detections
 
 
-def _radius_px(view: RenderedView, box: tuple, region: Bool[np.ndarray, "h w"], scale: float, diameter: float) -> float:
+def _radius_px(view: View, box: tuple, region: Bool[np.ndarray, "h w"], scale: float, diameter: float) -> float:
     """The radius in pixels of a fruit of ``diameter`` (dataset units) at the region's median depth."""
     depths = view.depth[box][region]
     depth = float(np.median(depths[np.isfinite(depths) & (depths > 0)])) if region.any() else 0.0

@@ -4,7 +4,7 @@ One thermal frame cannot tell a fruit from warm ground, bark or a gap of cold sk
 the leaves, on either side of their temperature (results/fruit-masks-dark). Across the capture, with the frames'
 poses, they differ:
 
-- **A fruit is a body at one place.** Each blob of a frame (``thermal_blob_list``: both sides of the canopy's
+- **A fruit is a body at one place.** Each blob of a frame (:func:`~agrinerf_ns.fruit.thermal_blobs.thermal_blob_list`: both sides of the canopy's
   temperature) is placed along its thermal ray at the depth where blobs of the same side, of a consistent size, show
   in the most neighbouring frames (a plane sweep over the ray). A blob that no neighbour sees there is noise, a
   glint or a sky gap whose shape changes as the rig moves.
@@ -27,22 +27,9 @@ from typing import Dict, List, Literal, Optional, Sequence, Tuple
 import numpy as np
 from jaxtyping import Bool, Float
 
+from agrinerf_ns.fruit.thermal_blobs import Blob
+
 Side = Literal["warm", "cool"]
-
-
-@dataclass(frozen=True)
-class Blob:
-    """A fruit-sized blob of one thermal frame (warped into the RGB plane)."""
-
-    frame: int
-    row: float
-    col: float
-    sigma: float
-    """Laplacian scale (pixels); the blob's disc has radius sqrt(2) sigma."""
-    sign: float
-    """+1 warmer than the canopy, -1 cooler."""
-    offset: float
-    """Median over its disc minus the canopy's value, in the frame's units (degrees C where radiometric)."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,50 @@
+"""Load a trained Nerfstudio run (its ``config.yml`` and latest checkpoint) for rendering or sampling: the one way
+the counter, the detector, the demo and the benchmarks open a run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+from agrinerf_ns.views import rays_per_chunk
+
+
+@dataclass
+class LoadedRun:
+    """A trained run loaded for rendering."""
+
+    config_path: Path
+    method: Optional[str]
+    """The config's ``method_name`` (Nerfstudio types it optional)."""
+    pipeline: Any
+    checkpoint: Path
+    step: int
+
+
+def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -> LoadedRun:
+    """Load a saved Nerfstudio run (config.yml + latest checkpoint) with its train and eval datasets, rendering
+    ``eval_num_rays_per_chunk`` rays at once (None: :func:`agrinerf_ns.views.rays_per_chunk`)."""
+    from agrinerf_ns import compat
+
+    compat.activate()
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    config_path = Path(config_path)
+    if not config_path.is_file():
+        raise FileNotFoundError(
+            f"{config_path}: no such Nerfstudio run config (outputs/<name>/<method>/<time>/config.yml)"
+        )
+    config, pipeline, checkpoint, step = eval_setup(
+        config_path, eval_num_rays_per_chunk=rays_per_chunk(eval_num_rays_per_chunk), test_mode="test"
+    )
+    return LoadedRun(config_path, config.method_name, pipeline, Path(checkpoint), int(step))
+
+
+def render_camera(run: LoadedRun, dataset: Any, index: int) -> Dict[str, Any]:
+    """Every output of the run's model (tensors of shape (H, W, C)) at camera ``index`` of ``dataset``, no gradients."""
+    import torch
+
+    camera = dataset.cameras[index : index + 1].to(run.pipeline.device)
+    with torch.no_grad():
+        return run.pipeline.model.get_outputs_for_camera(camera)
