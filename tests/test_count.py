@@ -101,6 +101,23 @@ def test_lift_from_depth_back_to_the_true_centre() -> None:
     assert len(fruit) == 1 and np.linalg.norm(fruit[0].centre) < 0.05
 
 
+def test_a_fruit_seen_well_in_one_view_counts_where_its_depth_is_confident() -> None:
+    """One view of the sphere, at its true depth on an opaque surface: counted with --single-view-confidence (by
+    default two views are needed); the same view with its depth smeared by the field, or its density faint, is not."""
+    view, hit = _sphere_view(0)
+    solid = lift_detection(view, hit, IDENTITY, 0)
+    assert solid is not None and solid.depth_confidence > 0.95
+    config = ClusterConfig(single_view_confidence=0.8)
+    assert cluster_fruit([solid]) == [] and len(cluster_fruit([solid], config)) == 1
+    rng = np.random.default_rng(0)
+    smeared = replace(view, depth=view.depth + rng.uniform(-3.0, 3.0, view.depth.shape))  # +-3 fruit radii
+    faint = replace(view, accumulation=0.5 * view.accumulation)
+    for other in (smeared, faint):
+        lifted = lift_detection(other, hit, IDENTITY, 0)
+        assert lifted is not None and lifted.depth_confidence < 0.5
+        assert cluster_fruit([lifted], config) == []
+
+
 def test_lift_goes_through_the_dataparser_frame() -> None:
     """The same sphere in a scaled, rotated, shifted Nerfstudio frame lifts to the same dataset-frame centre."""
     angle = 0.3

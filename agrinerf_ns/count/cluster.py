@@ -44,6 +44,11 @@ class ClusterConfig:
     min_view_fraction: float = 0.25
     """Of the views that show a fruit's centre unoccluded (:mod:`agrinerf_ns.count.support`), the fraction that must
     have detected it (0: no test)."""
+    single_view_confidence: Optional[float] = None
+    """Also count a fruit detected in fewer than ``min_views`` views when one of its detections was lifted with at
+    least this depth confidence (`lift.depth_confidence`: a solid fruit-sized body at the rendered depth) and, in the
+    pipeline, few views show its place (``min_view_fraction``): a fruit seen well once, behind leaves from the other
+    viewpoints. None: no such fruit."""
 
 
 @dataclass(frozen=True)
@@ -131,6 +136,11 @@ def _triangulated_groups(detections: Sequence[LiftedDetection], config: ClusterC
     return joined
 
 
+def confident(members: Sequence[LiftedDetection], threshold: Optional[float]) -> bool:
+    """Whether a detection of these was lifted with at least ``threshold`` depth confidence (never when None)."""
+    return threshold is not None and max(d.depth_confidence for d in members) >= threshold
+
+
 def cluster_fruit(detections: Sequence[LiftedDetection], config: ClusterConfig = ClusterConfig()) -> List[Fruit]:
     """Fruit from lifted detections, largest view count first: placed where their rays meet where every detection
     has its ray and `triangulate` is on, else at the median of their depth-lifted centres."""
@@ -143,7 +153,7 @@ def cluster_fruit(detections: Sequence[LiftedDetection], config: ClusterConfig =
     fruit = []
     for members, centre in groups:
         views = len({d.view for d in members})
-        if views < config.min_views:
+        if views < config.min_views and not confident(members, config.single_view_confidence):
             continue
         temperatures = [d.temperature for d in members if d.temperature is not None]
         fruit.append(

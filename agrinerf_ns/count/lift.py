@@ -24,6 +24,8 @@ CAP_MEDIAN_OFFSET = 1.0 / np.sqrt(2.0)
 """Median depth of a sphere's visible cap in front of its centre, in radii."""
 DEPTH_INLIER_MADS = 3.0
 """Pixels farther than this many robust spreads (and a radius) from the median depth are not the fruit's."""
+OPAQUE = 0.9
+"""Accumulated weight of a pixel on an opaque surface (:attr:`LiftedDetection.depth_confidence`)."""
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,10 @@ class LiftedDetection:
     ray: Optional[Float[np.ndarray, "3"]] = None
     """The unit mean ray of all the detection's pixels (dataset frame): it passes through the fruit's centre whatever
     the rendered depth (`triangulate.py`)."""
+    depth_confidence: float = 0.0
+    """The share of the detection's pixels on an opaque surface (accumulation at least ``OPAQUE``) within one fruit
+    radius of the median depth: near 1 where the field holds a solid fruit-sized body there, low where the depth
+    smears or the density is faint (:func:`depth_confidence`)."""
 
 
 def lift_detection(
@@ -74,6 +80,7 @@ def lift_detection(
         values = view.temperature[keep]
         values = values[np.isfinite(values)]
         temperature = float(values.mean()) if values.size else None
+    confidence = depth_confidence(depth[mask], view.accumulation[mask], median, radius)
     origin, through = view.origins[mask].mean(0), view.directions[mask].mean(0)
     origin_ds, through_ds = frame.to_dataset(np.stack([origin, origin + through]))
     return LiftedDetection(
@@ -84,4 +91,16 @@ def lift_detection(
         temperature=temperature,
         origin=origin_ds,
         ray=(through_ds - origin_ds) / max(float(np.linalg.norm(through_ds - origin_ds)), 1e-12),
+        depth_confidence=confidence,
     )
+
+
+def depth_confidence(
+    depth: Float[np.ndarray, " n"], accumulation: Float[np.ndarray, " n"], median: float, radius: float
+) -> float:
+    """The share of pixels (a detection's depth and accumulation) on an opaque surface within ``radius`` of the
+    ``median`` depth."""
+    if depth.size == 0:
+        return 0.0
+    near = np.isfinite(depth) & (np.abs(depth - median) <= radius)
+    return float(np.mean(near & (accumulation >= OPAQUE)))
