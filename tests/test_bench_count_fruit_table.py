@@ -51,5 +51,6 @@ def test_reporting_runs_are_pooled_and_tuning_runs_kept_apart(tmp_path: Path) ->
     assert float(reporting["f1_countable@0.15"]) == pytest.approx(0.6)
     assert float(reporting["count_error_countable"]) == pytest.approx(-0.3)
     assert reporting["f1@0.1"] == "nan"  # a tier the count did not write stays unknown, never zero
+    assert "FruitNeRF" in (out / "counts.md").read_text()  # the anchors stand beside every table
     with pytest.raises(SystemExit, match="LABEL=FOLDER"):
         table.main(table.TableArgs([str(folders[0])], out))
