@@ -39,6 +39,10 @@ class Blob:
     """+1 warmer than the canopy, -1 cooler."""
     offset: float
     """Median over its disc minus the canopy's value, in the frame's units (degrees C where radiometric)."""
+    region_ratio: float = 1.0
+    """The area of the connected region around its centre that lies at least half its offset from the canopy's
+    value, over its disc's area: about 1 for a compact body among leaves, several for a part of a larger warm or cool
+    structure (a stake, a stem, ground or sky seen between leaves)."""
 
 
 def thermal_blobs(
@@ -108,8 +112,29 @@ def thermal_blob_list(
                 continue  # a ridge (a band of sky, a stake) answers the Laplacian too, with one curvature only
             offset = float(np.median(z[disc])) - canopy
             if sign * offset >= min_canopy_offset:
-                found.append(Blob(frame, float(row), float(col), float(sigma), sign, offset * spread))
+                ratio = region_ratio(z, seen, row, col, sigma, canopy + 0.5 * offset, sign)
+                found.append(Blob(frame, float(row), float(col), float(sigma), sign, offset * spread, ratio))
     return found
+
+
+def region_ratio(
+    z: Float[np.ndarray, "h w"],
+    seen: Bool[np.ndarray, "h w"],
+    row: float,
+    col: float,
+    sigma: float,
+    level: float,
+    sign: float,
+) -> float:
+    """The connected region of the seen pixels beyond ``level`` (on ``sign``'s side) that holds (row, col), in units
+    of the blob's disc area (:attr:`Blob.region_ratio`); 0 where the centre itself is not beyond it."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label((sign * (z - level) > 0) & seen)
+    label = labels[int(round(row)), int(round(col))] if 0 <= int(round(row)) < z.shape[0] else 0
+    if label == 0:
+        return 0.0
+    return float((labels == label).sum()) / (2.0 * np.pi * sigma**2)
 
 
 def curvature_ratio(z: Float[np.ndarray, "h w"], row: float, col: float, sigma: float) -> float:

@@ -10,13 +10,16 @@ poses, they differ:
   glint or a sky gap whose shape changes as the rig moves.
 - **Fruit are not far off the leaves' temperature.** A blob whose median is more than ``max_offset_c`` from the
   canopy (on a radiometric capture) is the sky or a machine, not a fruit.
-- **Ground is a plane below the plants.** The placed blobs' heights (along the cameras' mean up direction) hold a
-  sharp low peak where warm or cool ground shows: blobs at or below it are ground (:func:`ground_height`).
+- **A fruit is compact.** Ground and sky seen between leaves, a stake or a stem, are parts of larger warm or cool
+  structures: the region around such a blob at half its offset from the canopy spans many of its discs
+  (:attr:`~agrinerf_ns.fruit.thermal_blobs.Blob.region_ratio`), a fruit's about one.
 - **The scene's fruit sit on one side of the leaves' temperature.** Of the blobs left, the side with the more
   bodies is the fruit's (:func:`decide_polarity`), so the polarity is read from the capture, not set by the user.
 
 Depths are searched in steps of the camera spacing (``depth_range`` in camera steps), so the rule needs no metric
-scale and works on SfM poses as on odometry.
+scale and works on SfM poses as on odometry. (A ground plane fitted to the bodies' heights was tried first: with the
+cameras pitched down, as a rig looking at low plants is, their mean up direction is not the world's, and the plane
+cut the lowest fruit; results/fruit-masks-dark.)
 """
 
 from __future__ import annotations
@@ -49,15 +52,14 @@ class BodySettings:
     blob's projection there."""
     size_ratio: float = 1.6
     """... and its size at its depth is within this factor of the blob's."""
+    max_region_ratio: float = 2.5
+    """A blob whose region (:attr:`Blob.region_ratio`) spans more than this many discs is part of a larger structure
+    (a stake, a stem, ground or sky between leaves), not a fruit."""
     max_offset_c: float = 8.0
     """Radiometric frames: a blob more than this many degrees C off the canopy is not a fruit (night sky, engines;
     fruit stay within a few degrees of the leaves)."""
     body_radius: float = 1.0
     """Placed blobs within this many camera steps of a body's first blob are that body."""
-    ground_bin: float = 0.5
-    """Height histogram bin for the ground peak, in camera steps."""
-    ground_margin: float = 1.5
-    """Blobs less than this many camera steps above the ground peak are ground."""
     polarity_margin: float = 1.5
     """One side is the fruit's when it holds this many times the other side's bodies; else both are kept."""
 
@@ -199,31 +201,6 @@ def camera_step(geometry: Sequence[FrameGeometry]) -> float:
     return float(np.median(steps)) if steps.size else 1.0
 
 
-def up_direction(geometry: Sequence[FrameGeometry]) -> Float[np.ndarray, "3"]:
-    """The cameras' mean up direction in the world (OpenCV cameras look down +z with +y down)."""
-    up = -np.mean([g.rgb_c2w[:3, 1] for g in geometry], axis=0)
-    return up / max(float(np.linalg.norm(up)), 1e-12)
-
-
-def ground_height(heights: Float[np.ndarray, " n"], bin_width: float, min_count: int = 5) -> Optional[float]:
-    """The height of the ground among the bodies' ``heights``: the lowest bin of ``bin_width`` that holds at least
-    ``min_count`` bodies and at least three times the median occupied bin (a plane puts its bodies at one height,
-    fruit spread over the canopy's); None where no bin stands out."""
-    heights = heights[np.isfinite(heights)]
-    if heights.size < min_count:
-        return None
-    edges = np.arange(heights.min(), heights.max() + bin_width, bin_width)
-    if len(edges) < 2:
-        return None
-    counts, edges = np.histogram(heights, bins=edges)
-    occupied = counts[counts > 0]
-    peaks = np.flatnonzero((counts >= min_count) & (counts >= 3.0 * np.median(occupied)))
-    if peaks.size == 0:
-        return None
-    k = int(peaks[0])
-    return float(edges[k + 1])  # the top of the ground's bin
-
-
 def decide_polarity(signs: Float[np.ndarray, " n"], margin: float) -> Tuple[Optional[Side], Dict[str, int]]:
     """The fruit's side from the bodies' ``signs`` (+1 warm, -1 cool): the side with ``margin`` times the other's
     bodies, else None (both kept); with the bodies per side."""
@@ -254,7 +231,6 @@ class BodyDecision:
     polarity: Optional[Side]
     bodies: Dict[str, int]
     dropped: Dict[str, int]
-    ground: Optional[float]
 
 
 def decide_bodies(
@@ -263,24 +239,21 @@ def decide_bodies(
     """Which ``blobs`` are fruit (see the module)."""
     n = len(blobs)
     if n == 0:
-        return BodyDecision(np.zeros(0, bool), np.zeros(0, bool), None, {"warm": 0, "cool": 0}, {}, None)
+        return BodyDecision(np.zeros(0, bool), np.zeros(0, bool), None, {"warm": 0, "cool": 0}, {})
     placed = place_blobs(blobs, geometry, settings)
     signs = np.array([b.sign for b in blobs])
     offsets = np.array([b.offset for b in blobs])
     body = np.isfinite(placed.points[:, 0])
     plausible = np.abs(offsets) <= settings.max_offset_c if radiometric else np.ones(n, bool)
-    step = camera_step(geometry)
-    labels = group_bodies(placed.points, settings.body_radius * step)
-    heights = placed.points @ up_direction(geometry)
-    ground = ground_height(_per_body(heights, labels, body & plausible), settings.ground_bin * step)
-    above = np.ones(n, bool) if ground is None else ~(heights <= ground + settings.ground_margin * step)
-    candidate = body & plausible & above
+    compact = np.array([0.0 < b.region_ratio <= settings.max_region_ratio for b in blobs])
+    labels = group_bodies(placed.points, settings.body_radius * camera_step(geometry))
+    candidate = body & plausible & compact
     polarity, counts = decide_polarity(_per_body(signs, labels, candidate), settings.polarity_margin)
     side = np.ones(n, bool) if polarity is None else signs == (1.0 if polarity == "warm" else -1.0)
     dropped = {
         "not placed": int((~body).sum()),
         "too far off the canopy": int((body & ~plausible).sum()),
-        "ground": int((body & plausible & ~above).sum()),
+        "not compact": int((body & plausible & ~compact).sum()),
         "other side": int((candidate & ~side).sum()),
     }
-    return BodyDecision(candidate & side, body, polarity, counts, dropped, ground)
+    return BodyDecision(candidate & side, body, polarity, counts, dropped)

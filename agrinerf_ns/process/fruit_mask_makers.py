@@ -68,8 +68,7 @@ class MaskMakerConfig:
     speck of noise is not taught as fruit, a sliver of a hidden fruit not as background; 0: all kept)."""
     thermal_rule: Literal["bodies", "blobs", "contrast"] = "bodies"
     """``bodies``: the fruit-sized blobs of every thermal frame, decided in 3D across the capture with its poses
-    (`fruit/thermal_bodies.py`: a body seen at one place in several frames, near the leaves' temperature, above the
-    ground, on the side of the leaves' temperature where the capture's bodies are; no polarity to set);
+    (`fruit/thermal_bodies.py`: a body seen at one place in several frames, compact, near the leaves' temperature, on the side of the leaves' temperature where the capture's bodies are; no polarity to set);
     ``blobs``: fruit-sized blobs of the thermal frame (its temperature where the dataset has one), found by the
     scale-normalised Laplacian of Gaussian over the sizes of `thermal_sizes` and filled as discs; ``contrast``: the
     pixels standing out from their surroundings at `background_sigma` by `thermal_threshold`, the rule before
@@ -347,6 +346,5 @@ def body_masks(
         "blobs": len(blobs),
         "fruit_blobs": int(decision.fruit.sum()),
         "dropped": decision.dropped,
-        "ground_height": decision.ground,
     }
     return masks, record
