@@ -98,10 +98,12 @@ def figures_in(text: str) -> List[Tuple[str, int]]:
 
 @lru_cache(maxsize=None)
 def _numbers(source: Path, column: str = "") -> Tuple[float, ...]:
-    """A data file's numbers, or a CSV column's; a cell that lists several values (``a;b``) holds none."""
+    """A data file's numbers, or a CSV column's; of a CSV only the cells that are one number."""
     if source.suffix == ".csv":
-        cells = [v or "" for row in _rows(source) for k, v in row.items() if k == column or not column]
-        text = " ".join(c for c in cells if isinstance(c, str) and ";" not in c)
+        cells = [v for row in _rows(source) for k, v in row.items() if k == column or not column]
+        text = " ".join(
+            c for c in cells if isinstance(c, str) and re.fullmatch(r"\s*[-+]?[\d.]+(?:[eE][-+]?\d+)?\s*", c)
+        )
     else:
         text = source.read_text(errors="replace")
     return tuple(float(n) for n in re.findall(r"(?<![\w.])\d+(?:\.\d+)?(?:[eE][-+]?\d+)?", text))
