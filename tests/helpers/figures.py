@@ -114,8 +114,8 @@ def _written(source: Path, column: str, places: int) -> Set[str]:
     """The numbers (absolute values) written with ``places`` decimals, and times 100 (a share as a percent)."""
     out = set()
     for n in _numbers(source, column):
-        out.add(f"{n:.{places}f}")
-        out.add(f"{n * 100:.{places}f}")
+        for v in (n, n * 100):
+            out.update(f"{v * (1 + e):.{places}f}" for e in (-1e-9, 0.0, 1e-9))  # a tie (0.745) rounds either way
     return out
 
 
