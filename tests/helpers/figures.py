@@ -270,8 +270,8 @@ def _quoted(doc: str, registry: Dict[str, Any], root: Path) -> Counter:
 
 
 def check_quoted(registry: Dict[str, Any], root: Path = ROOT) -> List[str]:
-    """Problems with ``quoted``, ``settings`` and ``unchecked``: a number its named file does not hold, or one
-    registered more often than its doc quotes it."""
+    """Problems with ``quoted``, ``settings``, ``unchecked`` and ``allow``: a number its named file does not hold,
+    one registered more often than its doc quotes it, or an allowed phrase its doc no longer has."""
     problems = []
     for doc, by_file in registry["quoted"].items():
         for name, numbers in by_file.items():
@@ -283,6 +283,9 @@ def check_quoted(registry: Dict[str, Any], root: Path = ROOT) -> List[str]:
                 problems.append(f"{doc}: {path} has no column {column}")
                 continue
             problems += [f"{doc}: {n} is not in {name}" for n in set(numbers) if not holds(root / path, n, column)]
+    for doc, phrases in registry["allow"].items():
+        text = (root / doc).read_text()
+        problems += [f"{doc}: allowed phrase {p!r} is not quoted" for p in phrases if p not in text]
     for doc in {d for kind in ("quoted", "settings", "unchecked") for d in registry[kind]}:
         quoted = _quoted(doc, registry, root)
         for number, count in (_covered(registry, doc) - quoted).items():
