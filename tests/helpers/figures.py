@@ -4,10 +4,12 @@
 
 - ``figures``: a text as quoted, written as a format template (``"{0:+.2f} dB"``), and the values that fill it, each
   picked from a committed CSV or JSON file (:func:`value`). Its ``source`` names the command and the record (the file
-  with the commit, machine and date); every file the values read lies in the record's folder.
+  with the commit, machine and date); every file the values read lies in that record's folder, or in the folder of
+  the record a selector names with its own ``"source"``.
 - ``quoted``: per doc, per source file (``path``, or ``path#column`` for one column of a CSV), the numbers as the
   doc writes them; each must be a number of that file (rounded to the quoted places, or a share times 100 for a
-  percent) and appear in the doc.
+  percent) and appear in the doc. This pins the file, not the cell: a short number may occur in a file by chance,
+  so a figure that must equal one cell belongs in ``figures``.
 - ``settings``: per doc, numbers that read as results but are not (a size, a step count, a threshold, a seed), under
   the reason why.
 - ``unchecked``: per doc, measured numbers that no committed data file holds, under the reason why.
