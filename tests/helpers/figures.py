@@ -346,5 +346,31 @@ def unregistered(registry: Dict[str, Any], names: Iterable[str], root: Path = RO
                 covered[number] -= 1
                 continue
             line = text.count("\n", 0, at) + 1
-            found.append(f"{doc}:{line}: {number!r} in ...{text[max(0, at - 40) : at + 20]!r}...")
+            held = ", ".join(holders(doc, text, at, number, root)) or "no file its paragraph links"
+            found.append(f"{doc}:{line}: {number!r} in ...{text[max(0, at - 40) : at + 20]!r}... (held by: {held})")
     return found
+
+
+LINK = re.compile(r"\]\(([^)#\s]+)|(?<![\w/.])(results/[\w./-]+)")
+
+
+def holders(doc: str, text: str, at: int, number: str, root: Path = ROOT) -> List[str]:
+    """Where to register an unregistered number: the data files (and CSV columns) that the paragraph around offset
+    ``at`` (a table's with its caption) links and that hold ``number``."""
+    start, end = text.rfind("\n\n", 0, at) + 1, text.find("\n\n", at)
+    if text[text.rfind("\n", 0, at) + 1 :].lstrip().startswith("|"):  # a table: its caption paragraph too
+        start = text.rfind("\n\n", 0, max(start - 1, 0)) + 1
+    found = []
+    for link in LINK.finditer(text[start : end if end >= 0 else None]):
+        target = link.group(1) or link.group(2)
+        path = next((p for p in ((root / doc).parent / target, root / target) if p.exists()), None)
+        if path is None or not path.resolve().is_relative_to(root / "results"):
+            continue
+        folder = path.parent if path.name == "README.md" else path
+        for data in sorted(folder.rglob("*")) if folder.is_dir() else [folder]:
+            if data.suffix not in DATA or data.name == "README.md" or not holds(data, number):
+                continue
+            name = data.resolve().relative_to(root.resolve()).as_posix()
+            columns = [c for c in _rows(data)[0] if c and holds(data, number, c)] if data.suffix == ".csv" else []
+            found += [f"{name}#{c}" for c in columns] or [name]
+    return list(dict.fromkeys(found))
