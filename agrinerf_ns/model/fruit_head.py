@@ -29,9 +29,8 @@ FRUIT_DEPTH_EPS = 1e-4
 class FruitHead(nn.Module):
     """Fruit logit of a sample from its density features and its encoded grid position.
 
-    The position matters: at the grid sizes a CPU trains (16^3 to 300^3, a few components), the density features
-    are smooth and alike across a surface, so alone they cannot tell a fruit from the leaf beside it
-    (tests/test_fruit_head.py: IoU 0.00 after 150 steps on the tiny scene without it).
+    The position is there because at the grid sizes a CPU trains (16^3 to 300^3, a few components) the density
+    features are smooth and alike across a surface, so alone they can hardly tell a fruit from the leaf beside it.
 
     Args:
         in_dim: density features per sample (the density volume's `get_out_dim()`).
