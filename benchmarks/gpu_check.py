@@ -139,7 +139,17 @@ def steps(args: Args) -> List[Step]:
         # fruit masks from the frames (colour where lit, thermal where dark): the fruit head trains, its CUDA path runs
         Step(
             "dataset",
-            ["agrinerf-process", "--raw", str(raw), "--out", str(data), "--poses", "given", "--fruit-mask-maker", "auto"],
+            [
+                "agrinerf-process",
+                "--raw",
+                str(raw),
+                "--out",
+                str(data),
+                "--poses",
+                "given",
+                "--fruit-mask-maker",
+                "auto",
+            ],
         ),
     ]
     for preset in args.presets:
