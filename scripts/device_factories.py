@@ -49,6 +49,9 @@ SCOPE = (
     "agrinerf_ns/model",
     "agrinerf_ns/count",
     "agrinerf_ns/trajectory.py",
+    "agrinerf_ns/colour.py",
+    "agrinerf_ns/cpu_memory.py",
+    "agrinerf_ns/views.py",
     "dataparsers/event_stream.py",
     "dataparsers/fruit_sampler.py",
 )
