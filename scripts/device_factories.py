@@ -5,15 +5,16 @@ A tensor made without a device lands on the CPU; on a GPU run it then meets the 
 ("Expected all tensors to be on the same device"), a bug no CPU test shows. Only a module's parameters and buffers
 follow ``model.to(device)``: a tensor kept anywhere else (a plain attribute, even one set in an ``__init__``, or a
 module-level constant) stays where it was made. This check reads every module of ``SCOPE`` (the model, the count, the
-trajectory, the event stream and the fruit sampler; ``tests/test_fake_device_step.py`` holds that every project module
-a step, an evaluation or a count's render runs lies in it or in ``HOST_SIDE``) and names every tensor factory (``FACTORIES``; called as
-``torch.zeros``, through an alias such as ``import torch as th`` / ``from torch import zeros``, or as the
-``torch.Tensor(...)`` / ``torch.FloatTensor(...)`` constructors) that
+trajectory, the event stream, the fruit sampler and the helpers a step calls; ``tests/test_fake_device_step.py`` holds
+that every project module with tensors that a step, an evaluation or a count's render calls lies in it or in
+``HOST_SIDE``) and names every tensor factory (``FACTORIES``; called as ``torch.zeros``, through an alias such as
+``import torch as th`` / ``from torch import zeros``, or as the ``torch.Tensor(...)`` constructors) that
 
-- passes no ``device=`` (``device=None`` is none: the default device), and
+- passes no ``device=`` (``device=None`` is the default device; ``device="cpu"`` is the CPU: neither counts), and
 - is not moved at once to a device (``torch.<factory>(...).to(x.device)``, ``.to(device=...)``, ``.cuda()``, possibly
   through dtype or shape methods such as ``.float()``; ``.to(torch.float64)`` or ``.to(other_tensor)`` do not count:
-  only an argument that names a device, ``.device`` / ``device`` / ``torch.device(...)`` / a device string, does), and
+  only an argument that names a device other than the CPU, ``.device`` / ``device`` / ``torch.device(...)`` /
+  ``"cuda"``, does), and
 - is not made into a parameter or buffer (inside ``nn.Parameter(...)`` / ``register_buffer(...)``, or assigned to a
   local name that one of them takes in the same function), which ``model.to`` moves, and
 - carries no comment ``# cpu: <why>`` on one of its lines (CPU on purpose: data that lives on the CPU, a CPU generator
@@ -103,9 +104,18 @@ def _factory_name(node: ast.Call, modules: Set[str], factories: Dict[str, str]) 
     return None
 
 
+def _names_the_cpu(node: ast.expr) -> bool:
+    """``None`` (the default device), ``"cpu"`` or ``torch.device("cpu")``."""
+    if isinstance(node, ast.Constant):
+        return node.value is None or (isinstance(node.value, str) and node.value.startswith("cpu"))
+    return isinstance(node, ast.Call) and bool(node.args) and _names_the_cpu(node.args[0])
+
+
 def _names_a_device(node: ast.expr) -> bool:
-    """Whether an argument reads as a device: ``x.device``, a name with ``device`` in it, ``torch.device(...)``, a
-    device string, or a call that returns one (``get_device()``)."""
+    """Whether an argument reads as a device other than the CPU: ``x.device``, a name with ``device`` in it,
+    ``torch.device(...)``, a device string or index, or a call that returns one (``get_device()``)."""
+    if _names_the_cpu(node):
+        return False
     if isinstance(node, ast.Constant):
         return isinstance(node.value, (str, int)) and not isinstance(node.value, bool)
     if isinstance(node, ast.Attribute):
@@ -118,9 +128,7 @@ def _names_a_device(node: ast.expr) -> bool:
 
 
 def _passes_device(node: ast.Call) -> bool:
-    return any(
-        k.arg == "device" and not (isinstance(k.value, ast.Constant) and k.value.value is None) for k in node.keywords
-    )
+    return any(k.arg == "device" and not _names_the_cpu(k.value) for k in node.keywords)
 
 
 def _moved_at_once(node: ast.Call, parents: Dict[ast.AST, ast.AST]) -> bool:

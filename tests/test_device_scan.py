@@ -27,11 +27,13 @@ PLANTED = {
         "import torch\nclass Part(torch.nn.Module):\n    def __init__(self):\n        super().__init__()\n"
         "        self.offset = torch.zeros(3)\n    def forward(self, x):\n        return x + self.offset\n"
     ),
+    "device='cpu' spelt out": "import torch\ndef f(x):\n    return x + torch.ones(3, device='cpu').to('cpu')\n",
     "per-step from_numpy moved": (
         "import numpy as np\nimport torch\ndef f(x, a):\n    return x + torch.from_numpy(np.asarray(a)).to(x.device)\n"
     ),
 }
-"""The planted cases of issue 61, each a bug on a GPU run (or a host copy per step) that the old check let pass."""
+"""The planted cases of issue 61 (and a CPU device spelt out), each a bug on a GPU run (or a host copy per step) that
+the old check let pass."""
 
 CLEARED = (
     "import numpy as np\nimport torch\nfrom torch import nn\n"
