@@ -65,16 +65,37 @@ SCHEDULE: Dict[str, Any] = dict(
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny dusk garden: RGB, thermal frames, an event stream (and event frames) and fruit masks."""
+    """A tiny dusk garden: RGB, thermal frames, an event stream (and event frames) and fruit masks made as the GPU
+    check makes them (`--fruit-mask-maker auto`)."""
+    from PIL import Image
+
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
     root = tmp_path_factory.mktemp("fake-device")
-    raw = generate_capture(SynthConfig.tiny(seed=4, lighting="dusk", views=8), root / "raw")
-    config = ProcessConfig(poses="given", show_progress=False, fruit_mask_maker="auto")
+    raw = generate_capture(SynthConfig.tiny(seed=4, scene="garden", lighting="dusk", views=8), root / "raw")
+    config = ProcessConfig(poses="given", show_progress=False, fruit_mask_maker=GPU_CHECK_MASKS)
     data = process_capture(raw, root / "data", config)
-    assert (data / "events" / "stream.h5").is_file() and any((data / "fruit_masks").iterdir())
+    assert (data / "events" / "stream.h5").is_file()
+    masks = [np.asarray(Image.open(path)) for path in sorted((data / "fruit_masks").iterdir())]
+    assert len(masks) == 8 and sum(int((m == 255).sum()) for m in masks) > 0  # fruit for the fruit head to learn
     return data
+
+
+GPU_CHECK_MASKS = "auto"
+
+
+def test_the_gpu_check_makes_fruit_masks(tmp_path: Path) -> None:
+    """`scripts/gpu_check.sh` processes its dusk garden with the fruit masks this test's dataset has (`dataset`), so
+    every preset builds its fruit head on the lent GPU."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import gpu_check
+    finally:
+        sys.path.pop(0)
+    (step,) = [s for s in gpu_check.steps(gpu_check.Args(out=tmp_path)) if s.check == "dataset"]
+    argv = step.argv
+    assert argv[argv.index("--fruit-mask-maker") + 1] == GPU_CHECK_MASKS
 
 
 def _config(preset: str, data: Path) -> Any:
