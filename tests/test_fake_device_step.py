@@ -23,7 +23,7 @@ from __future__ import annotations
 import copy
 import sys
 from pathlib import Path
-from typing import Any, Dict, List, Set, Tuple
+from typing import Any, Callable, Dict, List, Set, Tuple
 
 import numpy as np
 import pytest
@@ -186,9 +186,8 @@ def _run_preset(preset: str, data: Path, out: Path) -> Tuple[Any, Dict[str, Any]
             model._lazy_metrics["lpips"] = LpipsStandIn()
             shown["eval"] = pipeline.get_average_eval_image_metrics()
             pipeline.datamanager.train_dataparser_outputs.save_dataparser_transform(out / "dataparser_transforms.json")
-            run = LoadedRun(
-                config_path=out / "config.yml", method=preset, pipeline=pipeline, checkpoint=out, step=STEPS
-            )
+            shown["config"] = out / "config.yml"
+            run = LoadedRun(config_path=shown["config"], method=preset, pipeline=pipeline, checkpoint=out, step=STEPS)
             shown["count render"] = render_loaded_run(run, splits=("eval",)).views
             shown["aten calls"] = mode.calls
     finally:
@@ -196,9 +195,22 @@ def _run_preset(preset: str, data: Path, out: Path) -> Tuple[Any, Dict[str, Any]
     return pipeline, shown, names, _project_files(seen)
 
 
+@pytest.fixture(scope="module")
+def runs(dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Tuple[Any, ...]]:
+    """`_run_preset` of a preset, run once per module (the benchmarks' test reuses a run)."""
+    done: Dict[str, Tuple[Any, ...]] = {}
+
+    def run(preset: str) -> Tuple[Any, ...]:
+        if preset not in done:
+            done[preset] = (*_run_preset(preset, dataset, tmp_path_factory.mktemp(preset)), preset)
+        return done[preset]
+
+    return run
+
+
 @pytest.mark.parametrize("preset", sorted(PRESETS))
-def test_preset_step_eval_and_count_render_on_a_pretend_device(preset: str, dataset: Path, tmp_path: Path) -> None:
-    pipeline, shown, names, files = _run_preset(preset, dataset, tmp_path)
+def test_preset_step_eval_and_count_render_on_a_pretend_device(preset: str, runs: Callable) -> None:
+    pipeline, shown, names, files, _ = runs(preset)
     plan = pipeline.model.plan
     expected = {"rgb", "depth", "accumulation", "fruit"}  # every preset: the masks build the fruit head
     if plan.use_blur:
@@ -233,6 +245,29 @@ def _scanned() -> Set[str]:
     finally:
         sys.path.pop(0)
     return {p.relative_to(ROOT).as_posix() for p in scope_files(ROOT)} | set(HOST_SIDE)
+
+
+def test_the_benchmarks_sample_the_field_on_the_models_device(runs: Callable, dataset: Path, monkeypatch) -> None:
+    """`count_field_contrast.py` and `box_truth_ceiling.py` on a run whose model is on the pretend device (each crashed
+    on CUDA before: CPU points into the device's field and box)."""
+    from helpers.bench_script import load_bench_script
+
+    from agrinerf_ns.detect import render_views
+    from agrinerf_ns.detect.render_views import LoadedRun
+
+    pipeline, shown, _, _, preset = runs("agrinerf-lite")
+    config = shown["config"]  # a run folder holding the run's dataparser_transforms.json
+    run = LoadedRun(config_path=config, method=preset, pipeline=pipeline, checkpoint=config.parent, step=STEPS)
+    contrast, ceiling = load_bench_script("count_field_contrast"), load_bench_script("box_truth_ceiling")
+    monkeypatch.setattr(render_views, "load_run", lambda *a, **k: run)  # the run in memory, not from disk
+    monkeypatch.setattr(ceiling, "load_run", lambda *a, **k: run)
+    monkeypatch.setattr(contrast, "trained_run_config", lambda path: path)
+    raw = dataset.parent / "raw"
+    with FakeDevice():
+        table = contrast.main(contrast.Args(run=config, raw=raw))
+        shares = ceiling.main(ceiling.Args(config=config, raw=raw, data=dataset))
+    assert "visible true fruit" in table and shares["heldout_views"] == 1
+    assert 0.0 < shares["share_of_pixels_with_any_true_surface"] <= 1.0
 
 
 def test_a_cpu_tensor_planted_in_the_render_fails_the_step(dataset: Path, tmp_path: Path, monkeypatch) -> None:
