@@ -56,8 +56,9 @@ def main(args: Args) -> Dict[str, float]:
         origins.append(frame.to_ns(view.origins[hit]))
     views = [v for v in every if v.split == "eval"]
     points = np.concatenate([p for v, p in zip(every, seen, strict=True) if v.split == "eval"])
+    device = model.device  # the box lives on the model's device (CUDA runs): the points go there
     with torch.no_grad():
-        inside = int(model.field.full_resolution(torch.from_numpy(points).float()).sum())
+        inside = int(model.field.full_resolution(torch.from_numpy(points).float().to(device)).sum())
     hits = points.shape[0]
     pixels = sum(v.accumulation.size for v in views)
     final = int(model.config.final_resolution)
@@ -75,9 +76,12 @@ def main(args: Args) -> Dict[str, float]:
     }
     # the box the run's fit rules would give a perfect field: the true surfaces of every view, seen from its camera
     truth_box = model.grid.box_for_surface(
-        torch.from_numpy(np.concatenate(seen)).float(), None, torch.from_numpy(np.concatenate(origins)).float()
+        torch.from_numpy(np.concatenate(seen)).float().to(device),
+        None,
+        torch.from_numpy(np.concatenate(origins)).float().to(device),
     )
     if truth_box is not None:
+        truth_box = truth_box.cpu()
         held = ((points >= truth_box[0].numpy()) & (points <= truth_box[1].numpy())).all(axis=1)
         result["truth_fit_share_of_true_surfaces_in_box"] = float(held.mean())
         result["truth_fit_voxel_m"] = box_voxel(truth_box, model.config.box_grid_fraction, final) * metres

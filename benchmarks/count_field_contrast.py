@@ -50,8 +50,8 @@ def main(args: Args) -> str:
     radii_ns = 0.5 * truth.diameters[visible] * frame.scale / to_capture.scale
     towards = sampled.eye - centres_ns
     front = centres_ns + towards / np.linalg.norm(towards, axis=1, keepdims=True) * radii_ns[:, None]
-    density = field_density(model.field, front)
-    _, temperature = field_features(model, front, "temperature", sampled.eye)
+    density = field_density(model.field, front, model.device)  # the points go where the field lives (CUDA runs)
+    _, temperature = field_features(model, front, "temperature", sampled.eye, model.device)
     assert temperature is not None and sampled.temperature is not None
     seen = sampled.points()
     near = []

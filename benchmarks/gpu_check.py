@@ -6,8 +6,9 @@ CUDA, the stock commands load the paper preset's run, and the paper preset's ste
 
 Steps, in order (each one's output in ``OUT/logs/``):
 
-1. ``agrinerf-synth`` and ``agrinerf-process --poses given``: a dusk garden with blur, events and thermal frames,
-   metric poses (so the box fit's voxel target applies, the path of the first GPU crash).
+1. ``agrinerf-synth`` and ``agrinerf-process --poses given --fruit-mask-maker auto``: a dusk garden with blur, events,
+   thermal frames and fruit masks (so every preset builds its fruit head and trains it on CUDA), metric poses (so the
+   box fit's voxel target applies, the path of the first GPU crash).
 2. ``ns-train PRESET`` for every preset, ``--steps`` steps, its box fits at steps 100 and 200 and its grids upsampled at
    steps 150 and 250, blur model and events on from step 0; then ``ns-eval`` on each run.
 3. ``ns-render dataset`` and ``agrinerf-count`` (scored against the synthetic truth) on the paper preset's run.
@@ -135,7 +136,21 @@ def steps(args: Args) -> List[Step]:
                 "--no-preview",
             ],
         ),  # fmt: skip
-        Step("dataset", ["agrinerf-process", "--raw", str(raw), "--out", str(data), "--poses", "given"]),
+        # fruit masks from the frames (colour where lit, thermal where dark): the fruit head trains, its CUDA path runs
+        Step(
+            "dataset",
+            [
+                "agrinerf-process",
+                "--raw",
+                str(raw),
+                "--out",
+                str(data),
+                "--poses",
+                "given",
+                "--fruit-mask-maker",
+                "auto",
+            ],
+        ),
     ]
     for preset in args.presets:
         plan.append(Step(f"train {preset}", ["ns-train", *_train_args(args, preset)]))

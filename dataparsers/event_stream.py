@@ -62,8 +62,8 @@ class EventStream:
         keys = pixel * self.span + (t - self.t_min)
         on = np.asarray(p).astype(bool)
         self._keys: Dict[str, Tensor] = {
-            "on": torch.from_numpy(np.sort(keys[on])),
-            "off": torch.from_numpy(np.sort(keys[~on])),
+            "on": torch.from_numpy(np.sort(keys[on])),  # host: the stream is counted in host memory
+            "off": torch.from_numpy(np.sort(keys[~on])),  # host: as above
         }
 
     @classmethod
@@ -111,9 +111,12 @@ def sample_windows(
     """Random sub-windows ``[t0, t1)`` (integer microseconds) of the `frames`' windows (seconds): a length uniform in
     ``[min_fraction, 1]`` of the window, placed uniformly inside it."""
     start, end = windows[frames, 0].double(), windows[frames, 1].double()
-    fraction = min_fraction + (1.0 - min_fraction) * torch.rand(frames.shape, generator=generator, dtype=torch.float64)
+    # cpu: the windows, the frames drawn and the stream they index live on the host
+    draw = torch.rand(frames.shape, generator=generator, dtype=torch.float64)  # cpu: see above
+    fraction = min_fraction + (1.0 - min_fraction) * draw
     length = (end - start) * fraction
-    t0 = start + (end - start - length) * torch.rand(frames.shape, generator=generator, dtype=torch.float64)
+    place = torch.rand(frames.shape, generator=generator, dtype=torch.float64)  # cpu: see above
+    t0 = start + (end - start - length) * place
     return torch.round(t0 * 1e6).long(), torch.round((t0 + length) * 1e6).long()
 
 
@@ -130,7 +133,7 @@ def pixel_directions(
     points = np.stack([u.ravel(), v.ravel()], -1)[:, None, :]
     normalised = cv2.undistortPoints(points, K, np.asarray(distortion, dtype=np.float64))[:, 0, :]
     rays = np.concatenate([normalised, np.ones((normalised.shape[0], 1))], -1)
-    return torch.from_numpy(rays / np.linalg.norm(rays, axis=-1, keepdims=True))
+    return torch.from_numpy(rays / np.linalg.norm(rays, axis=-1, keepdims=True))  # host: once per dataset (cached)
 
 
 def rig_offset(T_cam_rgb: Float[np.ndarray, "4 4"], scale: float) -> Tuple[Float[Tensor, "3 3"], Float[Tensor, "3"]]:
@@ -140,7 +143,7 @@ def rig_offset(T_cam_rgb: Float[np.ndarray, "4 4"], scale: float) -> Tuple[Float
     T = np.asarray(T_cam_rgb, dtype=np.float64)
     rotation = GL_FLIP @ T[:3, :3].T
     centre = GL_FLIP @ (-T[:3, :3].T @ T[:3, 3]) * scale
-    return torch.from_numpy(rotation), torch.from_numpy(centre)
+    return torch.from_numpy(rotation), torch.from_numpy(centre)  # host: dataparser metadata, once
 
 
 @dataclass

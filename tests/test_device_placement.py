@@ -1,5 +1,5 @@
 """Device bugs caught on a CPU: fake CUDA tensors (``FakeTensorMode``) through the parts that take device-carrying
-inputs, and the static check of per-step tensor factories (``scripts/device_factories.py``)."""
+inputs (the static check of tensor factories: ``test_device_scan.py``; whole steps: ``test_fake_device_step.py``)."""
 
 from __future__ import annotations
 
@@ -173,30 +173,6 @@ def test_rotvec_matrix_at_the_extremes() -> None:
     vectors = np.stack([axis * a for a in (0.0, 1e-12, 1e-6, 9.9e-5, 1e-4, 0.5, 3.0, math.pi - 1e-9)])
     got = rotvec_matrix(torch.from_numpy(vectors)).numpy()
     np.testing.assert_allclose(got, Rotation.from_rotvec(vectors).as_matrix(), rtol=0, atol=1e-14)
-
-
-def test_every_per_step_tensor_factory_names_its_device() -> None:
-    """The static check over agrinerf_ns/model and agrinerf_ns/count passes, and names an offending line."""
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        from device_factories import offending_calls, report
-    finally:
-        sys.path.pop(0)
-    assert report(ROOT) == []
-    planted = (
-        "import torch\n"
-        "class M:\n"
-        "    def __init__(self):\n"
-        "        self.a = torch.zeros(3)\n"  # construction: allowed
-        "    def step(self, x):\n"
-        "        y = torch.tensor([1.0, 2.0])\n"  # line 6: the bug
-        "        z = torch.zeros(2, device=x.device)\n"
-        "        w = torch.rand(2).to(x.device)\n"
-        "        v = torch.ones(2)  # cpu: on purpose\n"
-        "        return torch.linspace(\n"  # line 10: the bug, over several lines
-        "            0, 1, 5)\n"
-    )
-    assert [line for line, _ in offending_calls(planted)] == [6, 10]
 
 
 def test_gpu_check_commands_all_parse_and_a_wrong_one_is_named(tmp_path: Path) -> None:

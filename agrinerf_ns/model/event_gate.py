@@ -51,16 +51,18 @@ class EventGate(nn.Module):
         super().__init__()
         assert rig.event_windows is not None and rig.trajectory is not None and rig.event_stream is not None
         self.config = config
-        generator = torch.Generator().manual_seed(GATE_SEED)
+        # cpu: the held-out pixels, windows and counts live with the host event stream; a CPU generator draws the
+        # same ones on every device (the renders take them to the model's device in `check`)
+        generator = torch.Generator().manual_seed(GATE_SEED)  # cpu: see above
         total = stream.width * stream.height
         n = max(1, config.event_gate_samples)
-        held = torch.randperm(total, generator=generator)[: max(1, min(n, total // 8))]
-        keep = torch.ones(total, dtype=torch.bool)
+        held = torch.randperm(total, generator=generator)[: max(1, min(n, total // 8))]  # cpu: see above
+        keep = torch.ones(total, dtype=torch.bool)  # cpu: see above
         keep[held] = False
         self.train_pixels: Int[Tensor, " k"] = keep.nonzero()[:, 0]  # the pixels training may draw
-        frames = torch.randint(0, rig.event_windows.shape[0], (n,), generator=generator)
+        frames = torch.randint(0, rig.event_windows.shape[0], (n,), generator=generator)  # cpu: see above
         t0, t1 = sample_windows(rig.event_windows, frames, config.event_window_min_fraction, generator)
-        pixel = held[torch.randint(0, held.shape[0], (n,), generator=generator)]
+        pixel = held[torch.randint(0, held.shape[0], (n,), generator=generator)]  # cpu: see above
         self.on, self.off = stream.counts(pixel, t0, t1)
         times = torch.stack([t0, t1], -1).double() * 1e-6
         self.origins, self.directions = event_stream.event_rays(rig.trajectory, rig.event_stream, pixel, times)

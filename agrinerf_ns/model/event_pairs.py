@@ -48,10 +48,11 @@ class EventPairs:
         order = np.lexsort((t, pixel))  # by pixel, then time; stable, so equal times keep the stream's order
         same = pixel[order[1:]] == pixel[order[:-1]]
         first, second = order[:-1][same], order[1:][same]
-        self.pixel = torch.from_numpy(pixel[first])
-        self.t_start_us = torch.from_numpy(t[first])
-        self.t_end_us = torch.from_numpy(t[second])
-        self.polarity = torch.from_numpy(np.where(np.asarray(p)[second] > 0, 1, -1).astype(np.int8))
+        # host: the pairs live in host memory (sampled there, the batch then moved)
+        self.pixel = torch.from_numpy(pixel[first])  # host: see above
+        self.t_start_us = torch.from_numpy(t[first])  # host: see above
+        self.t_end_us = torch.from_numpy(t[second])  # host: see above
+        self.polarity = torch.from_numpy(np.where(np.asarray(p)[second] > 0, 1, -1).astype(np.int8))  # host: see above
 
     @classmethod
     def from_h5(cls, path: Path, width: int, height: int) -> "EventPairs":

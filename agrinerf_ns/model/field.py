@@ -381,7 +381,7 @@ class AgriNeRFField(Field):
         device = self.occupancy.device
         axis = (torch.arange(res, device=device, dtype=torch.float32) + 0.5) / res * 2.0 - 1.0
         centres = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1).reshape(-1, 3)
-        gen = torch.Generator(device="cpu").manual_seed(res)
+        gen = torch.Generator(device="cpu").manual_seed(res)  # cpu: the jitter, alike on every device
         jitter = (torch.rand(centres.shape, generator=gen) - 0.5).to(device) * (2.0 / res)  # cpu: same on every device
         dens = torch.zeros(centres.shape[0], device=device)
         for pts in (centres, centres + jitter):

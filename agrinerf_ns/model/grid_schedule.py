@@ -65,7 +65,7 @@ class GridSchedule:
         field, cfg = self.field, self.config
         if field.mapping is None:
             return None
-        gen = torch.Generator().manual_seed(SIDE_STREAM_SEED + step)
+        gen = torch.Generator().manual_seed(SIDE_STREAM_SEED + step)  # cpu: see below
         n = cfg.box_fit_rays
         # cpu: a CPU generator draws the same rays on every device; Nerfstudio's training cameras stay on the CPU
         index = torch.randint(0, cameras.shape[0], (n,), generator=gen)  # cpu: see above

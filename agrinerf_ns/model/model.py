@@ -147,7 +147,7 @@ class AgriNeRFModel(Model):
         # the first full-resolution box: around the dataset's SfM points where it has them (refitted in training)
         points = (self.kwargs.get("metadata") or {}).get("points3D_xyz")
         if self.field.mapping is not None and points is not None:
-            box = fit_box_to_points(torch.as_tensor(points, dtype=torch.float32))
+            box = fit_box_to_points(torch.as_tensor(points, dtype=torch.float32))  # cpu: before model.to(device)
             if box is not None:
                 self.field.refit_box(box, cfg.box_grid_fraction, cfg.init_resolution)
 
