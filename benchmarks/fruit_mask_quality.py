@@ -186,7 +186,7 @@ def body_rows(args: Args) -> str:
         config = replace(config, bodies=replace(config.bodies, min_views=n))
         masks, record = thermal_body_masks(args.dataset, frames, list(range(len(frames))), config, views)
         by_path = {frame["file_path"]: masks[i] for i, frame in enumerate(frames)}
-        label = (f"thermal bodies, {n} views (polarity {record['polarity']}; bodies {record['bodies_per_side']}; "
+        label = (f"thermal bodies, {n} views (polarity {record['polarity']}; sightings {record['sightings_per_side']}; "
                  f"dropped {record['dropped']})")  # fmt: skip
         out += quality(args, lambda frame, found=by_path: found[frame["file_path"]], label, thermal_view=True)
     return out

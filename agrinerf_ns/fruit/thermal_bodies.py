@@ -14,7 +14,10 @@ poses, they differ:
   structures: the region around such a blob at half its offset from the canopy spans many of its discs
   (:attr:`~agrinerf_ns.fruit.thermal_blobs.Blob.region_ratio`), a fruit's about one.
 - **The scene's fruit sit on one side of the leaves' temperature.** Of the blobs left, the side with the more
-  bodies is the fruit's (:func:`decide_polarity`), so the polarity is read from the capture, not set by the user.
+  sightings is the fruit's (:func:`decide_polarity`), so the polarity is read from the capture, not set by the user:
+  a fruit is seen again frame after frame, the compact parts of stakes and ground between leaves in fewer frames
+  (on the cool-fruit dark garden of tuning seed 0 as many warm bodies as fruit were placed, with half the
+  sightings; results/fruit-masks-dark).
 
 Depths are searched in steps of the camera spacing (``depth_range`` in camera steps), so the rule needs no metric
 scale and works on SfM poses as on odometry. (A ground plane fitted to the bodies' heights was tried first: with the
@@ -41,8 +44,9 @@ class BodySettings:
 
     neighbours: int = 4
     """Frames either side of a blob's frame searched for it."""
-    min_views: int = 3
-    """A blob is a body when it shows at one place in this many frames, its own included."""
+    min_views: int = 2
+    """A blob is a body when it shows at one place in this many frames, its own included (two masked the dark tuning
+    gardens better than three: results/fruit-masks-dark)."""
     depth_range: Tuple[float, float] = (4.0, 150.0)
     """Depths searched along a blob's ray, in steps of the median camera spacing (a 7.5 cm step: 0.3-11 m)."""
     depths: int = 96
@@ -58,10 +62,8 @@ class BodySettings:
     max_offset_c: float = 8.0
     """Radiometric frames: a blob more than this many degrees C off the canopy is not a fruit (night sky, engines;
     fruit stay within a few degrees of the leaves)."""
-    body_radius: float = 1.0
-    """Placed blobs within this many camera steps of a body's first blob are that body."""
     polarity_margin: float = 1.5
-    """One side is the fruit's when it holds this many times the other side's bodies; else both are kept."""
+    """One side is the fruit's when it holds this many times the other side's sightings; else both are kept."""
 
 
 @dataclass(frozen=True)
@@ -176,23 +178,6 @@ def closest_point(origins: Float[np.ndarray, "m 3"], directions: Float[np.ndarra
     return np.linalg.lstsq(projectors.sum(0), np.einsum("mij,mj->i", projectors, origins), rcond=None)[0]
 
 
-def group_bodies(points: Float[np.ndarray, "n 3"], radius: float) -> np.ndarray:
-    """One label per placed blob (-1 where a row is NaN): blobs within ``radius`` of a body's first blob are that body
-    (one fruit seen from many frames is one body)."""
-    labels = np.full(len(points), -1, np.int64)
-    centres: List[np.ndarray] = []
-    for k in np.flatnonzero(np.isfinite(points[:, 0])):
-        if centres:
-            gaps = np.linalg.norm(np.stack(centres) - points[k], axis=1)
-            nearest = int(np.argmin(gaps))
-            if gaps[nearest] <= radius:
-                labels[k] = nearest
-                continue
-        labels[k] = len(centres)
-        centres.append(points[k])
-    return labels
-
-
 def camera_step(geometry: Sequence[FrameGeometry]) -> float:
     """The median distance between consecutive cameras (the unit of depth and height; 1 for a single frame)."""
     centres = np.stack([g.rgb_c2w[:3, 3] for g in geometry])
@@ -202,23 +187,14 @@ def camera_step(geometry: Sequence[FrameGeometry]) -> float:
 
 
 def decide_polarity(signs: Float[np.ndarray, " n"], margin: float) -> Tuple[Optional[Side], Dict[str, int]]:
-    """The fruit's side from the bodies' ``signs`` (+1 warm, -1 cool): the side with ``margin`` times the other's
-    bodies, else None (both kept); with the bodies per side."""
+    """The fruit's side from the placed blobs' ``signs`` (+1 warm, -1 cool): the side with ``margin`` times the
+    other's sightings, else None (both kept); with the sightings per side."""
     counts = {"warm": int(np.sum(signs > 0)), "cool": int(np.sum(signs < 0))}
     if counts["warm"] >= margin * max(counts["cool"], 1) and counts["warm"] > 0:
         return "warm", counts
     if counts["cool"] >= margin * max(counts["warm"], 1) and counts["cool"] > 0:
         return "cool", counts
     return None, counts
-
-
-def _per_body(values: Float[np.ndarray, " n"], labels: np.ndarray, keep: Bool[np.ndarray, " n"]) -> np.ndarray:
-    """The mean of ``values`` over each body's kept blobs (one value per body)."""
-    keep = keep & (labels >= 0)
-    if not keep.any():
-        return np.zeros(0)
-    ids, inverse = np.unique(labels[keep], return_inverse=True)
-    return np.bincount(inverse, weights=values[keep]) / np.bincount(inverse)
 
 
 @dataclass
@@ -246,9 +222,8 @@ def decide_bodies(
     body = np.isfinite(placed.points[:, 0])
     plausible = np.abs(offsets) <= settings.max_offset_c if radiometric else np.ones(n, bool)
     compact = np.array([0.0 < b.region_ratio <= settings.max_region_ratio for b in blobs])
-    labels = group_bodies(placed.points, settings.body_radius * camera_step(geometry))
     candidate = body & plausible & compact
-    polarity, counts = decide_polarity(_per_body(signs, labels, candidate), settings.polarity_margin)
+    polarity, counts = decide_polarity(signs[candidate], settings.polarity_margin)
     side = np.ones(n, bool) if polarity is None else signs == (1.0 if polarity == "warm" else -1.0)
     dropped = {
         "not placed": int((~body).sum()),

@@ -342,7 +342,7 @@ def body_masks(
         masks.append(mask.astype(np.uint8))
     record = {
         "polarity": decision.polarity or "both (undecided)",
-        "bodies_per_side": decision.bodies,
+        "sightings_per_side": decision.bodies,
         "blobs": len(blobs),
         "fruit_blobs": int(decision.fruit.sum()),
         "dropped": decision.dropped,
