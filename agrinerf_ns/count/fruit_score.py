@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import Bool, Float
 
 from agrinerf_ns.count.render import CountInputError
+from agrinerf_ns.dataset_format import TRANSFORMS
 
 FRUITS_JSON = Path("truth") / "fruits.json"
 FRUIT_IDS_DIR = Path("truth") / "fruit_ids"
@@ -269,7 +270,7 @@ def _temperature_error(
 
 def read_frames(dataset: Path) -> List[dict]:
     """The frames of the dataset's ``transforms.json`` (raises naming the file when unreadable)."""
-    path = Path(dataset) / "transforms.json"
+    path = Path(dataset) / TRANSFORMS
     try:
         frames = json.loads(path.read_text())["frames"]
         if not isinstance(frames, list) or not all(isinstance(f, dict) and "file_path" in f for f in frames):
@@ -281,7 +282,7 @@ def read_frames(dataset: Path) -> List[dict]:
 
 def read_split(dataset: Path, key: str) -> List[str]:
     """A split list of ``transforms.json`` (``train_filenames``, ...); empty when it has none."""
-    path = Path(dataset) / "transforms.json"
+    path = Path(dataset) / TRANSFORMS
     try:
         return [str(name) for name in json.loads(path.read_text()).get(key, [])]
     except (OSError, json.JSONDecodeError, AttributeError, TypeError) as err:

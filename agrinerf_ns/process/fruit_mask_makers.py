@@ -31,15 +31,15 @@ import numpy as np
 from jaxtyping import Bool, Float, Shaped, UInt8
 from scipy import ndimage
 
+from agrinerf_ns.dataset_format import FRUIT_MASK, FRUIT_MASK_CAMERA, IMAGE, TEMPERATURE, THERMAL, THERMAL_MASK
 from agrinerf_ns.fruit.colour_score import fruit_colour
 from agrinerf_ns.fruit.contrast import Polarity, contrast
 from agrinerf_ns.fruit.ellipse import inscribed_ellipse
 from agrinerf_ns.fruit.thermal_blobs import thermal_blobs
 from agrinerf_ns.fruit.yolo import INSTALL_HINT, box_predictor
-from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
+from agrinerf_ns.fruit_mask_format import BACKGROUND, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
 from agrinerf_ns.modalities import DARK_RGB_LEVEL
-from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
 
 MaskMaker = Literal["none", "colour", "thermal", "auto", "yolo"]
@@ -185,13 +185,13 @@ def thermal_frame(
     """A frame's thermal image in the RGB plane and where the thermal camera saw. For the ``blobs`` rule its
     temperature (degrees C) where the dataset has one, a physical contrast that the 8-bit frame's local rescaling
     (Fieldscale) bends; else the 8-bit frame."""
-    if config.thermal_rule == "blobs" and TEMPERATURE_KEY in frame:
-        celsius, seen = decode_celsius(_read(folder / frame[TEMPERATURE_KEY], cv2.IMREAD_UNCHANGED))
+    if config.thermal_rule == "blobs" and TEMPERATURE.key in frame:
+        celsius, seen = decode_celsius(_read(folder / frame[TEMPERATURE.key], cv2.IMREAD_UNCHANGED))
         return celsius, seen
-    thermal = _read(folder / frame["thermal_file_path"], cv2.IMREAD_GRAYSCALE)
+    thermal = _read(folder / frame[THERMAL.key], cv2.IMREAD_GRAYSCALE)
     seen = (
-        _read(folder / frame["thermal_mask_path"], cv2.IMREAD_GRAYSCALE) > 127
-        if "thermal_mask_path" in frame
+        _read(folder / frame[THERMAL_MASK.key], cv2.IMREAD_GRAYSCALE) > 127
+        if THERMAL_MASK.key in frame
         else np.ones(thermal.shape, bool)
     )
     return thermal, seen
@@ -202,7 +202,7 @@ def make_fruit_masks(
 ) -> dict:
     """Write a mask per frame (from the frames already written under `tmp`) and name it in the frame; returns the
     dataset's record (the rule, the settings and how many frames each maker labelled)."""
-    (tmp / FOLDER).mkdir(parents=True, exist_ok=True)
+    (tmp / FRUIT_MASK.folder).mkdir(parents=True, exist_ok=True)
     used = {"colour": 0, "thermal": 0, "yolo": 0}
     predict = None
     if maker == "yolo":
@@ -210,8 +210,8 @@ def make_fruit_masks(
             config.yolo_weights, min(config.unsure_confidence, config.box_confidence), hint="--mask-maker.yolo-weights"
         )
     for frame, name in zip(frames, names, strict=True):
-        bgr = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)
-        has_thermal = "thermal_file_path" in frame
+        bgr = _read(tmp / frame[IMAGE.key], cv2.IMREAD_COLOR)
+        has_thermal = THERMAL.key in frame
         dark = float(bgr.mean()) / 255.0 < config.dark_level
         lit_kind = "yolo" if maker == "yolo" else "colour"
         kind = maker if maker in ("colour", "thermal") else ("thermal" if dark and has_thermal else lit_kind)
@@ -226,10 +226,10 @@ def make_fruit_masks(
         else:
             mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
         used[kind] += 1
-        frame[FRAME_KEY] = f"{FOLDER}/{name}.png"
+        frame[FRUIT_MASK.key] = FRUIT_MASK.path(name)
         if kind == "thermal":  # the thermal camera's view: supervised along its rays
-            frame[CAMERA_KEY] = "thermal"
-        write_png(tmp / frame[FRAME_KEY], mask)
+            frame[FRUIT_MASK_CAMERA] = "thermal"
+        write_png(tmp / frame[FRUIT_MASK.key], mask)
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}
     return {"source": f"maker:{maker}", "frames": used, "settings": settings,
             "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit"}  # fmt: skip
