@@ -63,7 +63,7 @@ from agrinerf_ns.dataset_format import (
     TRANSFORMS,
 )
 from agrinerf_ns.modalities import ALL_MODALITIES, DARK_RGB_LEVEL, Modality
-from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
+from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError, read_tum
 from agrinerf_ns.views import evenly_spaced
 
 if TYPE_CHECKING:
@@ -384,11 +384,9 @@ def _timing(
     traj_block = block.get("trajectory") or {}
     try:
         if traj_block.get("file"):
-            from agrinerf_ns.process.readers import RawInputError, read_tum
-
             try:
                 t_samples, c2w = read_tum(data_dir / traj_block["file"])
-            except RawInputError as error:
+            except TrajectoryError as error:
                 raise AgriNeRFDataError(f"trajectory named by agrinerf.trajectory.file: {error}") from error
         else:
             order = np.argsort([float(f["timestamp"]) for f in frames], kind="stable")

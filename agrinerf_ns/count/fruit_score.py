@@ -304,11 +304,11 @@ def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Sim
     matched to ``truth/poses.txt``): the rotation from the cameras' orientations (their mean relative rotation; camera
     centres alone leave the rotation about a straight path undetermined), then scale and translation from the centres
     by least squares. Raises :class:`CountInputError` naming the file that lacks the poses."""
-    from agrinerf_ns.process.readers import RawInputError, read_tum
+    from agrinerf_ns.trajectory import TrajectoryError, read_tum
 
     try:
         times, poses = read_tum(Path(raw) / TRUE_POSES)
-    except RawInputError as err:
+    except TrajectoryError as err:
         raise CountInputError(str(err)) from err
     src, dst, relative = [], [], []
     opengl_to_opencv = np.diag([1.0, -1.0, -1.0])

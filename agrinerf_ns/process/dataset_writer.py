@@ -96,18 +96,6 @@ def write_transforms(
         _write_json(out / THERMAL_TRANSFORMS, th_meta)
 
 
-def write_trajectory(path: Path, times: Float[np.ndarray, " n"], c2w: Float[np.ndarray, "n 4 4"]) -> None:
-    """A TUM file "t tx ty tz qx qy qz qw" of camera-to-world poses (the frames' world and camera axes)."""
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(np.asarray(c2w)[:, :3, :3]).as_quat()  # x, y, z, w
-    rows = np.concatenate([np.asarray(times, dtype=np.float64)[:, None], np.asarray(c2w)[:, :3, 3], q], 1)
-    tmp = path.with_suffix(path.suffix + ".part")
-    tmp.write_text("# t tx ty tz qx qy qz qw: camera-to-world, OpenGL camera axes (as transform_matrix)\n"
-                   + "".join(" ".join(f"{v:.9f}" for v in row) + "\n" for row in rows))  # fmt: skip
-    tmp.rename(path)
-
-
 def _write_json(path: Path, obj: Dict) -> None:
     tmp = path.with_suffix(path.suffix + ".part")
     tmp.write_text(json.dumps(obj, indent=2))

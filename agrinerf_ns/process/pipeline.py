@@ -30,13 +30,14 @@ from agrinerf_ns.process.dataset_writer import (
 )
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks
-from agrinerf_ns.process.readers import read_triggers, read_tum
+from agrinerf_ns.process.readers import read_triggers
 from agrinerf_ns.process.step_events import write_event_frames
 from agrinerf_ns.process.step_fruit_masks import check_fruit_masks, find_fruit_masks, write_fruit_masks
 from agrinerf_ns.process.step_poses import estimate_poses, write_odometry_trajectory
 from agrinerf_ns.process.step_rgb import write_rgb_frames
 from agrinerf_ns.process.step_thermal import write_thermal_frames
 from agrinerf_ns.process.trigger_sync import fit_trigger_sync
+from agrinerf_ns.trajectory import TrajectoryError, read_tum
 
 __all__ = ["CONSOLE", "ProcessConfig", "inspect_capture", "process_capture", "recorded_plane_depth"]
 
@@ -69,7 +70,10 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
     if config.poses == "given":
         if not (raw / "odometry.txt").is_file():
             raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses given needs the odometry file")
-        read_tum(raw / "odometry.txt")  # every line checked (8 finite numbers) before any output is written
+        try:  # every line checked (8 finite numbers) before any output is written
+            read_tum(raw / "odometry.txt")
+        except TrajectoryError as err:
+            raise RawInputError(str(err)) from err
     if config.sync == "trigger":
         if cap.event_file is None:
             raise RawInputError(f"{raw / 'events'}: --sync trigger needs an event file with trigger events")

@@ -14,12 +14,11 @@ from rich.progress import Progress
 
 from agrinerf_ns.dataset_format import IMAGE, THERMAL, THERMAL_MASK, TRAJECTORY
 from agrinerf_ns.process import poses as pose_utils
-from agrinerf_ns.process import readers
 from agrinerf_ns.process.capture import Capture, frame_interval
 from agrinerf_ns.process.config import ProcessConfig
 from agrinerf_ns.process.console import CONSOLE
-from agrinerf_ns.process.dataset_writer import write_trajectory
 from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.trajectory import read_tum, write_tum
 
 
 def estimate_poses(
@@ -78,6 +77,6 @@ def estimate_poses(
 def write_odometry_trajectory(raw: Path, tmp: Path) -> Dict:
     """The whole odometry as the dataset's ``trajectory.txt`` (OpenGL axes), for poses between frames
     (:mod:`agrinerf_ns.trajectory`); returns its metadata."""
-    odo_t, odo_c2w = readers.read_tum(raw / "odometry.txt")
-    write_trajectory(tmp / TRAJECTORY, odo_t, pose_utils.opencv_to_opengl(odo_c2w))
+    odo_t, odo_c2w = read_tum(raw / "odometry.txt")
+    write_tum(tmp / TRAJECTORY, odo_t, pose_utils.opencv_to_opengl(odo_c2w))
     return {"file": TRAJECTORY, "source": "odometry.txt", "samples": int(len(odo_t))}
