@@ -12,12 +12,16 @@ from test_static_checks import _modules
 from agrinerf_ns import dataset_format
 from agrinerf_ns.dataset_format import (
     ALIGNED_FRAMES,
+    EVENT_STREAM,
     EXPOSURE_END,
     EXPOSURE_START,
     FRAME_FILES,
     FRUIT_MASK_CAMERA,
     IMAGE,
     THERMAL_TIMESTAMP,
+    THERMAL_TRANSFORMS,
+    TRAJECTORY,
+    TRANSFORMS,
 )
 
 
@@ -46,8 +50,9 @@ def _spelled(names: Dict[str, str]) -> List[str]:
 
 def _table_names() -> Dict[str, str]:
     """Every per-frame key and metadata key of the table but Nerfstudio's own ``file_path`` (and ``timestamp``, a
-    word of every raw reader too)."""
+    word of every raw reader too), and the dataset's file names."""
     names = {key: "frame key" for key in (FRUIT_MASK_CAMERA, THERMAL_TIMESTAMP, EXPOSURE_START, EXPOSURE_END)}
+    names.update({name: "file name" for name in (TRANSFORMS, THERMAL_TRANSFORMS, TRAJECTORY, EVENT_STREAM)})
     for row in FRAME_FILES:
         if row is not IMAGE:
             names[row.key] = names[row.metadata] = f"{row.key} row"

@@ -323,7 +323,7 @@ def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Sim
             relative.append(poses[k][:3, :3] @ opengl_to_opencv @ c2w[:3, :3].T)
     if len(src) < 3:
         raise CountInputError(
-            f"{Path(dataset) / 'transforms.json'}: {len(src)} frames have a timestamp matching "
+            f"{Path(dataset) / TRANSFORMS}: {len(src)} frames have a timestamp matching "
             f"{Path(raw) / TRUE_POSES}; aligning the dataset to the capture needs 3 (or pass --align none)"
         )
     u, _, vt = np.linalg.svd(np.mean(relative, axis=0))

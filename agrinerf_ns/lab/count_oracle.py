@@ -34,7 +34,7 @@ from jaxtyping import Float, Int
 
 from agrinerf_ns.count.fruit_score import FRUIT_IDS_DIR, raw_stem, read_frames, read_split
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
-from agrinerf_ns.dataset_format import FRUIT_MASK, FRUIT_MASK_CAMERA, THERMAL, THERMAL_MASK
+from agrinerf_ns.dataset_format import FRUIT_MASK, FRUIT_MASK_CAMERA, THERMAL, THERMAL_MASK, TRANSFORMS
 from agrinerf_ns.fruit_mask_format import fruit_and_known
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
 
@@ -135,7 +135,7 @@ def oracle_renders(
     raw: Path, dataset: Path, thermal_mode: ThermalMode = "reprojected", fruit_mode: FruitMode = "none"
 ) -> RenderSet:
     """Every frame of ``dataset`` (processed from the synthetic capture ``raw``) as a rendered view."""
-    meta = json.loads((dataset / "transforms.json").read_text())
+    meta = json.loads((dataset / TRANSFORMS).read_text())
     if not (raw / "truth" / "depth").is_dir():
         raise CountInputError(f"{raw / 'truth' / 'depth'}: missing; the oracle needs a synthetic capture's true depth")
     calib = read_calibration(raw / "calib.yaml")
