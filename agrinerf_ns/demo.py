@@ -26,6 +26,7 @@ from rich.console import Console
 from rich.table import Table
 
 from agrinerf_ns.contact_sheet import Box, ColourScale, Column, brighten, display_gain
+from agrinerf_ns.dataset_format import TRANSFORMS
 
 CONSOLE = Console()
 
@@ -292,7 +293,7 @@ def main(config: DemoConfig) -> DemoResult:
                             width=config.width, height=config.width * 3 // 4)  # fmt: skip
         with _timed(stages, "agrinerf-synth"):
             generate_capture(synth, raw)
-    if (data / "transforms.json").exists():
+    if (data / TRANSFORMS).exists():
         CONSOLE.print(f"reusing the dataset in {data} (delete it to process again)", soft_wrap=True)
     else:
         CONSOLE.rule("2/5 agrinerf-process")

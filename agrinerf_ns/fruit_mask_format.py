@@ -1,6 +1,6 @@
-"""The fruit-mask format of a dataset, shared by the processing that writes masks and the dataparser that reads them.
+"""The fruit-mask values of a dataset, shared by the processing that writes masks and the dataparser that reads them.
 
-A frame's ``fruit_mask_file_path`` (``transforms.json``) names a single-channel 8-bit image in the RGB camera's plane,
+A frame's ``fruit_mask_file_path`` (``transforms.json``; its keys and folder: :mod:`agrinerf_ns.dataset_format`) names a single-channel 8-bit image in the RGB camera's plane,
 at the RGB frame's resolution: :data:`BACKGROUND` (0), :data:`UNKNOWN` (128: nobody knows, not supervised), any other
 value fruit (so 0/255 and 0/1 masks, as segmenters and FruitNeRF's ``semantics/`` write them, read as they are).
 A frame's optional ``fruit_mask_camera`` says whose view the mask holds: ``rgb`` (the default) or ``thermal``, a mask
@@ -16,11 +16,6 @@ from typing import Tuple
 import numpy as np
 from jaxtyping import Bool, UInt8
 
-FRAME_KEY = "fruit_mask_file_path"
-CAMERA_KEY = "fruit_mask_camera"
-"""``rgb`` or ``thermal``: whose view a frame's mask holds (absent: rgb)."""
-FOLDER = "fruit_masks"
-"""Where the processing writes them in a dataset (``fruit_masks/NNNNNN.png``)."""
 BACKGROUND = 0
 UNKNOWN = 128
 FRUIT = 255

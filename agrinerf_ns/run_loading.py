@@ -1,5 +1,5 @@
-"""Load a trained Nerfstudio run (its ``config.yml`` and latest checkpoint) for rendering or sampling: the one way
-the counter, the detector, the demo and the benchmarks open a run."""
+"""Find and load a trained Nerfstudio run (its ``config.yml`` and latest checkpoint) for rendering or sampling: the
+one way the counter, the detector, the demo and the benchmarks open a run."""
 
 from __future__ import annotations
 
@@ -8,6 +8,36 @@ from pathlib import Path
 from typing import Any, Dict, Optional
 
 from agrinerf_ns.views import rays_per_chunk
+
+
+class NotATrainedRunError(ValueError):
+    """A path that is not a trained Nerfstudio run (no config.yml, no checkpoint, no dataparser_transforms.json); the
+    message names it."""
+
+
+def trained_run_config(path: Path) -> Path:
+    """The ``config.yml`` of the trained run at ``path`` (the run folder or its config.yml); raises
+    :class:`NotATrainedRunError` naming ``path`` when it is not a trained Nerfstudio run (no config.yml, no checkpoint
+    under nerfstudio_models/, no dataparser_transforms.json)."""
+    from agrinerf_ns.ns_commands import CHECKPOINTS_DIR, checkpoints
+
+    path = Path(path)
+    config = path / "config.yml" if path.is_dir() else path
+    if not path.exists():
+        raise NotATrainedRunError(f"{path}: no such run folder or config.yml")
+    if config.name != "config.yml" or not config.is_file():
+        raise NotATrainedRunError(
+            f"{path}: not a trained Nerfstudio run (no config.yml; give the run folder "
+            "outputs/<name>/<method>/<time>/ or its config.yml)"
+        )
+    if not checkpoints(config):
+        raise NotATrainedRunError(
+            f"{path}: not a trained Nerfstudio run (no step-*.ckpt checkpoint in {config.parent / CHECKPOINTS_DIR})"
+        )
+    transforms = config.parent / "dataparser_transforms.json"
+    if not transforms.is_file():
+        raise NotATrainedRunError(f"{path}: not a trained Nerfstudio run ({transforms} is missing; ns-train writes it)")
+    return config
 
 
 @dataclass

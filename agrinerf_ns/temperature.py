@@ -11,8 +11,6 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Bool, Float, UInt16
 
-FRAME_KEY = "thermal_temperature_path"
-"""Per-frame key of the linear temperature images in ``transforms.json``."""
 KELVIN_PER_UNIT = 0.01
 """Temperature step of one PNG unit (kelvin)."""
 ZERO_CELSIUS_K = 273.15

@@ -11,13 +11,16 @@ world frame applied to every sample (and a uniform scale of the translations, as
 and any fixed change of camera axes (OpenCV <-> OpenGL), commutes with this interpolation, so a trajectory can be
 built in the capture's frame and moved into the dataparser's with :meth:`CameraTrajectory.transformed`.
 
+The samples' file format is TUM's ("t tx ty tz qx qy qz qw" per line: :func:`read_tum`, :func:`write_tum`).
+
 Times are float64 seconds in the capture's clock (real clocks are Unix times near 1.7e9 s, which float32 cannot
 resolve below minutes: subtract a reference before any float32 use).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Dict, Literal, Optional, Union
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Dict, Literal, Optional, Tuple, Union
 
 import numpy as np
 from jaxtyping import Float
@@ -31,7 +34,8 @@ Extrapolate = Literal["linear", "clamp", "error"]
 
 
 class TrajectoryError(ValueError):
-    """Invalid trajectory samples, or a query outside the samples' time span with ``extrapolate="error"``."""
+    """Invalid trajectory samples, a query outside the samples' time span with ``extrapolate="error"``, or a TUM file
+    that is missing or malformed (the message names the file and line)."""
 
 
 class CameraTrajectory:
@@ -215,3 +219,72 @@ def exposure_subtimes(exposure: Float[np.ndarray, "n 2"], k: int) -> Float[np.nd
     exposure = np.asarray(exposure, dtype=np.float64)
     frac = (np.arange(k) + 0.5) / k
     return exposure[:, :1] + frac[None] * (exposure[:, 1:2] - exposure[:, :1])
+
+
+TUM_FIELDS = ("t", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
+"""The names of a TUM line's eight values, in order (for error messages)."""
+
+
+def read_tum(path: Path) -> Tuple[Float[np.ndarray, " n"], Float[np.ndarray, "n 4 4"]]:
+    """Read a TUM trajectory "t tx ty tz qx qy qz qw" -> (times, 4x4 camera-to-world matrices): a capture's
+    ``odometry.txt`` and ``truth/poses.txt``, a dataset's ``trajectory.txt``.
+
+    Raises :class:`TrajectoryError` naming the file and the 1-based line of a malformed row: not 8 numbers, a NaN or
+    infinite value (``float()`` accepts "nan" and "inf", which would otherwise become a NaN pose), or a zero
+    quaternion.
+    """
+    if not path.is_file():
+        raise TrajectoryError(f"{path}: pose file missing")
+    rows = []
+    linenos = []  # the file line of each row (comments and blank lines are skipped), for the messages below
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        try:
+            vals = [float(v) for v in parts]
+        except ValueError as err:
+            raise TrajectoryError(f"{path}:{lineno}: non-numeric value in {line!r}") from err
+        if len(vals) != 8:
+            raise TrajectoryError(f"{path}:{lineno}: expected 8 values 't tx ty tz qx qy qz qw', got {len(vals)}")
+        bad = [name for name, v in zip(TUM_FIELDS, vals, strict=True) if not np.isfinite(v)]
+        if bad:
+            raise TrajectoryError(f"{path}:{lineno}: value not finite ({', '.join(bad)}) in {line!r}")
+        rows.append(vals)
+        linenos.append(lineno)
+    if not rows:
+        raise TrajectoryError(f"{path}: no poses")
+    arr = np.asarray(rows, dtype=np.float64)
+    q = arr[:, 4:8]
+    norm = np.linalg.norm(q, axis=1)
+    if np.any(norm < 1e-8):
+        raise TrajectoryError(f"{path}:{linenos[int(np.argmin(norm))]}: zero quaternion")
+    q = q / norm[:, None]
+    c2w = np.tile(np.eye(4), (arr.shape[0], 1, 1))
+    c2w[:, :3, :3] = quat_xyzw_to_rotmat(q)
+    c2w[:, :3, 3] = arr[:, 1:4]
+    return arr[:, 0], c2w
+
+
+def quat_xyzw_to_rotmat(q: Float[np.ndarray, "n 4"]) -> Float[np.ndarray, "n 3 3"]:
+    """Unit quaternions (x, y, z, w) to rotation matrices."""
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+def write_tum(path: Path, times: Float[np.ndarray, " n"], c2w: Float[np.ndarray, "n 4 4"]) -> None:
+    """Write a TUM file "t tx ty tz qx qy qz qw" of camera-to-world poses (their world and camera axes) atomically."""
+    q = Rotation.from_matrix(np.asarray(c2w)[:, :3, :3]).as_quat()  # x, y, z, w
+    rows = np.concatenate([np.asarray(times, dtype=np.float64)[:, None], np.asarray(c2w)[:, :3, 3], q], 1)
+    tmp = path.with_suffix(path.suffix + ".part")
+    tmp.write_text("# t tx ty tz qx qy qz qw: camera-to-world, OpenGL camera axes (as transform_matrix)\n"
+                   + "".join(" ".join(f"{v:.9f}" for v in row) + "\n" for row in rows))  # fmt: skip
+    tmp.rename(path)

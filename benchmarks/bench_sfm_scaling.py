@@ -67,6 +67,7 @@ def capture(args: Args, n: int) -> Path:
 
 def run_one(args: Args, n: int, mode: str) -> Dict:
     from agrinerf_ns.process import poses, readers
+    from agrinerf_ns.trajectory import read_tum
 
     raw = capture(args, n)
     calib = readers.read_calibration(raw / "calib.yaml")
@@ -77,7 +78,7 @@ def run_one(args: Args, n: int, mode: str) -> Dict:
     t0 = time.perf_counter()
     res = poses.run_sfm(images, calib.rgb.K, work, cfg, "sfm-rgb")
     wall = time.perf_counter() - t0
-    t_true, c2w_true = readers.read_tum(raw / "truth" / "poses.txt")
+    t_true, c2w_true = read_tum(raw / "truth" / "poses.txt")
     idx = poses.match_times(frames.times, t_true, 1e-6)
     ok = res.registered & (idx >= 0)
     path_len = float(np.linalg.norm(np.diff(c2w_true[:, :3, 3], axis=0), axis=1).sum())

@@ -17,7 +17,8 @@ import imageio.v3 as iio
 import numpy as np
 import tyro
 
-from agrinerf_ns.fruit_mask_format import FRAME_KEY, fruit_and_known
+from agrinerf_ns.dataset_format import FRUIT_MASK
+from agrinerf_ns.fruit_mask_format import fruit_and_known
 
 
 @dataclass
@@ -34,7 +35,7 @@ def main(args: Args) -> str:
     frames = json.loads((args.dataset / "transforms.json").read_text())["frames"]
     masks, truth = [], []
     for frame in frames:
-        fruit, known = fruit_and_known(iio.imread(args.dataset / frame[FRAME_KEY]))
+        fruit, known = fruit_and_known(iio.imread(args.dataset / frame[FRUIT_MASK.key]))
         masks.append(fruit & known)
         truth.append(iio.imread(args.raw / "truth" / "fruit_ids" / f"{Path(frame['file_path']).stem}.png") > 0)
     m, t = np.array(masks), np.array(truth)

@@ -24,7 +24,8 @@ import numpy as np
 import tyro
 from scipy import ndimage
 
-from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRUIT, fruit_and_known
+from agrinerf_ns.dataset_format import FRUIT_MASK_CAMERA
+from agrinerf_ns.fruit_mask_format import FRUIT, fruit_and_known
 from agrinerf_ns.process.fruit_mask_makers import ColourBalance
 
 
@@ -126,7 +127,9 @@ def quality(args: Args, masks: Callable[[dict], np.ndarray], source: str, therma
     plane_depth = float(meta.get("agrinerf", {}).get("alignment", {}).get("plane_depth", "inf"))
     for frame in meta["frames"]:
         ids = truth_fruit(args.raw, Path(frame["raw_rgb"]).name, maps)
-        if thermal_view or frame.get(CAMERA_KEY, "rgb") == "thermal":  # the thermal camera's view (thermal_view_fruit)
+        if (
+            thermal_view or frame.get(FRUIT_MASK_CAMERA, "rgb") == "thermal"
+        ):  # the thermal camera's view (thermal_view_fruit)
             if warp is None:
                 assert calib.thermal is not None, f"{args.raw / 'calib.yaml'}: no thermal camera"
                 warp = align.warp_maps(calib.rgb, calib.thermal, plane_depth)

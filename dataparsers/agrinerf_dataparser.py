@@ -46,23 +46,28 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
 from agrinerf_ns.dataparsers.fruit_masks import fruit_mask_paths
 from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
-from agrinerf_ns.fruit_mask_format import CAMERA_KEY as FRUIT_MASK_CAMERA_KEY
-from agrinerf_ns.fruit_mask_format import FRAME_KEY as FRUIT_MASK_KEY
+from agrinerf_ns.dataset_format import (
+    ALIGNED_FRAMES,
+    BLOCK,
+    EVENT_MASK,
+    EVENT_SUMS,
+    EVENTS,
+    EXPOSURE_END,
+    EXPOSURE_START,
+    FRUIT_MASK,
+    FRUIT_MASK_CAMERA,
+    TEMPERATURE,
+    THERMAL,
+    THERMAL_MASK,
+    THERMAL_TIMESTAMP,
+    TRANSFORMS,
+)
 from agrinerf_ns.modalities import ALL_MODALITIES, DARK_RGB_LEVEL, Modality
-from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
-from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError
+from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError, read_tum
 from agrinerf_ns.views import evenly_spaced
 
 if TYPE_CHECKING:
     from agrinerf_ns.dataparsers.event_stream import EventCamera
-
-# (modality, per-frame key in transforms.json, metadata key in DataparserOutputs, is_mask)
-FRAME_KEYS: Tuple[Tuple[Modality, str, str, bool], ...] = (
-    ("thermal", "thermal_file_path", "thermal_filenames", False),
-    ("thermal", "thermal_mask_path", "thermal_mask_filenames", True),
-    ("events", "event_file_path", "event_filenames", False),
-    ("events", "event_mask_path", "event_mask_filenames", True),
-)
 
 
 @dataclass
@@ -89,9 +94,7 @@ class AgriNeRFDataParser(Nerfstudio):
     config: AgriNeRFDataParserConfig
 
     def _generate_dataparser_outputs(self, split: str = "train") -> DataparserOutputs:
-        transforms_path = (
-            self.config.data if self.config.data.suffix == ".json" else self.config.data / "transforms.json"
-        )
+        transforms_path = self.config.data if self.config.data.suffix == ".json" else self.config.data / TRANSFORMS
         # checked before Nerfstudio's parser reads it, so a bad file fails with its name before any training
         meta = read_transforms(transforms_path)
         check_transforms(meta, transforms_path)
@@ -100,7 +103,7 @@ class AgriNeRFDataParser(Nerfstudio):
         frames: List[Dict[str, Any]] = meta["frames"]
 
         present = _present_frame_keys(frames, transforms_path)
-        block = meta.get("agrinerf", {}) or {}
+        block = meta.get(BLOCK, {}) or {}
         _warn_on_block_mismatch(block, present, transforms_path)
 
         # Nerfstudio sorts the frames and keeps those of the split: map its image paths back to their frames.
@@ -108,28 +111,28 @@ class AgriNeRFDataParser(Nerfstudio):
         kept = [frame_by_image[path] for path in outputs.image_filenames]
 
         metadata: Dict[str, Any] = {}
-        for modality, frame_key, metadata_key, _ in FRAME_KEYS:
-            if frame_key not in present or modality not in self.config.modalities:
+        for aligned in ALIGNED_FRAMES:
+            if aligned.key not in present or aligned.modality not in self.config.modalities:
                 continue
-            paths = [data_dir / frame[frame_key] for frame in kept]
+            paths = [data_dir / frame[aligned.key] for frame in kept]
             for frame, path in zip(kept, paths, strict=True):
-                _check_aligned_frame(path, frame, meta, frame_key, transforms_path)
-            metadata[metadata_key] = paths
+                _check_aligned_frame(path, frame, meta, aligned.key, transforms_path)
+            metadata[aligned.metadata] = paths
 
         fruit_masks = fruit_mask_paths(kept, data_dir, transforms_path)
         if fruit_masks is not None:
             for frame, path in zip(kept, fruit_masks, strict=True):
-                _check_aligned_frame(path, frame, meta, FRUIT_MASK_KEY, transforms_path)
-            metadata["fruit_mask_filenames"] = fruit_masks
+                _check_aligned_frame(path, frame, meta, FRUIT_MASK.key, transforms_path)
+            metadata[FRUIT_MASK.metadata] = fruit_masks
             # whose view each mask holds: the thermal camera's masks are supervised along its rays
-            metadata["fruit_mask_thermal"] = [frame.get(FRUIT_MASK_CAMERA_KEY, "rgb") == "thermal" for frame in kept]
-        if "thermal_filenames" in metadata:
+            metadata["fruit_mask_thermal"] = [frame.get(FRUIT_MASK_CAMERA, "rgb") == "thermal" for frame in kept]
+        if THERMAL.metadata in metadata:
             metadata.update(_temperature(frames, kept, block, meta, data_dir, transforms_path))
             camera = _warped_camera(block, outputs, meta, "thermal")
             if camera is not None:
                 metadata["thermal_camera"] = camera
 
-        if "events" in self.config.modalities and kept and all("event_sums_path" in f for f in kept):
+        if "events" in self.config.modalities and kept and all(EVENT_SUMS.key in f for f in kept):
             metadata.update(_event_sums(data_dir, kept))
             camera = _warped_camera(block, outputs, meta, "event")
             if camera is not None:
@@ -139,7 +142,7 @@ class AgriNeRFDataParser(Nerfstudio):
                 metadata["event_stream"] = stream
 
         sizes = {_frame_size(frame, meta) for frame in kept}
-        if len(sizes) > 1 and any(key in metadata for _, _, key, _ in FRAME_KEYS):
+        if len(sizes) > 1 and any(aligned.metadata in metadata for aligned in ALIGNED_FRAMES):
             raise AgriNeRFDataError(
                 f"{transforms_path}: frames have different sizes {sorted(sizes)[:3]}; thermal and event frames need "
                 "one RGB resolution (Nerfstudio's variable-resolution batches cannot carry extra per-pixel keys)."
@@ -149,10 +152,10 @@ class AgriNeRFDataParser(Nerfstudio):
             m
             for m in ALL_MODALITIES
             if m in self.config.modalities
-            and (m == "rgb" or any(k in present for mod, k, _, is_mask in FRAME_KEYS if mod == m and not is_mask))
+            and (m == "rgb" or any(f.key in present for f in ALIGNED_FRAMES if f.modality == m and not f.valid_mask))
         )
         metadata["modalities"] = modalities
-        metadata["agrinerf"] = dict(block)
+        metadata[BLOCK] = dict(block)
         metadata["rgb_level"] = rgb_level(outputs.image_filenames)
         metadata["rgb_gain"] = self._rgb_gain(frames, data_dir)
         metadata["metres_per_unit"] = metres_per_unit(block, meta, outputs)
@@ -232,17 +235,17 @@ def _temperature(
 
     from agrinerf_ns.temperature import decode_celsius
 
-    given = [f for f in frames if TEMPERATURE_KEY in f]
+    given = [f for f in frames if TEMPERATURE.key in f]
     if not given:
         return {}
     if len(given) != len(frames):
         raise AgriNeRFDataError(
-            f"{transforms_path}: '{TEMPERATURE_KEY}' is given in {len(given)} of {len(frames)} frames; give it for "
+            f"{transforms_path}: '{TEMPERATURE.key}' is given in {len(given)} of {len(frames)} frames; give it for "
             "every frame or none."
         )
-    paths = [data_dir / frame[TEMPERATURE_KEY] for frame in kept]
+    paths = [data_dir / frame[TEMPERATURE.key] for frame in kept]
     for frame, path in zip(kept, paths, strict=True):
-        _check_aligned_frame(path, frame, meta, TEMPERATURE_KEY, transforms_path)
+        _check_aligned_frame(path, frame, meta, TEMPERATURE.key, transforms_path)
     recorded = block.get("thermal_temperature") or {}
     if all(k in recorded for k in TEMPERATURE_STATS):
         stats = {k: float(recorded[k]) for k in TEMPERATURE_STATS}
@@ -255,12 +258,12 @@ def _temperature(
             values.append(celsius[valid])
         flat = np.concatenate(values) if values else np.zeros(0)
         if flat.size == 0:
-            raise AgriNeRFDataError(f"{transforms_path}: the '{TEMPERATURE_KEY}' images hold no valid temperature")
+            raise AgriNeRFDataError(f"{transforms_path}: the '{TEMPERATURE.key}' images hold no valid temperature")
         stats = {"mean_c": float(flat.mean()), "std_c": float(flat.std()), "min_c": float(flat.min()),
                  "max_c": float(flat.max())}  # fmt: skip
     if not all(np.isfinite(v) for v in stats.values()) or stats["max_c"] < stats["min_c"]:
         raise AgriNeRFDataError(f"{transforms_path}: temperature statistics {stats} are not finite and ordered")
-    return {"temperature_filenames": paths, "temperature_stats": stats}
+    return {TEMPERATURE.metadata: paths, "temperature_stats": stats}
 
 
 def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
@@ -269,7 +272,7 @@ def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
     import numpy as np
     import torch
 
-    paths = [data_dir / frame["event_sums_path"] for frame in kept]
+    paths = [data_dir / frame[EVENT_SUMS.key] for frame in kept]
     windows = np.zeros((len(paths), 2), dtype=np.float64)
     for i, path in enumerate(paths):
         try:
@@ -280,7 +283,7 @@ def _event_sums(data_dir: Path, kept: List[Dict[str, Any]]) -> Dict[str, Any]:
     if not np.all(np.isfinite(windows)) or np.any(windows[:, 1] < windows[:, 0]):
         bad = int(np.flatnonzero(~(np.isfinite(windows).all(1) & (windows[:, 1] >= windows[:, 0])))[0])
         raise AgriNeRFDataError(f"{paths[bad]}: event window {windows[bad].tolist()} is not finite and ordered")
-    return {"event_sums_filenames": paths, "event_windows": torch.from_numpy(windows)}
+    return {EVENT_SUMS.metadata: paths, "event_windows": torch.from_numpy(windows)}
 
 
 def _warped_camera(
@@ -350,7 +353,7 @@ def _timing(
         if any("timestamp" in f for f in frames):
             raise AgriNeRFDataError(f"{transforms_path}: 'timestamp' is given in some frames only; give it in all.")
         return {}
-    with_exposure = ["exposure_start" in f and "exposure_end" in f for f in frames]
+    with_exposure = [EXPOSURE_START in f and EXPOSURE_END in f for f in frames]
     if any(with_exposure) and not all(with_exposure):
         raise AgriNeRFDataError(
             f"{transforms_path}: 'exposure_start'/'exposure_end' are given in {sum(with_exposure)} of {len(frames)} "
@@ -358,7 +361,7 @@ def _timing(
         )
     times = np.array([float(f["timestamp"]) for f in kept], dtype=np.float64)
     if all(with_exposure):
-        exposure = np.array([[float(f["exposure_start"]), float(f["exposure_end"])] for f in kept], dtype=np.float64)
+        exposure = np.array([[float(f[EXPOSURE_START]), float(f[EXPOSURE_END])] for f in kept], dtype=np.float64)
         exposure = exposure.reshape(-1, 2)  # an empty split too
         bad = np.flatnonzero(~(exposure[:, 1] >= exposure[:, 0]))
         if bad.size:
@@ -381,11 +384,9 @@ def _timing(
     traj_block = block.get("trajectory") or {}
     try:
         if traj_block.get("file"):
-            from agrinerf_ns.process.readers import RawInputError, read_tum
-
             try:
                 t_samples, c2w = read_tum(data_dir / traj_block["file"])
-            except RawInputError as error:
+            except TrajectoryError as error:
                 raise AgriNeRFDataError(f"trajectory named by agrinerf.trajectory.file: {error}") from error
         else:
             order = np.argsort([float(f["timestamp"]) for f in frames], kind="stable")
@@ -396,8 +397,8 @@ def _timing(
         raise AgriNeRFDataError(f"{transforms_path}: camera trajectory: {error}") from error
 
     out: Dict[str, Any] = {"times": torch.from_numpy(times), "exposure": torch.from_numpy(exposure)}
-    if any("thermal_timestamp" in f for f in kept):  # an unsynchronised thermal camera took its frame at another time
-        thermal = [float(f.get("thermal_timestamp", f["timestamp"])) for f in kept]
+    if any(THERMAL_TIMESTAMP in f for f in kept):  # an unsynchronised thermal camera took its frame at another time
+        thermal = [float(f.get(THERMAL_TIMESTAMP, f["timestamp"])) for f in kept]
         out["thermal_times"] = torch.from_numpy(np.array(thermal, dtype=np.float64))
     # the trajectory must reproduce the cameras at their own times (it cannot when the saved poses were changed
     # in a way this parser does not know, e.g. Nerfstudio's COLMAP default transform)
@@ -413,7 +414,7 @@ def _timing(
 def _present_frame_keys(frames: List[Dict[str, Any]], transforms_path: Path) -> List[str]:
     """Per-frame keys given in every frame; raises if one is given in some frames only ("all or none")."""
     present = []
-    for _, frame_key, _, _ in FRAME_KEYS:
+    for frame_key in (aligned.key for aligned in ALIGNED_FRAMES):
         missing = [f["file_path"] for f in frames if frame_key not in f]
         if len(missing) == len(frames):
             continue
@@ -423,7 +424,7 @@ def _present_frame_keys(frames: List[Dict[str, Any]], transforms_path: Path) -> 
                 f"(missing for {missing[:3]}{' ...' if len(missing) > 3 else ''}); give it for every frame or none."
             )
         present.append(frame_key)
-    for mask_key, file_key in (("thermal_mask_path", "thermal_file_path"), ("event_mask_path", "event_file_path")):
+    for mask_key, file_key in ((THERMAL_MASK.key, THERMAL.key), (EVENT_MASK.key, EVENTS.key)):
         if mask_key in present and file_key not in present:
             raise AgriNeRFDataError(f"{transforms_path}: frames give '{mask_key}' but no '{file_key}'.")
     return present
@@ -434,7 +435,7 @@ def _warn_on_block_mismatch(block: Dict[str, Any], present: List[str], transform
     if "modalities" not in block:
         return
     listed = set(block["modalities"])
-    for modality, frame_key in (("thermal", "thermal_file_path"), ("events", "event_file_path")):
+    for modality, frame_key in ((THERMAL.modality, THERMAL.key), (EVENTS.modality, EVENTS.key)):
         if (modality in listed) != (frame_key in present):
             CONSOLE.print(
                 f"[bold yellow]Warning: {transforms_path}: agrinerf.modalities {sorted(listed)} "

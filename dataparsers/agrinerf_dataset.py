@@ -35,11 +35,12 @@ from torch import Tensor
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataError, AgriNeRFDataParserConfig
 from agrinerf_ns.dataparsers.fruit_masks import load_fruit_mask
 from agrinerf_ns.dataparsers.fruit_sampler import FruitPixelSamplerConfig
+from agrinerf_ns.dataset_format import EVENT_MASK, EVENT_SUMS, EVENTS, FRUIT_MASK, TEMPERATURE, THERMAL, THERMAL_MASK
 
 # batch key -> (metadata key of its files, metadata key of its masks, batch key of its mask)
 MODALITY_KEYS: Dict[str, Tuple[str, str, str]] = {
-    "thermal": ("thermal_filenames", "thermal_mask_filenames", "thermal_mask"),
-    "event": ("event_filenames", "event_mask_filenames", "event_mask"),
+    "thermal": (THERMAL.metadata, THERMAL_MASK.metadata, "thermal_mask"),
+    "event": (EVENTS.metadata, EVENT_MASK.metadata, "event_mask"),
 }
 
 
@@ -172,16 +173,16 @@ class AgriNeRFDataset(InputDataset):
                 out[mask_key] = load_aligned_frame(mask_files[image_idx], height, width, is_mask=True)
             else:
                 out[mask_key] = torch.ones((height, width, 1), dtype=torch.float32)
-        temperature_files = self.metadata.get("temperature_filenames")
+        temperature_files = self.metadata.get(TEMPERATURE.metadata)
         if temperature_files:
             out["temperature"], valid = load_temperature_frame(temperature_files[image_idx], height, width)
             out["temperature_mask"] = valid * out.get("thermal_mask", torch.ones_like(valid))
-        fruit_masks = self.metadata.get("fruit_mask_filenames")
+        fruit_masks = self.metadata.get(FRUIT_MASK.metadata)
         if fruit_masks:
             out["fruit"], out["fruit_known"] = load_fruit_mask(fruit_masks[image_idx], height, width)
             thermal = bool((self.metadata.get("fruit_mask_thermal") or [False] * len(fruit_masks))[image_idx])
             out["fruit_thermal"] = torch.full((height, width, 1), float(thermal))  # the mask is the thermal camera's
-        sums_files = self.metadata.get("event_sums_filenames")
+        sums_files = self.metadata.get(EVENT_SUMS.metadata)
         if sums_files:
             out["event_on"], out["event_off"] = load_event_counts(sums_files[image_idx], height, width)
         return out

@@ -1,4 +1,5 @@
-"""Fruit masks per training frame, read for the dataset (the format: ``agrinerf_ns/fruit_mask_format.py``).
+"""Fruit masks per training frame, read for the dataset (the values: ``agrinerf_ns/fruit_mask_format.py``; the key:
+``agrinerf_ns/dataset_format.py``).
 
 The dataset returns ``fruit`` (1 fruit, 0 not) and ``fruit_known`` (1 where the mask says either) per pixel; the
 fruit head's loss reads only the known pixels. Every frame's mask is found and its size checked before training.
@@ -16,7 +17,8 @@ from PIL import Image
 from torch import Tensor
 
 from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError
-from agrinerf_ns.fruit_mask_format import FRAME_KEY, fruit_and_known
+from agrinerf_ns.dataset_format import FRUIT_MASK
+from agrinerf_ns.fruit_mask_format import fruit_and_known
 
 
 def read_fruit_mask(path: Path) -> np.ndarray:
@@ -36,15 +38,15 @@ def fruit_mask_paths(frames: List[Dict[str, Any]], data_dir: Path, transforms_pa
     """The fruit mask of every frame in `frames`, or None when no frame of the dataset names one; an
     :class:`AgriNeRFDataError` naming the frame when one lacks its mask (the dataparser checks each file as it checks
     the thermal and event frames: there, and at its RGB frame's size)."""
-    if not any(FRAME_KEY in frame for frame in frames):
+    if not any(FRUIT_MASK.key in frame for frame in frames):
         return None
     for frame in frames:
-        if FRAME_KEY not in frame:
+        if FRUIT_MASK.key not in frame:
             raise AgriNeRFDataError(
-                f"{transforms_path}: frame {frame.get('file_path')} has no {FRAME_KEY} while other frames have one; "
+                f"{transforms_path}: frame {frame.get('file_path')} has no {FRUIT_MASK.key} while other frames have one; "
                 "give every training frame a mask (128 marks pixels nobody labelled)"
             )
-    return [data_dir / frame[FRAME_KEY] for frame in frames]
+    return [data_dir / frame[FRUIT_MASK.key] for frame in frames]
 
 
 def load_fruit_mask(

@@ -13,10 +13,11 @@ from helpers.fruit_field import assert_finds_the_known_fruit, fruit_model
 
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.components import ComponentConfig
-from agrinerf_ns.count.field_count import FieldCountConfig, count_model, trained_run_config
+from agrinerf_ns.count.field_count import FieldCountConfig, count_model
 from agrinerf_ns.count.pipeline import CountConfig
-from agrinerf_ns.count.render import CountInputError, WorldFrame
+from agrinerf_ns.count.render import WorldFrame
 from agrinerf_ns.count.volume import DepthView, VolumeConfig, VoxelGrid, views_seeing
+from agrinerf_ns.run_loading import NotATrainedRunError, trained_run_config
 
 SMALL_GRID = VolumeConfig(max_voxels=200_000, max_views=4)
 """The tiny runs' grids: few voxels, few rendered views."""
@@ -148,9 +149,9 @@ def test_a_folder_that_is_not_a_trained_run_is_named(tmp_path: Path, rgb_run: Pa
     untrained = tmp_path / "untrained"
     untrained.mkdir()
     (untrained / "config.yml").write_text(rgb_run.read_text())
-    with pytest.raises(CountInputError, match="no step-.*ckpt checkpoint"):
+    with pytest.raises(NotATrainedRunError, match="no step-.*ckpt checkpoint"):
         trained_run_config(untrained)
-    with pytest.raises(CountInputError, match="no such run folder"):
+    with pytest.raises(NotATrainedRunError, match="no such run folder"):
         trained_run_config(tmp_path / "missing")
     assert not (tmp_path / "out").exists()
 

@@ -17,6 +17,7 @@ from agrinerf_ns.process import ProcessConfig, process_capture, readers
 from agrinerf_ns.process.ecd import ECD_FILES, ecd_to_raw
 from agrinerf_ns.process.poses import opencv_to_opengl
 from agrinerf_ns.process.readers import RawInputError
+from agrinerf_ns.trajectory import read_tum
 
 
 def truth_pose(t: np.ndarray) -> np.ndarray:
@@ -64,7 +65,7 @@ def test_ecd_folder_runs_through_agrinerf_process(tmp_path: Path):
     assert (calib.rgb.width, calib.rgb.height) == (64, 48) and calib.event is not None
     np.testing.assert_allclose(calib.rgb.dist, [0.01, -0.002, 0, 0])
     times = readers.read_timestamps(raw / "rgb").times
-    t_odo, c2w = readers.read_tum(raw / "odometry.txt")
+    t_odo, c2w = read_tum(raw / "odometry.txt")
     assert len(t_odo) == len(times) - 1  # the last frame is after the ground truth
     np.testing.assert_allclose(c2w, truth_pose(t_odo), atol=1e-6)
     src = [readers.iter_event_chunks(ecd / "events.txt"), readers.iter_event_chunks(raw / "events" / "events.h5")]

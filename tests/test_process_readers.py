@@ -10,6 +10,7 @@ from helpers.process_raw_fixture import DATA, make_raw_capture, rig, write_event
 
 from agrinerf_ns.process import readers
 from agrinerf_ns.process.readers import RawInputError
+from agrinerf_ns.trajectory import TrajectoryError, read_tum
 
 
 def test_calibration_chain_maps_rgb_into_each_camera(tmp_path: Path):
@@ -85,7 +86,7 @@ def test_tum_reader_quaternion_convention(tmp_path: Path):
     s = np.sqrt(0.5)
     f = tmp_path / "odometry.txt"
     f.write_text(f"0.0 1 2 3 0 0 {s} {s}\n")
-    t, c2w = readers.read_tum(f)
+    t, c2w = read_tum(f)
     np.testing.assert_allclose(c2w[0, :3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-12)
     np.testing.assert_allclose(c2w[0, :3, 3], [1, 2, 3])
 
@@ -102,5 +103,5 @@ def test_tum_reader_names_the_file_line_of_a_bad_row(tmp_path: Path, row: str, m
     # the line number counts the comment and the blank line too: it is the file's, not the row's index
     f = tmp_path / "odometry.txt"
     f.write_text(f"# t tx ty tz qx qy qz qw\n0.0 0 0 0 0 0 0 1\n\n{row}\n")
-    with pytest.raises(RawInputError, match=rf"odometry.txt{message}"):
-        readers.read_tum(f)
+    with pytest.raises(TrajectoryError, match=rf"odometry.txt{message}"):
+        read_tum(f)

@@ -11,6 +11,7 @@ from agrinerf_ns.process import ProcessConfig, align, process_capture, readers  
 from agrinerf_ns.process.evaluate import alignment_report, pose_report, visible_fruit_depth
 from agrinerf_ns.process.poses import match_times
 from agrinerf_ns.synth import SynthConfig, generate_capture
+from agrinerf_ns.trajectory import read_tum
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +69,7 @@ def test_visible_fruit_depth_agrees_with_the_fruit_centres(tiny):
     assert depth["p25"] <= depth["median"] <= depth["p75"]
     # independently: each counted fruit's centre in its frame's camera, minus its radius (the visible near side)
     times = readers.read_timestamps(raw / "rgb").times
-    t, c2w = readers.read_tum(raw / "truth" / "poses.txt")
+    t, c2w = read_tum(raw / "truth" / "poses.txt")
     frame_pose = {i: c2w[j] for i, j in enumerate(match_times(times, t, 1e-3))}
     near_side = []
     for a in counted:

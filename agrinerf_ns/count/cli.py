@@ -14,10 +14,11 @@ import tyro
 
 from agrinerf_ns.atomic import OutputExistsError
 from agrinerf_ns.count.auto_path import choose_plan
-from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count, trained_run_config
+from agrinerf_ns.count.field_count import FieldCountConfig, run_field_count
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, run_count
 from agrinerf_ns.count.render import CountInputError
 from agrinerf_ns.count.row_range import check_range
+from agrinerf_ns.run_loading import trained_run_config
 
 
 @dataclass
@@ -64,7 +65,7 @@ def main(args: CountArgs) -> CountResult:
         config = trained_run_config(args.config) if args.config is not None else None
         count, loaded = args.count, None
         if args.path == "auto" and config is not None:
-            from agrinerf_ns.run_loading import load_run
+            from agrinerf_ns.run_loading import load_run  # Nerfstudio is imported only when a run is loaded
 
             loaded = load_run(config)  # loaded once: the plan reads its model, the chosen path counts it
             plan = choose_plan(loaded.pipeline.model)

@@ -39,31 +39,6 @@ class FieldCountConfig:
     """A voxel is seen by a view when it lies at most this far (dataset units) behind the view's rendered depth."""
 
 
-def trained_run_config(path: Path) -> Path:
-    """The ``config.yml`` of the trained run at ``path`` (the run folder or its config.yml); raises
-    :class:`CountInputError` naming ``path`` when it is not a trained Nerfstudio run (no config.yml, no checkpoint
-    under nerfstudio_models/, no dataparser_transforms.json)."""
-    from agrinerf_ns.ns_commands import CHECKPOINTS_DIR, checkpoints
-
-    path = Path(path)
-    config = path / "config.yml" if path.is_dir() else path
-    if not path.exists():
-        raise CountInputError(f"{path}: no such run folder or config.yml")
-    if config.name != "config.yml" or not config.is_file():
-        raise CountInputError(
-            f"{path}: not a trained Nerfstudio run (no config.yml; give the run folder "
-            "outputs/<name>/<method>/<time>/ or its config.yml)"
-        )
-    if not checkpoints(config):
-        raise CountInputError(
-            f"{path}: not a trained Nerfstudio run (no step-*.ckpt checkpoint in {config.parent / CHECKPOINTS_DIR})"
-        )
-    transforms = config.parent / "dataparser_transforms.json"
-    if not transforms.is_file():
-        raise CountInputError(f"{path}: not a trained Nerfstudio run ({transforms} is missing; ns-train writes it)")
-    return config
-
-
 def count_model(
     model: Any,
     cameras: Any,
@@ -117,7 +92,7 @@ def run_field_count(
     """Count the fruit of the trained run at ``run`` (folder or config.yml) in 3D and write ``out`` atomically; with
     ``truth`` (a synthetic capture) also score it (``score``: match distance, alignment, visibility); ``loaded``: the
     run already loaded (``agrinerf_ns.run_loading.load_run``)."""
-    from agrinerf_ns.run_loading import load_run
+    from agrinerf_ns.run_loading import load_run, trained_run_config
 
     config_path = trained_run_config(run)
     out = Path(out)

@@ -33,6 +33,7 @@ import numpy as np
 from jaxtyping import Bool, Float
 
 from agrinerf_ns.count.render import CountInputError
+from agrinerf_ns.dataset_format import TRANSFORMS
 
 FRUITS_JSON = Path("truth") / "fruits.json"
 FRUIT_IDS_DIR = Path("truth") / "fruit_ids"
@@ -324,7 +325,7 @@ def _temperature_error(
 
 def read_frames(dataset: Path) -> List[dict]:
     """The frames of the dataset's ``transforms.json`` (raises naming the file when unreadable)."""
-    path = Path(dataset) / "transforms.json"
+    path = Path(dataset) / TRANSFORMS
     try:
         frames = json.loads(path.read_text())["frames"]
         if not isinstance(frames, list) or not all(isinstance(f, dict) and "file_path" in f for f in frames):
@@ -336,7 +337,7 @@ def read_frames(dataset: Path) -> List[dict]:
 
 def read_split(dataset: Path, key: str) -> List[str]:
     """A split list of ``transforms.json`` (``train_filenames``, ...); empty when it has none."""
-    path = Path(dataset) / "transforms.json"
+    path = Path(dataset) / TRANSFORMS
     try:
         return [str(name) for name in json.loads(path.read_text()).get(key, [])]
     except (OSError, json.JSONDecodeError, AttributeError, TypeError) as err:
@@ -358,11 +359,11 @@ def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Sim
     matched to ``truth/poses.txt``): the rotation from the cameras' orientations (their mean relative rotation; camera
     centres alone leave the rotation about a straight path undetermined), then scale and translation from the centres
     by least squares. Raises :class:`CountInputError` naming the file that lacks the poses."""
-    from agrinerf_ns.process.readers import RawInputError, read_tum
+    from agrinerf_ns.trajectory import TrajectoryError, read_tum
 
     try:
         times, poses = read_tum(Path(raw) / TRUE_POSES)
-    except RawInputError as err:
+    except TrajectoryError as err:
         raise CountInputError(str(err)) from err
     src, dst, relative = [], [], []
     opengl_to_opencv = np.diag([1.0, -1.0, -1.0])
@@ -377,7 +378,7 @@ def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Sim
             relative.append(poses[k][:3, :3] @ opengl_to_opencv @ c2w[:3, :3].T)
     if len(src) < 3:
         raise CountInputError(
-            f"{Path(dataset) / 'transforms.json'}: {len(src)} frames have a timestamp matching "
+            f"{Path(dataset) / TRANSFORMS}: {len(src)} frames have a timestamp matching "
             f"{Path(raw) / TRUE_POSES}; aligning the dataset to the capture needs 3 (or pass --align none)"
         )
     u, _, vt = np.linalg.svd(np.mean(relative, axis=0))

@@ -23,6 +23,7 @@ from jaxtyping import Float
 
 from agrinerf_ns.count.errors import CountInputError
 from agrinerf_ns.count.sources import RunOutputs, rgb_frames_dark
+from agrinerf_ns.dataset_format import BLOCK, TRANSFORMS
 
 if TYPE_CHECKING:
     from agrinerf_ns.run_loading import LoadedRun
@@ -238,9 +239,9 @@ def refined_camera(model: Any, camera: Any, index: int) -> Any:
 def pose_record(model: Any, dataset_dir: Optional[Path]) -> Dict[str, str]:
     """Where the views' poses come from (:attr:`RenderSet.poses`)."""
     source = "unknown"
-    if dataset_dir is not None and (dataset_dir / "transforms.json").is_file():
+    if dataset_dir is not None and (dataset_dir / TRANSFORMS).is_file():
         try:
-            meta = json.loads((dataset_dir / "transforms.json").read_text()).get("agrinerf", {})
+            meta = json.loads((dataset_dir / TRANSFORMS).read_text()).get(BLOCK, {})
             source = str(meta.get("poses", {}).get("source", "unknown"))
         except (json.JSONDecodeError, AttributeError):
             pass

@@ -11,6 +11,7 @@ from typing import Iterable, List, Literal, Optional, Sequence
 import numpy as np
 from jaxtyping import Bool, Float
 
+from agrinerf_ns.dataset_format import IMAGE, THERMAL, THERMAL_MASK, TRANSFORMS
 from agrinerf_ns.detect.boxes import TRUTH_RGB_DIR, MissingTruthError, SceneTruth, list_images, write_yolo_labels
 
 CLASS_NAMES = ("fruit",)
@@ -50,25 +51,25 @@ def dataset_images(
     of ``file_path``. A thermal frame keeps only the boxes whose centre its ``thermal_mask_path`` marks as seen by the
     thermal camera (the rest of a warped frame is black fill, where no detector can find fruit).
     """
-    transforms = Path(dataset) / "transforms.json"
+    transforms = Path(dataset) / TRANSFORMS
     if not transforms.is_file():
         raise FileNotFoundError(f"{dataset}: not a processed dataset: {transforms} does not exist")
-    key = "file_path" if modality == "rgb" else "thermal_file_path"
+    key = IMAGE.key if modality == "rgb" else THERMAL.key
     frames = [f for f in json.loads(transforms.read_text()).get("frames", []) if key in f]
     if not frames:
         raise ValueError(f"{transforms}: no frame has a {key}, so a {modality} detector cannot be trained from it")
     skip = set(exclude)
     items = []
     for frame in frames:
-        stem = Path(frame["file_path"]).stem
+        stem = Path(frame[IMAGE.key]).stem
         if stem in skip:
             continue
         image = Path(dataset) / frame[key]
         if not image.is_file():
             raise FileNotFoundError(f"{transforms}: {modality} image {image} of frame {frame['file_path']} is missing")
         boxes = truth.frame(stem, image).counted
-        if modality == "thermal" and "thermal_mask_path" in frame:
-            boxes = boxes[centres_in_mask(boxes, Path(dataset) / frame["thermal_mask_path"])]
+        if modality == "thermal" and THERMAL_MASK.key in frame:
+            boxes = boxes[centres_in_mask(boxes, Path(dataset) / frame[THERMAL_MASK.key])]
         items.append(LabelledImage(image, boxes, f"{modality}_{stem}"))
     return items
 

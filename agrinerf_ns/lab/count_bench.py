@@ -124,9 +124,9 @@ def count_run_rows(
     """Count one run by the field path on each source it has and by the view path on temperature, thermal and RGB
     (those it renders); score each against ``raw``'s truth and keep its files under ``out/<scene>/<method>/``.
     ``field_config``: the field path's `FieldCountConfig` (None: its defaults)."""
-    from agrinerf_ns.count.field_count import FieldCountConfig, trained_run_config
+    from agrinerf_ns.count.field_count import FieldCountConfig
     from agrinerf_ns.count.sources import field_outputs
-    from agrinerf_ns.run_loading import load_run
+    from agrinerf_ns.run_loading import load_run, trained_run_config
 
     config = trained_run_config(config)
     frame = WorldFrame.read(config.parent / "dataparser_transforms.json")

@@ -37,6 +37,7 @@ from agrinerf_ns.count.fruit_score import (
 from agrinerf_ns.count.lift import lift_detection
 from agrinerf_ns.count.pipeline import CountConfig, fuse, training_frames
 from agrinerf_ns.count.render import RenderSet, load_renders
+from agrinerf_ns.dataset_format import TRANSFORMS
 from agrinerf_ns.lab.count_oracle import true_fruit_ids, undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import read_calibration
 
@@ -44,7 +45,7 @@ from agrinerf_ns.process.readers import read_calibration
 def view_fruit_ids(raw: Path, renders: RenderSet) -> List[Int[np.ndarray, "h w"]]:
     """Per view, the true fruit id of each pixel (-1 none), undistorted onto the dataset's pinhole camera."""
     assert renders.dataset is not None
-    meta = json.loads((renders.dataset / "transforms.json").read_text())
+    meta = json.loads((renders.dataset / TRANSFORMS).read_text())
     map_x, map_y = undistort_maps(read_calibration(raw / "calib.yaml").rgb, meta)
     frames = dataset_frames(renders.dataset)
     stems = [raw_stem(frames.get(view.file_path, {}), view.file_path) for view in renders.views]

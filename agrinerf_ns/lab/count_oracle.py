@@ -34,7 +34,8 @@ from jaxtyping import Float, Int
 
 from agrinerf_ns.count.fruit_score import FRUIT_IDS_DIR, raw_stem, read_frames, read_split
 from agrinerf_ns.count.render import CountInputError, RenderedView, RenderSet, WorldFrame, save_renders
-from agrinerf_ns.fruit_mask_format import CAMERA_KEY, FRAME_KEY, fruit_and_known
+from agrinerf_ns.dataset_format import FRUIT_MASK, FRUIT_MASK_CAMERA, THERMAL, THERMAL_MASK, TRANSFORMS
+from agrinerf_ns.fruit_mask_format import fruit_and_known
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
 
 ThermalMode = Literal["reprojected", "captured", "true"]
@@ -91,11 +92,11 @@ def oracle_thermal(
         t = cv2.remap(t, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
         return t, t
     if mode == "captured":
-        if "thermal_file_path" not in frame:
+        if THERMAL.key not in frame:
             return None, None
-        image = cv2.imread(str(dataset / frame["thermal_file_path"]), cv2.IMREAD_GRAYSCALE) / 255.0
-        if "thermal_mask_path" in frame:
-            mask = cv2.imread(str(dataset / frame["thermal_mask_path"]), cv2.IMREAD_GRAYSCALE)
+        image = cv2.imread(str(dataset / frame[THERMAL.key]), cv2.IMREAD_GRAYSCALE) / 255.0
+        if THERMAL_MASK.key in frame:
+            mask = cv2.imread(str(dataset / frame[THERMAL_MASK.key]), cv2.IMREAD_GRAYSCALE)
             image = np.where(mask > 0, image, np.nan)
         return image.astype(np.float32), None
     if "raw_thermal" not in frame:
@@ -124,9 +125,9 @@ def oracle_fruit(raw: Path, dataset: Path, frame: dict, maps: Tuple, mode: Fruit
         return None
     if mode == "true":
         return (true_fruit_ids(raw, raw_stem(frame, frame["file_path"]), maps) >= 0).astype(np.float32)
-    if FRAME_KEY not in frame or frame.get(CAMERA_KEY, "rgb") != "rgb":
+    if FRUIT_MASK.key not in frame or frame.get(FRUIT_MASK_CAMERA, "rgb") != "rgb":
         return None
-    fruit, known = fruit_and_known(cv2.imread(str(dataset / frame[FRAME_KEY]), cv2.IMREAD_GRAYSCALE))
+    fruit, known = fruit_and_known(cv2.imread(str(dataset / frame[FRUIT_MASK.key]), cv2.IMREAD_GRAYSCALE))
     return np.where(known, fruit.astype(np.float32), np.nan).astype(np.float32)
 
 
@@ -134,7 +135,7 @@ def oracle_renders(
     raw: Path, dataset: Path, thermal_mode: ThermalMode = "reprojected", fruit_mode: FruitMode = "none"
 ) -> RenderSet:
     """Every frame of ``dataset`` (processed from the synthetic capture ``raw``) as a rendered view."""
-    meta = json.loads((dataset / "transforms.json").read_text())
+    meta = json.loads((dataset / TRANSFORMS).read_text())
     if not (raw / "truth" / "depth").is_dir():
         raise CountInputError(f"{raw / 'truth' / 'depth'}: missing; the oracle needs a synthetic capture's true depth")
     calib = read_calibration(raw / "calib.yaml")

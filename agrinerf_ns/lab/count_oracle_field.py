@@ -27,6 +27,7 @@ from agrinerf_ns.count.fruit_score import (
 )
 from agrinerf_ns.count.render import CountInputError, RenderSet, WorldFrame
 from agrinerf_ns.count.volume import DepthView, SampledField, VolumeConfig, VoxelGrid, occupied_box, views_seeing
+from agrinerf_ns.dataset_format import TRANSFORMS
 
 GROUND_LAYER = 0.03
 """The ground is dense from z = 0 down this far (metres): a surface, as a trained field learns it."""
@@ -34,7 +35,7 @@ GROUND_LAYER = 0.03
 
 def depth_views(renders: RenderSet, dataset: Path, split: Tuple[str, ...] = ("train",)) -> List[DepthView]:
     """Depth views of oracle renders (dataset frame, unit rays), with the dataset's pinhole intrinsics."""
-    meta = json.loads((Path(dataset) / "transforms.json").read_text())
+    meta = json.loads((Path(dataset) / TRANSFORMS).read_text())
     poses = {f["file_path"]: np.asarray(f["transform_matrix"], np.float64)[:3] for f in meta["frames"]}
     views = []
     for view in renders.views:
@@ -160,7 +161,7 @@ def main(args: OracleFieldArgs) -> CountScore:
         raise CountInputError(f"{args.raw / 'truth' / 'scene.json'}: missing; the true field needs the scene")
     sampled = oracle_field(args.raw, args.data, args.volume, args.seen_margin, args.components.max_diameter)
     fruit, stats = find_fruit(sampled, args.components)
-    frames = json.loads((args.data / "transforms.json").read_text())["frames"]
+    frames = json.loads((args.data / TRANSFORMS).read_text())["frames"]
     train = raw_training_frames(args.data, [f["file_path"] for f in frames])
     visible = visible_fruit(args.raw, train, truth)
     centres = align_to_capture(args.data, args.raw).apply(

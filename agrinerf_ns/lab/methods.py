@@ -9,6 +9,7 @@ import json
 from dataclasses import dataclass
 from typing import Any, Dict, List, Literal, Mapping, Optional, Sequence, Tuple
 
+from agrinerf_ns.dataset_format import THERMAL_TRANSFORMS, TRANSFORMS
 from agrinerf_ns.modalities import TABLE_IV_ABLATIONS
 
 
@@ -36,7 +37,7 @@ class BenchMethod:
     def views_rgb_camera(self) -> bool:
         """Whether its cameras are the RGB camera's (``transforms.json``): Nerfacto (Thermal) trains on the thermal
         camera's (``transforms_thermal.json``); a Table IV ablation without RGB frames still has the RGB camera's."""
-        return self.data_file == "transforms.json"
+        return self.data_file == TRANSFORMS
 
 
 VARIANT_SEPARATOR = "%"
@@ -150,12 +151,12 @@ METHODS: Dict[str, BenchMethod] = MethodTable(
     {
         m.ns_method if m.supervision == "rgb" else f"{m.ns_method}-thermal": m
         for m in (
-            BenchMethod("AgriNeRF-lite", "agrinerf-lite", "transforms.json", "rgb"),
-            BenchMethod("AgriNeRF", "agrinerf", "transforms.json", "rgb"),
-            BenchMethod("EvDeblurNeRF-lite", "evdeblurnerf-lite", "transforms.json", "rgb"),
-            BenchMethod("Nerfacto (RGB)", "nerfacto", "transforms.json", "rgb"),
-            BenchMethod("Nerfacto (Thermal)", "nerfacto", "transforms_thermal.json", "thermal"),
-            BenchMethod("TensoRF", "tensorf", "transforms.json", "rgb", ("nerfstudio-data",)),
+            BenchMethod("AgriNeRF-lite", "agrinerf-lite", TRANSFORMS, "rgb"),
+            BenchMethod("AgriNeRF", "agrinerf", TRANSFORMS, "rgb"),
+            BenchMethod("EvDeblurNeRF-lite", "evdeblurnerf-lite", TRANSFORMS, "rgb"),
+            BenchMethod("Nerfacto (RGB)", "nerfacto", TRANSFORMS, "rgb"),
+            BenchMethod("Nerfacto (Thermal)", "nerfacto", THERMAL_TRANSFORMS, "thermal"),
+            BenchMethod("TensoRF", "tensorf", TRANSFORMS, "rgb", ("nerfstudio-data",)),
         )
     }
 )
@@ -172,7 +173,7 @@ METHODS.update(
         key: BenchMethod(
             f"AgriNeRF-lite ({name})",
             "agrinerf-lite",
-            "transforms.json",
+            TRANSFORMS,
             "rgb" if "rgb" in TABLE_IV_ABLATIONS[name] else "thermal",
             train_args=("--pipeline.model.modalities", *TABLE_IV_ABLATIONS[name]),
         )
@@ -214,7 +215,7 @@ METHODS.update(
         key: BenchMethod(
             _budget_label(budget),
             budget.preset,
-            "transforms.json",
+            TRANSFORMS,
             "rgb",
             train_args=("--pipeline.model.num-fine-samples", str(budget.fine_samples))
             + (("--pipeline.model.event-rays-per-batch", str(budget.event_rays)) if budget.event_rays else ()),
@@ -227,7 +228,7 @@ METHODS.update(
 METHODS["agrinerf-lite-rgb-rays"] = BenchMethod(
     "AgriNeRF-lite (thermal terms on the RGB rays)",
     "agrinerf-lite",
-    "transforms.json",
+    TRANSFORMS,
     "rgb",
     train_args=("--pipeline.model.thermal-rays-per-batch", "0"),
 )

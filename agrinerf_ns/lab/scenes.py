@@ -9,6 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Tuple
 
+from agrinerf_ns.dataset_format import TRANSFORMS
 from agrinerf_ns.lab.layout import scene_folders
 from agrinerf_ns.lab.profiles import BenchProfile
 
@@ -33,7 +34,7 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
         if data.exists():
             shutil.rmtree(data)
     if (
-        not (data / "transforms.json").exists()
+        not (data / TRANSFORMS).exists()
         or recorded_plane_depth(data) != profile.plane_depth
         or not _same_split(data, profile.eval_every)
     ):
@@ -48,7 +49,7 @@ def _same_split(data: Path, eval_every: int) -> bool:
     """Whether the dataset's held-out list is the one ``eval_every`` gives."""
     from agrinerf_ns.process.dataset_writer import split_names
 
-    meta = json.loads((data / "transforms.json").read_text())
+    meta = json.loads((data / TRANSFORMS).read_text())
     names = [frame["file_path"] for frame in meta["frames"]]
     return meta.get("test_filenames") == split_names(names, eval_every)["test_filenames"]
 

@@ -18,6 +18,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.atomic import OutputExistsError, atomic_output_dir  # noqa: F401 (re-exported)
+from agrinerf_ns.dataset_format import BLOCK, IMAGE, THERMAL, THERMAL_MASK, THERMAL_TRANSFORMS, TIMESTAMP, TRANSFORMS
 
 
 def check_output(raw: Path, out: Path, overwrite: bool) -> None:
@@ -73,38 +74,26 @@ def write_transforms(
     eval_every: int,
 ) -> None:
     """Write transforms.json (RGB) and, when frames carry thermal files, transforms_thermal.json."""
-    rgb_names = [f["file_path"] for f in frames]
-    meta = {**intrinsics, **split_names(rgb_names, eval_every), "frames": frames, "agrinerf": agrinerf}
-    _write_json(out / "transforms.json", meta)
-    if frames and all("thermal_file_path" in f for f in frames):
+    rgb_names = [f[IMAGE.key] for f in frames]
+    meta = {**intrinsics, **split_names(rgb_names, eval_every), "frames": frames, BLOCK: agrinerf}
+    _write_json(out / TRANSFORMS, meta)
+    if frames and all(THERMAL.key in f for f in frames):
         th_frames = []
         for f in frames:
-            tf = {"file_path": f["thermal_file_path"], "transform_matrix": f["transform_matrix"]}
-            if "thermal_mask_path" in f:
-                tf["mask_path"] = f["thermal_mask_path"]
-            if "timestamp" in f:
-                tf["timestamp"] = f["timestamp"]
-            tf["rgb_file_path"] = f["file_path"]
+            tf = {IMAGE.key: f[THERMAL.key], "transform_matrix": f["transform_matrix"]}
+            if THERMAL_MASK.key in f:
+                tf["mask_path"] = f[THERMAL_MASK.key]
+            if TIMESTAMP in f:
+                tf[TIMESTAMP] = f[TIMESTAMP]
+            tf["rgb_file_path"] = f[IMAGE.key]
             th_frames.append(tf)
-        th_names = [f["file_path"] for f in th_frames]
+        th_names = [f[IMAGE.key] for f in th_frames]
         # this file's images *are* the thermal frames: no "modalities" list (it describes transforms.json's
         # per-frame keys), the dataset's list is kept as "dataset_modalities"
         th_block = {k: v for k, v in agrinerf.items() if k != "modalities"}
         th_block.update(image_modality="thermal", dataset_modalities=agrinerf.get("modalities", []))
-        th_meta = {**intrinsics, **split_names(th_names, eval_every), "frames": th_frames, "agrinerf": th_block}
-        _write_json(out / "transforms_thermal.json", th_meta)
-
-
-def write_trajectory(path: Path, times: Float[np.ndarray, " n"], c2w: Float[np.ndarray, "n 4 4"]) -> None:
-    """A TUM file "t tx ty tz qx qy qz qw" of camera-to-world poses (the frames' world and camera axes)."""
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(np.asarray(c2w)[:, :3, :3]).as_quat()  # x, y, z, w
-    rows = np.concatenate([np.asarray(times, dtype=np.float64)[:, None], np.asarray(c2w)[:, :3, 3], q], 1)
-    tmp = path.with_suffix(path.suffix + ".part")
-    tmp.write_text("# t tx ty tz qx qy qz qw: camera-to-world, OpenGL camera axes (as transform_matrix)\n"
-                   + "".join(" ".join(f"{v:.9f}" for v in row) + "\n" for row in rows))  # fmt: skip
-    tmp.rename(path)
+        th_meta = {**intrinsics, **split_names(th_names, eval_every), "frames": th_frames, BLOCK: th_block}
+        _write_json(out / THERMAL_TRANSFORMS, th_meta)
 
 
 def _write_json(path: Path, obj: Dict) -> None:

@@ -29,6 +29,7 @@ from agrinerf_ns.process import readers
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.event_h5 import EventH5Writer
 from agrinerf_ns.process.readers import read_time_list
+from agrinerf_ns.trajectory import TrajectoryError, read_tum
 
 ECD_FILES = ("events.txt", "images.txt", "images", "groundtruth.txt", "calib.txt")
 
@@ -98,7 +99,10 @@ def ecd_to_raw(ecd: Path, out: Path, chunk_size: int = 2_000_000) -> Path:
     if first is None:
         raise RawInputError(f"{frames[0]}: cannot decode image")
     h, w = first.shape[:2]
-    gt_t, gt_c2w = readers.read_tum(ecd / "groundtruth.txt")
+    try:
+        gt_t, gt_c2w = read_tum(ecd / "groundtruth.txt")
+    except TrajectoryError as err:
+        raise RawInputError(str(err)) from err
     if np.any(np.diff(gt_t) <= 0):
         raise RawInputError(f"{ecd / 'groundtruth.txt'}: times must increase strictly")
     c2w, inside = interpolate_poses(gt_t, gt_c2w, times)

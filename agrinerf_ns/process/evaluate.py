@@ -19,16 +19,18 @@ from typing import Dict
 import numpy as np
 import tyro
 
+from agrinerf_ns.dataset_format import TRANSFORMS
 from agrinerf_ns.process import align, readers
 from agrinerf_ns.process.pipeline import recorded_plane_depth
 from agrinerf_ns.process.poses import match_times, opencv_to_opengl, pose_errors
+from agrinerf_ns.trajectory import read_tum
 
 
 def alignment_report(raw: Path, plane_depth: float = float("inf")) -> Dict[str, Dict[str, float]]:
     """Fruit-centre reprojection error (RGB pixels) of the thermal and event warps, over all frames."""
     calib = readers.read_calibration(raw / "calib.yaml")
     rgb_times = readers.read_timestamps(raw / "rgb").times
-    t, c2w = readers.read_tum(raw / "truth" / "poses.txt")
+    t, c2w = read_tum(raw / "truth" / "poses.txt")
     idx = match_times(rgb_times, t, 1e-3)
     fruits = json.loads((raw / "truth" / "fruits.json").read_text())
     centres = np.array([f["center"] for f in fruits], dtype=np.float64)
@@ -82,8 +84,8 @@ def visible_fruit_depth(raw: Path, min_pixels: int = 30) -> Dict[str, float]:
 
 def pose_report(raw: Path, dataset: Path) -> Dict[str, float]:
     """Pose error of ``dataset/transforms.json`` against ``raw/truth/poses.txt`` (matched by frame timestamp)."""
-    meta = json.loads((dataset / "transforms.json").read_text())
-    t_true, c2w_true = readers.read_tum(raw / "truth" / "poses.txt")
+    meta = json.loads((dataset / TRANSFORMS).read_text())
+    t_true, c2w_true = read_tum(raw / "truth" / "poses.txt")
     times = np.array([f["timestamp"] for f in meta["frames"]])
     est = opencv_to_opengl(np.array([f["transform_matrix"] for f in meta["frames"]]))  # back to OpenCV axes
     idx = match_times(times, t_true, 1e-3)
@@ -104,7 +106,7 @@ class EvaluateArgs:
 
 
 def main(args: EvaluateArgs) -> Dict:
-    meta = json.loads((args.dataset / "transforms.json").read_text())
+    meta = json.loads((args.dataset / TRANSFORMS).read_text())
     result = {
         "alignment": alignment_report(args.raw, recorded_plane_depth(args.dataset)),
         "visible_fruit_depth_m": visible_fruit_depth(args.raw),

@@ -31,17 +31,26 @@ import numpy as np
 from jaxtyping import Bool, Float, Shaped, UInt8
 from scipy import ndimage
 
+from agrinerf_ns.dataset_format import (
+    FRUIT_MASK,
+    FRUIT_MASK_CAMERA,
+    IMAGE,
+    TEMPERATURE,
+    THERMAL,
+    THERMAL_MASK,
+    THERMAL_TIMESTAMP,
+    TIMESTAMP,
+)
 from agrinerf_ns.fruit.colour_score import fruit_colour
 from agrinerf_ns.fruit.contrast import Polarity, contrast
 from agrinerf_ns.fruit.ellipse import inscribed_ellipse
 from agrinerf_ns.fruit.thermal_blobs import Blob, blob_discs, thermal_blob_list, thermal_blobs
 from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, decide_bodies
 from agrinerf_ns.fruit.yolo import INSTALL_HINT, box_predictor
-from agrinerf_ns.fruit_mask_format import BACKGROUND, CAMERA_KEY, FOLDER, FRAME_KEY, FRUIT, UNKNOWN
+from agrinerf_ns.fruit_mask_format import BACKGROUND, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
 from agrinerf_ns.modalities import DARK_RGB_LEVEL
 from agrinerf_ns.process.readers import RigCalib
-from agrinerf_ns.temperature import FRAME_KEY as TEMPERATURE_KEY
 from agrinerf_ns.temperature import decode_celsius
 
 MaskMaker = Literal["none", "colour", "thermal", "auto", "yolo"]
@@ -191,13 +200,13 @@ def thermal_frame(
     """A frame's thermal image in the RGB plane and where the thermal camera saw. For the ``blobs`` rule its
     temperature (degrees C) where the dataset has one, a physical contrast that the 8-bit frame's local rescaling
     (Fieldscale) bends; else the 8-bit frame."""
-    if config.thermal_rule != "contrast" and TEMPERATURE_KEY in frame:
-        celsius, seen = decode_celsius(_read(folder / frame[TEMPERATURE_KEY], cv2.IMREAD_UNCHANGED))
+    if config.thermal_rule != "contrast" and TEMPERATURE.key in frame:
+        celsius, seen = decode_celsius(_read(folder / frame[TEMPERATURE.key], cv2.IMREAD_UNCHANGED))
         return celsius, seen
-    thermal = _read(folder / frame["thermal_file_path"], cv2.IMREAD_GRAYSCALE)
+    thermal = _read(folder / frame[THERMAL.key], cv2.IMREAD_GRAYSCALE)
     seen = (
-        _read(folder / frame["thermal_mask_path"], cv2.IMREAD_GRAYSCALE) > 127
-        if "thermal_mask_path" in frame
+        _read(folder / frame[THERMAL_MASK.key], cv2.IMREAD_GRAYSCALE) > 127
+        if THERMAL_MASK.key in frame
         else np.ones(thermal.shape, bool)
     )
     return thermal, seen
@@ -214,7 +223,7 @@ def make_fruit_masks(
     """Write a mask per frame (from the frames already written under `tmp`) and name it in the frame; returns the
     dataset's record (the rule, the settings and how many frames each maker labelled). ``geometry``: each frame's
     thermal view (None where the frame has no pose), which the ``bodies`` rule needs."""
-    (tmp / FOLDER).mkdir(parents=True, exist_ok=True)
+    (tmp / FRUIT_MASK.folder).mkdir(parents=True, exist_ok=True)
     used = {"colour": 0, "thermal": 0, "yolo": 0}
     predict = None
     if maker == "yolo":
@@ -235,17 +244,17 @@ def make_fruit_masks(
                 thermal, seen = thermal_frame(tmp, frame, config)
                 mask = thermal_mask(thermal, seen, config)
         else:
-            bgr = _read(tmp / frame["file_path"], cv2.IMREAD_COLOR)
+            bgr = _read(tmp / frame[IMAGE.key], cv2.IMREAD_COLOR)
             if kind == "yolo" and predict is not None:
                 boxes, scores = predict(bgr)
                 mask = box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, config)
             else:
                 mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
         used[kind] += 1
-        frame[FRAME_KEY] = f"{FOLDER}/{name}.png"
+        frame[FRUIT_MASK.key] = FRUIT_MASK.path(name)
         if kind == "thermal":  # the thermal camera's view: supervised along its rays
-            frame[CAMERA_KEY] = "thermal"
-        write_png(tmp / frame[FRAME_KEY], mask)
+            frame[FRUIT_MASK_CAMERA] = "thermal"
+        write_png(tmp / frame[FRUIT_MASK.key], mask)
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}
     return {"source": f"maker:{maker}", "frames": used, "settings": settings,
             "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit", **record}  # fmt: skip
@@ -253,12 +262,12 @@ def make_fruit_masks(
 
 def _mask_kind(tmp: Path, frame: Dict, maker: MaskMaker, config: MaskMakerConfig) -> str:
     """Which maker labels a frame: ``thermal`` for a dark frame with a thermal frame under ``auto`` and ``yolo``."""
-    has_thermal = "thermal_file_path" in frame
+    has_thermal = THERMAL.key in frame
     if maker == "thermal" and not has_thermal:
         raise ValueError(f"--fruit-mask-maker thermal: frame {frame['file_path']} has no thermal frame")
     if maker in ("colour", "thermal"):
         return maker
-    dark = float(_read(tmp / frame["file_path"], cv2.IMREAD_COLOR).mean()) / 255.0 < config.dark_level
+    dark = float(_read(tmp / frame[IMAGE.key], cv2.IMREAD_COLOR).mean()) / 255.0 < config.dark_level
     return "thermal" if dark and has_thermal else ("yolo" if maker == "yolo" else "colour")
 
 
@@ -277,7 +286,7 @@ def thermal_views(
     index = np.flatnonzero(posed)
     if calib.thermal is None or len(index) == 0:
         return [None] * len(frames)
-    times = np.array([float(frames[i]["timestamp"]) for i in index])
+    times = np.array([float(frames[i][TIMESTAMP]) for i in index])
     order = np.flatnonzero(np.diff(times, prepend=-np.inf) > 0)  # strictly increasing samples
     trajectory = CameraTrajectory(times[order], c2w[index[order]])
     rotation, shift = calib.thermal.T_cam_rgb[:3, :3], calib.thermal.T_cam_rgb[:3, 3]
@@ -285,7 +294,7 @@ def thermal_views(
     views: List[Optional[FrameGeometry]] = [None] * len(frames)
     for i in index:
         pose = np.eye(4)
-        pose[:3] = trajectory.poses_at(np.array(float(frames[i].get("thermal_timestamp", frames[i]["timestamp"]))))
+        pose[:3] = trajectory.poses_at(np.array(float(frames[i].get(THERMAL_TIMESTAMP, frames[i][TIMESTAMP]))))
         views[i] = FrameGeometry(calib.rgb.K, pose, centre, plane_depth)
     return views
 
@@ -304,7 +313,7 @@ def thermal_body_masks(
         raise ValueError("--mask-maker.thermal-rule bodies needs the frames' poses")
     posed = [i for i in index if geometry[i] is not None]
     images = {i: thermal_frame(tmp, frames[i], config) for i in index}
-    radiometric = all(TEMPERATURE_KEY in frames[i] for i in posed)
+    radiometric = all(TEMPERATURE.key in frames[i] for i in posed)
     found, record = body_masks([images[i] for i in posed], [geometry[i] for i in posed], config, radiometric)  # type: ignore[misc]
     masks = dict(zip(posed, found, strict=True))
     for i in index:

@@ -15,7 +15,7 @@ from typing import Dict, List, Optional
 import numpy as np
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from agrinerf_ns.fruit_mask_format import FRAME_KEY
+from agrinerf_ns.dataset_format import BLOCK, EXPOSURE_END, EXPOSURE_START, FRAME_FILES, IMAGE, TIMESTAMP, TRANSFORMS
 from agrinerf_ns.process import exposure
 from agrinerf_ns.process import poses as pose_utils
 from agrinerf_ns.process.capture import Capture, inspect_capture
@@ -30,20 +30,21 @@ from agrinerf_ns.process.dataset_writer import (
 )
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks, thermal_views
-from agrinerf_ns.process.readers import read_triggers, read_tum
+from agrinerf_ns.process.readers import read_triggers
 from agrinerf_ns.process.step_events import write_event_frames
 from agrinerf_ns.process.step_fruit_masks import check_fruit_masks, find_fruit_masks, write_fruit_masks
 from agrinerf_ns.process.step_poses import estimate_poses, write_odometry_trajectory
 from agrinerf_ns.process.step_rgb import write_rgb_frames
 from agrinerf_ns.process.step_thermal import write_thermal_frames
 from agrinerf_ns.process.trigger_sync import fit_trigger_sync
+from agrinerf_ns.trajectory import TrajectoryError, read_tum
 
 __all__ = ["CONSOLE", "ProcessConfig", "inspect_capture", "process_capture", "recorded_plane_depth"]
 
 
 def recorded_plane_depth(dataset: Path) -> float:
     """The warp plane depth (m) a dataset was processed with (``inf`` also when the dataset does not record one)."""
-    meta = json.loads((Path(dataset) / "transforms.json").read_text()).get("agrinerf", {})
+    meta = json.loads((Path(dataset) / TRANSFORMS).read_text()).get(BLOCK, {})
     return float(meta.get("alignment", {}).get("plane_depth", "inf"))
 
 
@@ -69,7 +70,10 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
     if config.poses == "given":
         if not (raw / "odometry.txt").is_file():
             raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses given needs the odometry file")
-        read_tum(raw / "odometry.txt")  # every line checked (8 finite numbers) before any output is written
+        try:  # every line checked (8 finite numbers) before any output is written
+            read_tum(raw / "odometry.txt")
+        except TrajectoryError as err:
+            raise RawInputError(str(err)) from err
     if config.sync == "trigger":
         if cap.event_file is None:
             raise RawInputError(f"{raw / 'events'}: --sync trigger needs an event file with trigger events")
@@ -119,15 +123,15 @@ def _process(
     names = [f"{i:06d}" for i in range(n)]
     frames: List[Dict] = [
         {
-            "file_path": f"images/{names[i]}.png",
-            "timestamp": float(cap.rgb.times[i]),
+            IMAGE.key: IMAGE.path(names[i]),
+            TIMESTAMP: float(cap.rgb.times[i]),
             "raw_rgb": str(cap.rgb.paths[i].relative_to(raw)),
         }
         for i in range(n)
     ]
     if cap.exposure is not None:
         for i in range(n):
-            frames[i]["exposure_start"], frames[i]["exposure_end"] = (float(v) for v in cap.exposure[i])
+            frames[i][EXPOSURE_START], frames[i][EXPOSURE_END] = (float(v) for v in cap.exposure[i])
     dropped: Dict[int, str] = {}
     modalities = ["rgb"]
     meta: Dict = {"version": 1, "warnings": list(cap.warnings), "exposure": cap.exposure_meta}
@@ -187,7 +191,7 @@ def _keep_posed_frames(raw: Path, tmp: Path, cap: Capture, frames: List[Dict], g
     kept_frames = []
     for i in range(len(frames)):
         if i in dropped:
-            remove_files(tmp, [frames[i].get(k) for k in _FILE_KEYS])
+            remove_files(tmp, [frames[i].get(f.key) for f in FRAME_FILES])
             continue
         frames[i]["transform_matrix"] = gl[i].tolist()
         kept_frames.append(frames[i])
@@ -196,16 +200,3 @@ def _keep_posed_frames(raw: Path, tmp: Path, cap: Capture, frames: List[Dict], g
     if dropped:
         CONSOLE.log(f"[yellow]Dropped {len(dropped)} of {len(frames)} frames (see agrinerf.poses.dropped_frames)")
     return kept_frames
-
-
-_FILE_KEYS = (
-    "file_path",
-    "thermal_file_path",
-    "thermal_mask_path",
-    "thermal_temperature_path",
-    "event_file_path",
-    "event_mask_path",
-    "event_sums_path",
-    FRAME_KEY,
-)
-"""The keys of a frame's files in the dataset (removed with a dropped frame)."""

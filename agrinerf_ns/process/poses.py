@@ -15,7 +15,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.readers import read_tum
+from agrinerf_ns.trajectory import read_tum
 
 
 def opencv_to_opengl(c2w: Float[np.ndarray, "*b 4 4"]) -> Float[np.ndarray, "*b 4 4"]:

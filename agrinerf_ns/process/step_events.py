@@ -10,6 +10,7 @@ from typing import Dict, List
 import numpy as np
 from rich.progress import Progress
 
+from agrinerf_ns.dataset_format import EVENT_MASK, EVENT_STREAM, EVENT_SUMS, EVENTS
 from agrinerf_ns.images import to_uint8, write_png
 from agrinerf_ns.process import align, event_frames, readers
 from agrinerf_ns.process.capture import Capture
@@ -31,7 +32,7 @@ def write_event_frames(
     to_event_clock = cap.sync.apply if cap.sync is not None else (lambda t: np.asarray(t, np.float64))
     maps = align.warp_maps(rgb_cam, ev_cam, config.plane_depth)
     mask8 = (maps[2] * 255).astype(np.uint8)
-    stream = EventH5Writer(tmp / "events", ecfg.chunk_size, STREAM_FILE)
+    stream = EventH5Writer(tmp / Path(EVENT_STREAM).parent, ecfg.chunk_size, Path(EVENT_STREAM).name)
     chunks = _stream_copy(
         readers.iter_event_chunks(cap.event_file, ecfg.chunk_size, sensor_wh=(ev_cam.width, ev_cam.height)),
         stream,
@@ -52,8 +53,8 @@ def write_event_frames(
         percentiles.append(
             event_frames.window_percentile(event_frames.frame_value(pos_al, neg_al, ecfg.representation))
         )
-        rel = f"events/{names[k]}.npz"
-        (tmp / "events").mkdir(exist_ok=True)
+        rel = EVENT_SUMS.path(names[k])
+        (tmp / EVENT_SUMS.folder).mkdir(exist_ok=True)
         np.savez_compressed(
             tmp / rel,
             pos=np.clip(pos_al, 0, 65535).astype(np.uint16),
@@ -62,7 +63,7 @@ def write_event_frames(
             t_start=np.float64(t_start[k]),
             t_end=np.float64(t_end[k]),
         )
-        frames[k]["event_sums_path"] = rel
+        frames[k][EVENT_SUMS.key] = rel
         progress.advance(task)
     stream.close(0, {"clock": "frame", "width": ev_cam.width, "height": ev_cam.height})
     if total_in_windows == 0:
@@ -73,15 +74,15 @@ def write_event_frames(
     scale = float(ecfg.clip_count) if ecfg.clip_count else event_frames.robust_scale(percentiles)
     task = progress.add_task("event frames", total=len(names))
     for k in range(len(names)):
-        with np.load(tmp / frames[k]["event_sums_path"]) as z:
+        with np.load(tmp / frames[k][EVENT_SUMS.key]) as z:
             value = event_frames.frame_value(
                 z["pos"].astype(np.float32), z["neg"].astype(np.float32), ecfg.representation
             )
         png = to_uint8(event_frames.to_unit_frame(value, scale, ecfg.representation))
-        frames[k]["event_file_path"] = f"events/{names[k]}.png"
-        frames[k]["event_mask_path"] = f"event_masks/{names[k]}.png"
-        write_png(tmp / frames[k]["event_file_path"], png)
-        write_png(tmp / frames[k]["event_mask_path"], mask8)
+        frames[k][EVENTS.key] = EVENTS.path(names[k])
+        frames[k][EVENT_MASK.key] = EVENT_MASK.path(names[k])
+        write_png(tmp / frames[k][EVENTS.key], png)
+        write_png(tmp / frames[k][EVENT_MASK.key], mask8)
         progress.advance(task)
     return {
         **ecfg.as_dict(),
@@ -96,13 +97,8 @@ def write_event_frames(
         "png_encoding": "value = png / 255; signed: 0.5 (png 128) = no change",
         "sums": "event_sums_path: npz with pos, neg (uint16 ON/OFF counts in RGB pixels, nearest warp), mask, "
         "t_start, t_end (s, frame clock)",
-        "stream": f"events/{STREAM_FILE}",
+        "stream": EVENT_STREAM,
     }
-
-
-STREAM_FILE = "stream.h5"
-"""The dataset's copy of the events inside the frames' windows, at the event camera's pixels, times in microseconds of
-the frames' clock (the event loss reads it: ``agrinerf_ns.dataparsers.event_stream``)."""
 
 
 def _stream_copy(chunks, sink: EventH5Writer, sync, start_s: float, end_s: float):

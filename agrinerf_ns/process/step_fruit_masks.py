@@ -17,7 +17,8 @@ import cv2
 import numpy as np
 from jaxtyping import UInt8
 
-from agrinerf_ns.fruit_mask_format import FOLDER, FRAME_KEY, UNKNOWN
+from agrinerf_ns.dataset_format import FRUIT_MASK
+from agrinerf_ns.fruit_mask_format import UNKNOWN
 from agrinerf_ns.images import write_png
 from agrinerf_ns.process import align
 from agrinerf_ns.process.errors import RawInputError
@@ -82,13 +83,13 @@ def write_fruit_masks(
 ) -> dict:
     """Write each frame's mask, undistorted like its frame, and name it in the frame; returns the dataset's record."""
     und = align.undistort_maps(calib_rgb)
-    (tmp / FOLDER).mkdir(parents=True, exist_ok=True)
+    (tmp / FRUIT_MASK.folder).mkdir(parents=True, exist_ok=True)
     for i, path in enumerate(masks):
         mask = read_mask(path, calib_rgb.width, calib_rgb.height)
         if und is not None:  # nearest: labels; pixels from outside the raw frame are unknown
             mask = cv2.remap(mask, und[0], und[1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
                              borderValue=UNKNOWN)  # fmt: skip
-        frames[i][FRAME_KEY] = f"{FOLDER}/{names[i]}.png"
-        write_png(tmp / frames[i][FRAME_KEY], mask)
+        frames[i][FRUIT_MASK.key] = FRUIT_MASK.path(names[i])
+        write_png(tmp / frames[i][FRUIT_MASK.key], mask)
     return {"source": "user", "folder": str(masks[0].parent.resolve()) if masks else "",
             "values": f"0 background, {UNKNOWN} unknown, any other value fruit"}  # fmt: skip

@@ -12,13 +12,13 @@ import cv2
 import numpy as np
 from rich.progress import Progress
 
+from agrinerf_ns.dataset_format import IMAGE, THERMAL, THERMAL_MASK, TRAJECTORY
 from agrinerf_ns.process import poses as pose_utils
-from agrinerf_ns.process import readers
 from agrinerf_ns.process.capture import Capture, frame_interval
 from agrinerf_ns.process.config import ProcessConfig
 from agrinerf_ns.process.console import CONSOLE
-from agrinerf_ns.process.dataset_writer import write_trajectory
 from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.trajectory import read_tum, write_tum
 
 
 def estimate_poses(
@@ -40,14 +40,14 @@ def estimate_poses(
             break  # auto: RGB registered every frame, thermal cannot do better
         task = progress.add_task(f"SfM ({source})", total=None)
         if source == "rgb":
-            images = [cv2.cvtColor(cv2.imread(str(tmp / frames[i]["file_path"])), cv2.COLOR_BGR2RGB) for i in idx]
+            images = [cv2.cvtColor(cv2.imread(str(tmp / frames[i][IMAGE.key])), cv2.COLOR_BGR2RGB) for i in idx]
             masks = None
         else:
-            images = [cv2.imread(str(tmp / frames[i]["thermal_file_path"]), cv2.IMREAD_GRAYSCALE) for i in idx]
+            images = [cv2.imread(str(tmp / frames[i][THERMAL.key]), cv2.IMREAD_GRAYSCALE) for i in idx]
             if config.sfm.thermal_clahe:
                 clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(4, 4))
                 images = [clahe.apply(im) for im in images]
-            masks = [cv2.imread(str(tmp / frames[i]["thermal_mask_path"]), cv2.IMREAD_GRAYSCALE) for i in idx]
+            masks = [cv2.imread(str(tmp / frames[i][THERMAL_MASK.key]), cv2.IMREAD_GRAYSCALE) for i in idx]
         work = tmp / f".sfm_{source}"
         res = pose_utils.run_sfm(images, cap.calib.rgb.K, work, config.sfm, f"sfm-{source}", masks=masks)
         shutil.rmtree(work, ignore_errors=True)
@@ -77,6 +77,6 @@ def estimate_poses(
 def write_odometry_trajectory(raw: Path, tmp: Path) -> Dict:
     """The whole odometry as the dataset's ``trajectory.txt`` (OpenGL axes), for poses between frames
     (:mod:`agrinerf_ns.trajectory`); returns its metadata."""
-    odo_t, odo_c2w = readers.read_tum(raw / "odometry.txt")
-    write_trajectory(tmp / "trajectory.txt", odo_t, pose_utils.opencv_to_opengl(odo_c2w))
-    return {"file": "trajectory.txt", "source": "odometry.txt", "samples": int(len(odo_t))}
+    odo_t, odo_c2w = read_tum(raw / "odometry.txt")
+    write_tum(tmp / TRAJECTORY, odo_t, pose_utils.opencv_to_opengl(odo_c2w))
+    return {"file": TRAJECTORY, "source": "odometry.txt", "samples": int(len(odo_t))}

@@ -12,6 +12,7 @@ import numpy as np
 from rich.progress import Progress
 
 from agrinerf_ns import temperature
+from agrinerf_ns.dataset_format import TEMPERATURE, THERMAL, THERMAL_MASK, THERMAL_TIMESTAMP
 from agrinerf_ns.images import write_png
 from agrinerf_ns.process import align, flir, radiometric, readers
 from agrinerf_ns.process import poses as pose_utils
@@ -56,15 +57,15 @@ def write_thermal_frames(
         if j >= 0:
             counts = readers.read_thermal(th.paths[j], hw)
             img8 = rescaler.apply(counts, j)
-            frames[i]["thermal_file_path"] = f"thermal/{names[i]}.png"
-            frames[i]["thermal_mask_path"] = f"thermal_masks/{names[i]}.png"
+            frames[i][THERMAL.key] = THERMAL.path(names[i])
+            frames[i][THERMAL_MASK.key] = THERMAL_MASK.path(names[i])
             frames[i]["raw_thermal"] = str(th.paths[j].relative_to(raw))
-            frames[i]["thermal_timestamp"] = float(th.times[j])  # its own time: the rig moves between the two
-            write_png(tmp / frames[i]["thermal_file_path"], align.warp_image(img8, maps))
-            write_png(tmp / frames[i]["thermal_mask_path"], mask)
+            frames[i][THERMAL_TIMESTAMP] = float(th.times[j])  # its own time: the rig moves between the two
+            write_png(tmp / frames[i][THERMAL.key], align.warp_image(img8, maps))
+            write_png(tmp / frames[i][THERMAL_MASK.key], mask)
             if calibration is not None:
-                frames[i]["thermal_temperature_path"] = f"thermal_temperature/{names[i]}.png"
-                write_png(tmp / frames[i]["thermal_temperature_path"],
+                frames[i][TEMPERATURE.key] = TEMPERATURE.path(names[i])
+                write_png(tmp / frames[i][TEMPERATURE.key],
                           stats.add(_temperature_image(calibration, counts, maps)))  # fmt: skip
         progress.advance(task)
     if calibration is not None:

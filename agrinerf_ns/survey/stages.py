@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Tuple
 
 from agrinerf_ns.count.pipeline import CountConfig
+from agrinerf_ns.dataset_format import TRANSFORMS
 from agrinerf_ns.process.pipeline import ProcessConfig
 
 STAGES = ("process", "train", "count")
@@ -114,7 +115,7 @@ def train_step(folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Di
     from agrinerf_ns.ns_commands import ns_train
 
     shutil.rmtree(folders.train_root / settings.method, ignore_errors=True)
-    run = ns_train(settings.method, folders.data / "transforms.json", folders.root, TRAIN_EXPERIMENT,
+    run = ns_train(settings.method, folders.data / TRANSFORMS, folders.root, TRAIN_EXPERIMENT,
                    max_steps=settings.steps, rays_per_batch=settings.rays_per_batch,
                    extra_args=settings.train_args)  # fmt: skip
     run.save(folders.train_record)

@@ -3,8 +3,9 @@
 - :mod:`~agrinerf_ns.process.readers.frames`: frame lists (``timestamps.txt``), RGB and raw thermal frames;
 - :mod:`~agrinerf_ns.process.readers.calibration`: the rig calibration ``calib.yaml``;
 - :mod:`~agrinerf_ns.process.readers.events`: event files, read in chunks, and their external-trigger events;
-- :mod:`~agrinerf_ns.process.readers.odometry`: TUM trajectories (``odometry.txt``, ``truth/poses.txt``);
 - :mod:`~agrinerf_ns.process.readers.time_list`: the parser of "<file name> <time>" lists the others share.
+
+TUM trajectories (``odometry.txt``, ``truth/poses.txt``) are read with the trajectory (:func:`agrinerf_ns.trajectory.read_tum`).
 
 Every reader raises :class:`~agrinerf_ns.process.errors.RawInputError` naming the file and the problem; none writes
 anything. The names below are the readers' public interface (``from agrinerf_ns.process.readers import ...``).
@@ -22,7 +23,6 @@ from agrinerf_ns.process.readers.events import (
     read_triggers,
 )
 from agrinerf_ns.process.readers.frames import FrameList, read_rgb, read_thermal, read_timestamps
-from agrinerf_ns.process.readers.odometry import quat_xyzw_to_rotmat, read_tum
 from agrinerf_ns.process.readers.time_list import TimeListLine, read_time_list
 
 __all__ = [
@@ -37,12 +37,10 @@ __all__ = [
     "count_events",
     "find_event_file",
     "iter_event_chunks",
-    "quat_xyzw_to_rotmat",
     "read_calibration",
     "read_rgb",
     "read_thermal",
     "read_time_list",
     "read_timestamps",
     "read_triggers",
-    "read_tum",
 ]
