@@ -81,7 +81,8 @@ class BlurTerm:
         """The frame ray's colour and the renders of its learnt rigid motions, blended in linear radiance with the
         learnt weights (`model/rigid_blur.py`)."""
         assert self.kernel is not None and bundle.camera_indices is not None
-        rotation, translation, weights = self.kernel(camera_rows(bundle).to(frame_rgb.device))
+        # the rows on the rays' device: the kernel's weights live there (no round trip through the host)
+        rotation, translation, weights = self.kernel(bundle.camera_indices.reshape(-1).long())
         origins, directions = warp_rays(bundle.origins, bundle.directions, rotation, translation)
         n, m = origins.shape[:2]
         moved = RayBundle(

@@ -13,10 +13,10 @@ fall are events the field cannot reconcile with the frames, and the term is swit
 from __future__ import annotations
 
 import math
-from typing import Callable, Tuple
+from typing import Any, Callable, Dict, Tuple
 
 import torch
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 from torch import Tensor, nn
 
 from agrinerf_ns.dataparsers import event_stream
@@ -57,6 +57,7 @@ class EventGate(nn.Module):
         held = torch.randperm(total, generator=generator)[: max(1, min(n, total // 8))]
         keep = torch.ones(total, dtype=torch.bool)
         keep[held] = False
+        self.train_mask: Bool[Tensor, " pixels"] = keep  # per event pixel: may training draw it
         self.train_pixels: Int[Tensor, " k"] = keep.nonzero()[:, 0]  # the pixels training may draw
         frames = torch.randint(0, rig.event_windows.shape[0], (n,), generator=generator)
         t0, t1 = sample_windows(rig.event_windows, frames, config.event_window_min_fraction, generator)
@@ -70,13 +71,22 @@ class EventGate(nn.Module):
         self.register_buffer("best", torch.full((), math.nan, dtype=torch.float64))
         self.register_buffer("residual", torch.full((), math.nan, dtype=torch.float64))
         self.register_buffer("last_check", torch.full((), -1, dtype=torch.int64))
+        # `last_check` as a Python number, kept with it: `due` is asked every step, and a read of the buffer on a GPU
+        # waits for the device; it changes only at a check or when a checkpoint loads
+        self.last_check_step = -1
+        self._register_load_state_dict_pre_hook(self._load_last_check)
+
+    def _load_last_check(self, state_dict: Dict[str, Any], prefix: str, *args: Any) -> None:
+        saved = state_dict.get(prefix + "last_check")
+        if saved is not None:
+            self.last_check_step = int(saved)
 
     def training_pixels(self, m: int) -> Int[Tensor, " m"]:
         """`m` random event pixels outside the held-out share (the global random stream, as the plain sampler)."""
         return self.train_pixels[torch.randint(0, self.train_pixels.shape[0], (m,))]  # cpu: the stream's pixels
 
     def due(self, step: int) -> bool:
-        last = int(self.last_check)
+        last = self.last_check_step
         return last < 0 or step >= last + max(1, self.config.event_gate_every)
 
     def no_change(self, thresholds: Tuple[float, float]) -> float:
@@ -103,6 +113,7 @@ class EventGate(nn.Module):
         ])  # fmt: skip
         residual = self.score(logs, thresholds)
         self.last_check.fill_(step)
+        self.last_check_step = step
         self.residual.fill_(residual)
         if not math.isfinite(residual):
             return float(self.factor)

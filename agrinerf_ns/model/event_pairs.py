@@ -11,12 +11,13 @@ the size of one threshold.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import Optional, Tuple, Union
 
 import numpy as np
 import torch
-from jaxtyping import Float, Int, Integer
+from jaxtyping import Bool, Float, Int, Integer
 from torch import Tensor
 
 from agrinerf_ns.dataparsers.event_stream import read_stream_h5
@@ -57,6 +58,15 @@ class EventPairs:
     def from_h5(cls, path: Path, width: int, height: int) -> "EventPairs":
         """The pairs of a dataset's ``events/stream.h5``."""
         return cls(*read_stream_h5(path, width, height), width, height)
+
+    def at_pixels(self, keep: Bool[Tensor, " pixels"]) -> "EventPairs":
+        """The pairs at the pixels `keep` marks (per pixel ``y * width + x``), drawn uniformly over these alone: how
+        the event gate's held-out pixels stay out of training."""
+        kept = copy.copy(self)
+        select = keep.to(self.pixel.device)[self.pixel]
+        kept.pixel, kept.t_start_us = self.pixel[select], self.t_start_us[select]
+        kept.t_end_us, kept.polarity = self.t_end_us[select], self.polarity[select]
+        return kept
 
     def __len__(self) -> int:
         return int(self.pixel.shape[0])

@@ -55,9 +55,12 @@ class EventTerm(nn.Module):
         if self.mode != "off" and config.event_threshold_learnt:
             self.log_threshold = Parameter(torch.full((2,), math.log(config.event_threshold)))
         self.crf = crf
-        self.gate: Optional[EventGate] = None  # config `event_gate`: held-out event samples that set the weight
-        if self.mode != "off" and config.event_gate and native is not None and rig.event_windows is not None:
+        self.gate: Optional[EventGate] = None  # `plan.event_gate`: held-out event samples that set the weight
+        if plan.event_gate:
+            assert native is not None, "the plan gates only the stream's supervisions"
             self.gate = EventGate(config, rig, self.stream or native.stream())
+            if self.pairs is not None:  # the gate's held-out pixels are never trained on, under either supervision
+                self.pairs = self.pairs.at_pixels(self.gate.train_mask)
         self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
@@ -222,37 +225,40 @@ class EventTerm(nn.Module):
             return {}
         return {"event_loss": loss}
 
-    def noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
+    def noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> Float[Tensor, ""]:
         """The `noise` weighting's factor (config `event_loss_weighting`): the event samples' share of the batch
-        times the ratio of the running RGB and event losses, never above an RGB ray's (means updated in training)."""
-        rgb, event = float(raw["rgb_loss"].detach()), float(raw["event_loss"].detach())
-        means = self.loss_means.tolist()
-        if self.training and math.isfinite(rgb) and math.isfinite(event):
-            old = (rgb, event) if math.isnan(means[0]) else means
-            means = [0.99 * old[0] + 0.01 * rgb, 0.99 * old[1] + 0.01 * event]  # 0.99 a step
-            self.loss_means.copy_(torch.tensor(means, dtype=torch.float64, device=self.loss_means.device))
-        if math.isnan(means[0]):
-            return 0.0
+        times the ratio of the running RGB and event losses, never above an RGB ray's (means updated in training).
+        Kept on the losses' device in float64 (the arithmetic of Python numbers): nothing is read back per step."""
+        means = self.loss_means
+        if self.training:
+            new = torch.stack([raw["rgb_loss"].detach(), raw["event_loss"].detach()]).double()
+            old = torch.where(means[0].isnan(), new, means)
+            updated = 0.99 * old + 0.01 * new  # 0.99 a step
+            means.copy_(torch.where(new.isfinite().all(), updated, means))  # a non-finite loss leaves them
         samples = outputs["event_log_start"].shape[0] / outputs["rgb"].shape[0]
-        weight = samples * min(means[0] / max(means[1], 1e-12), 1.0)
-        self.weight.fill_(weight)
-        return weight
+        weight = samples * (means[0] / means[1].clamp(min=1e-12)).clamp(max=1.0)
+        self.weight.copy_(torch.where(means[0].isnan(), 0.0, weight))
+        return self.weight
 
-    def loss_factor(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
-        """The event term's factor on its coefficient: the `noise` weighting's (where configured) times the gate's."""
-        factor = 1.0
+    def weighted_loss(self, loss: Float[Tensor, ""], raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> Tensor:
+        """The weighted event loss: times the `noise` weighting's factor (where configured) and the gate's, both
+        float64 on the device, multiplied as the one factor in the loss's dtype."""
+        factor: Optional[Tensor] = None
         if self.config.event_loss_weighting == "noise" and "rgb_loss" in raw:
             factor = self.noise_weight(raw, outputs)
-        return factor * (1.0 if self.gate is None else float(self.gate.factor))
+        if self.gate is not None:
+            factor = self.gate.factor if factor is None else factor * self.gate.factor
+        return loss if factor is None else loss * factor.to(loss.dtype)
 
     def metrics(self, training: bool) -> Dict[str, Any]:
-        """`event_loss_weight` (training, once the `noise` weighting has means) and the learnt thresholds."""
+        """`event_loss_weight` (training, with the `noise` weighting: 0 until it has means), the gate's factor and
+        residual (training) and the learnt thresholds: tensors, read by the host only when logged."""
         metrics: Dict[str, Any] = {}
-        if training and not math.isnan(float(self.loss_means[0])):
-            metrics["event_loss_weight"] = float(self.weight)
+        if training and self.config.event_loss_weighting == "noise":
+            metrics["event_loss_weight"] = self.weight.detach().clone()
         if self.gate is not None and training:
-            metrics["event_gate"] = float(self.gate.factor)
-            metrics["event_gate_residual"] = float(self.gate.residual)
+            metrics["event_gate"] = self.gate.factor.detach().clone()
+            metrics["event_gate_residual"] = self.gate.residual.detach().clone()
         if self.log_threshold is not None:
             metrics["event_threshold_on"], metrics["event_threshold_off"] = self.log_threshold.detach().exp()
         return metrics
