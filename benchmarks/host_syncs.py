@@ -9,13 +9,15 @@ its stack (file:line; a frame of Nerfstudio or torch where no project frame is o
 device (``.to(device)``, ``.cuda()``, ``torch.tensor(..., device=)``) are counted apart, as calls: on the CPU a move
 to the device it is already on cannot be told from an upload.
 
-    OMP_NUM_THREADS=1 python benchmarks/host_syncs.py --data DS --out results/host-syncs/after.json
+    OMP_NUM_THREADS=1 python benchmarks/host_syncs.py count --data DS --out results/host-syncs/after.json
+    python benchmarks/host_syncs.py report --records before.json after.json --out syncs.md
 
 The renders take the path they take on a GPU (``--gpu-path``, the default): no pruning of samples by their data
 (``device_sync.prune_on`` is False there; on the CPU it prunes, which reads the share of samples kept) and the VM
 volumes' ``grid_sample`` lookups. Each preset trains ``--steps`` steps at its own settings (its start grids: no upsampling or box fit is due), counting
 every step (forward, losses, backward, optimizer step, the training callbacks), then renders one chunk of an eval
-camera's rays (``get_outputs`` of ``eval_num_rays_per_chunk`` rays, in eval mode). Step 0 carries the first checks of
+camera's rays twice (``eval_num_rays_per_chunk`` rays through ``Model.forward``, in eval mode): the first chunk of a
+render, and the next, which every further chunk costs. Step 0 carries the first checks of
 parts on their own schedule (the event gate); the table gives step 0 and the largest count of the later steps.
 """
 
@@ -29,7 +31,7 @@ import traceback
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any, Dict, Iterator, List, Optional, Tuple, Union
 from unittest import mock
 
 import numpy as np
@@ -49,11 +51,19 @@ _SKIP = (str(Path(__file__).resolve()), str(ROOT / "agrinerf_ns" / "lab" / "step
 
 
 def call_site() -> str:
-    """file:line of the innermost frame of this project on the stack (else the innermost outside torch)."""
+    """file:line of the innermost frame of this project on the stack (else the innermost outside torch), and after
+    ">" the innermost outside torch where that is another file's (a call this project makes into Nerfstudio)."""
     frames = traceback.extract_stack()[:-3]
     outside = [f for f in frames if "/torch/" not in f.filename and f.filename not in _SKIP]
     ours = [f for f in outside if f.filename.startswith(str(ROOT)) and "/.venv/" not in f.filename]
     frame = (ours or outside or frames)[-1]
+    site = _where(frame)
+    if outside and outside[-1] is not frame:
+        site += " > " + _where(outside[-1])
+    return site
+
+
+def _where(frame: traceback.FrameSummary) -> str:
     name = frame.filename
     for prefix in (str(ROOT) + "/", "site-packages/"):
         name = name.split(prefix, 1)[-1] if prefix in name else name
@@ -185,32 +195,80 @@ def count_preset(preset: str, args: Args) -> Dict[str, Any]:
     bundle = camera.generate_rays(camera_indices=0, keep_shape=False)
     chunk = bundle[: model.config.eval_num_rays_per_chunk]
     model.eval()
-    with torch.no_grad(), HostSyncCounter() as counter:
-        model(chunk)  # Model.forward: the collider, then get_outputs
+    chunks = []
+    for _ in range(2):  # the first chunk of a render, and the next (what every further chunk costs)
+        with torch.no_grad(), HostSyncCounter() as counter:
+            model(chunk)  # Model.forward: the collider, then get_outputs
+        chunks.append({"rays": int(chunk.shape[0]), "total": counter.total, "syncs": dict(counter.syncs),
+                       "moves": dict(counter.moves)})  # fmt: skip
     model.train()
-    render = {"rays": int(chunk.shape[0]), "total": counter.total, "syncs": dict(counter.syncs),
-              "moves": dict(counter.moves)}  # fmt: skip
-    print(preset, "chunk syncs", counter.total, flush=True)
+    print(preset, "chunk syncs", [c["total"] for c in chunks], flush=True)
     return {"plan": {"event_supervision": model.plan.event_supervision, "blur": model.plan.blur}, "steps": steps,
-            "chunk": render}  # fmt: skip
+            "chunks": chunks}  # fmt: skip
 
 
-def main(args: Args) -> None:
+def count(args: Args) -> None:
     with gpu_render_path(args.gpu_path):
         results = {preset: count_preset(preset, args) for preset in args.presets}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"args": {"steps": args.steps, "overrides": args.overrides, "gpu_path": args.gpu_path},
-                               "presets": results},
-                              indent=1, sort_keys=True))  # fmt: skip
+    record = {"args": {"steps": args.steps, "overrides": args.overrides, "gpu_path": args.gpu_path}, "presets": results}
+    tmp.write_text(json.dumps(record, indent=1, sort_keys=True))
     tmp.replace(args.out)
-    for preset, result in results.items():
-        later = max((s["total"] for s in result["steps"][1:]), default=0)
-        print(
-            f"{preset}: step 0 {result['steps'][0]['total']}, later steps <= {later}, chunk {result['chunk']['total']}"
-        )
+    print(report_text({"counted": record}))
+
+
+@dataclass
+class Report:
+    records: Tuple[Path, ...]
+    """Records of ``count`` (e.g. before.json after.json), one column group each."""
+    out: Optional[Path] = None
+    """Markdown file of the table and each record's call sites (default: print only)."""
+
+
+def report_text(records: Dict[str, Dict[str, Any]]) -> str:
+    """Per preset: syncs of step 0, the most of the later steps, the first and the next rendered chunk, per record;
+    then each record's call sites of its presets' later steps and chunks."""
+    names = list(records)
+    head = "| preset | " + " | ".join(
+        f"{n}: step 0 | {n}: later steps | {n}: first chunk | {n}: next chunk" for n in names
+    )
+    lines = [head + " |", "|---" * (1 + 4 * len(names)) + "|"]
+    presets = [p for p in records[names[0]]["presets"] if all(p in r["presets"] for r in records.values())]
+    for preset in presets:
+        cells = []
+        for name in names:
+            result = records[name]["presets"][preset]
+            steps, chunks = [s["total"] for s in result["steps"]], [c["total"] for c in result["chunks"]]
+            cells += [str(steps[0]), str(max(steps[1:], default=0)), str(chunks[0]), str(chunks[1])]
+        lines.append(f"| {preset} | " + " | ".join(cells) + " |")
+    for name in names:
+        for preset in presets:
+            result = records[name]["presets"][preset]
+            for label, part in (("step 0", result["steps"][0]), ("a later step", result["steps"][-1]),
+                                ("the first chunk", result["chunks"][0]), ("the next chunk", result["chunks"][1])):  # fmt: skip
+                if part["syncs"]:
+                    lines += ["", f"{name}, {preset}, {label}:", ""]
+                    lines += [f"- {n} x `{site}`" for site, n in sorted(part["syncs"].items(), key=lambda kv: -kv[1])]
+    return "\n".join(lines) + "\n"
+
+
+def report(args: Report) -> None:
+    text = report_text({path.stem: json.loads(path.read_text()) for path in args.records})
+    if args.out is not None:
+        tmp = args.out.with_suffix(".tmp")
+        tmp.write_text(text)
+        tmp.replace(args.out)
+    print(text)
+
+
+def entrypoint() -> None:
+    args: Union[Args, Report] = tyro.extras.subcommand_cli_from_dict(
+        {"count": Args, "report": Report}, prog="host_syncs.py"
+    )
+    count(args) if isinstance(args, Args) else report(args)
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    entrypoint()
     sys.exit(0)

@@ -24,7 +24,7 @@ from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_fea
 from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.plan import ModelPlan
 from agrinerf_ns.model.rig import RenderRays, Rig
-from agrinerf_ns.model.timed_rays import camera_rows
+from agrinerf_ns.model.timed_rays import camera_rows, frame_rows
 
 
 class EventTerm(nn.Module):
@@ -183,7 +183,7 @@ class EventTerm(nn.Module):
         assert rig.event_windows is not None
         m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
         head = bundle[:m]
-        windows = rig.event_windows[camera_rows(head)].double()
+        windows = frame_rows(rig.event_windows, head).double()
         renders = render_at(render, rig, head, windows, "event_loss", **rig.event_camera)
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]

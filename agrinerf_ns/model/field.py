@@ -261,7 +261,7 @@ class AgriNeRFField(Field):
         """Grid points per axis for the voxel budget of a `cube`^3 grid, with cells of one size in the box."""
         if self.mapping is None:
             return axis_resolution(self.aabb, 1.0, cube)
-        return axis_resolution(self.mapping.box(), self.mapping.inner_value, cube)
+        return self.mapping.axis_resolution(cube)
 
     @torch.no_grad()
     def refit_box(self, box: Float[Tensor, "2 3"], inner: float, cube: int) -> None:

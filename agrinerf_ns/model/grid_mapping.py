@@ -49,6 +49,7 @@ class BoxContraction(nn.Module):
         # `inner` as a Python number (the buffer's float32 value), kept with it: every map reads it, and a read of the
         # buffer on a GPU waits for the device; it changes only when the box is set or a checkpoint loads
         self.inner_value = float(self.inner)
+        self._resolutions: Dict[int, Tuple[int, int, int]] = {}  # `axis_resolution` per cube, until the box changes
         self._register_load_state_dict_pre_hook(self._load_inner)
         self.set_box(box, inner)
 
@@ -56,6 +57,13 @@ class BoxContraction(nn.Module):
         saved = state_dict.get(prefix + "inner")
         if saved is not None:
             self.inner_value = float(torch.as_tensor(saved, dtype=self.inner.dtype))
+        self._resolutions = {}
+
+    def axis_resolution(self, cube: int) -> Tuple[int, int, int]:
+        """`axis_resolution` of the box for a `cube`^3 budget, computed once per box (its extents are read back)."""
+        if cube not in self._resolutions:
+            self._resolutions[cube] = axis_resolution(self.box(), self.inner_value, cube)
+        return self._resolutions[cube]
 
     @torch.no_grad()
     def set_box(self, box: Float[Tensor, "2 3"], inner: float) -> None:
@@ -66,6 +74,7 @@ class BoxContraction(nn.Module):
         self.radius.copy_((box[1] - box[0]) / 2)
         self.inner.fill_(float(inner))
         self.inner_value = float(self.inner)
+        self._resolutions = {}
 
     def box(self) -> Float[Tensor, "2 3"]:
         """World lo / hi corners of the full-resolution box."""
