@@ -20,7 +20,8 @@ generator, none of this project's (results/host-syncs/README.md)."""
 CHUNK_SYNCS = 0
 """Syncs of a rendered eval chunk after the first (which computes the box's resolutions once)."""
 SMALL = {"init_resolution": 16, "final_resolution": 24, "num_coarse_samples": 16, "num_fine_samples": 16,
-         "blur_start_step": 0, "event_rays_per_batch": 64, "event_gate_samples": 64, "eval_num_rays_per_chunk": 512}  # fmt: skip
+         "blur_start_step": 0, "event_rays_per_batch": 64, "event_gate_samples": 64, "eval_num_rays_per_chunk": 256,
+         "thermal_rays_per_batch": 64}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -51,11 +52,30 @@ def _own(syncs: dict) -> dict:
     return {site: n for site, n in syncs.items() if " > nerfstudio/" not in site and not site.startswith("nerfstudio/")}
 
 
+@pytest.mark.slow
 def test_agrinerf_steps_and_chunks_stay_within_their_host_syncs(host_syncs, capture: Path) -> None:
-    args = host_syncs.Args(data=capture, out=Path("unused.json"), steps=3, rays_per_batch=128, overrides=SMALL)
+    args = host_syncs.Args(data=capture, out=Path("unused.json"), steps=2, rays_per_batch=64, overrides=SMALL)
     with host_syncs.gpu_render_path(True):
         result = host_syncs.count_preset("agrinerf", args)
     assert result["plan"] == {"event_supervision": "stream", "blur": "trajectory"}
     for step in result["steps"][1:]:
         assert step["total"] <= STEP_SYNCS and not _own(step["syncs"]), step["syncs"]
     assert result["chunks"][1]["total"] <= CHUNK_SYNCS, result["chunks"][1]["syncs"]
+
+
+def test_the_python_copies_of_buffers_follow_a_checkpoint() -> None:
+    """The numbers kept beside their buffers (so a render reads no buffer) are the loaded ones after a load."""
+    from agrinerf_ns.model.grid_mapping import BoxContraction
+    from agrinerf_ns.model.vm_encoding import VMVolume
+
+    saved = BoxContraction(torch.tensor([[-1.0, -2.0, -1.0], [1.0, 2.0, 3.0]]), inner=0.7)
+    fresh = BoxContraction(torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    assert fresh.axis_resolution(64) != saved.axis_resolution(64)
+    fresh.load_state_dict(saved.state_dict())
+    assert fresh.inner_value == float(saved.inner) == float(torch.tensor(0.7)) != 0.7
+    assert fresh.axis_resolution(64) == saved.axis_resolution(64)
+    volume = VMVolume(8, num_components=2)
+    volume.resample((6, 9, 12))
+    loaded = VMVolume(8, num_components=2)
+    loaded.load_state_dict(volume.state_dict())
+    assert loaded.resolution == (6, 9, 12) == tuple(loaded.res.tolist())

@@ -13,7 +13,7 @@ fall are events the field cannot reconcile with the frames, and the term is swit
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Dict, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import torch
 from jaxtyping import Bool, Float, Int
@@ -59,6 +59,7 @@ class EventGate(nn.Module):
         keep[held] = False
         self.train_mask: Bool[Tensor, " pixels"] = keep  # per event pixel: may training draw it
         self.train_pixels: Int[Tensor, " k"] = keep.nonzero()[:, 0]  # the pixels training may draw
+        self._train_pixels_on: Optional[Tensor] = None  # their copy on the device training draws on
         frames = torch.randint(0, rig.event_windows.shape[0], (n,), generator=generator)
         t0, t1 = sample_windows(rig.event_windows, frames, config.event_window_min_fraction, generator)
         pixel = held[torch.randint(0, held.shape[0], (n,), generator=generator)]
@@ -81,9 +82,13 @@ class EventGate(nn.Module):
         if saved is not None:
             self.last_check_step = int(saved)
 
-    def training_pixels(self, m: int) -> Int[Tensor, " m"]:
-        """`m` random event pixels outside the held-out share (the global random stream, as the plain sampler)."""
-        return self.train_pixels[torch.randint(0, self.train_pixels.shape[0], (m,))]  # cpu: the stream's pixels
+    def training_pixels(self, m: int, device: Optional[torch.device] = None) -> Int[Tensor, " m"]:
+        """`m` random event pixels outside the held-out share (the global random stream of `device`, default the
+        CPU, as the plain sampler), on `device` (the training pixels are copied there once)."""
+        device = torch.device("cpu") if device is None else torch.device(device)
+        if self._train_pixels_on is None or self._train_pixels_on.device != device:
+            self._train_pixels_on = self.train_pixels.to(device)
+        return self._train_pixels_on[torch.randint(0, self.train_pixels.shape[0], (m,), device=device)]
 
     def due(self, step: int) -> bool:
         last = self.last_check_step

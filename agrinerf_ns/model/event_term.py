@@ -15,7 +15,7 @@ from torch.nn import Parameter
 
 from agrinerf_ns import colour
 from agrinerf_ns.dataparsers import event_stream
-from agrinerf_ns.dataparsers.event_stream import EventStream, sample_windows
+from agrinerf_ns.dataparsers.event_stream import EventCamera, EventStream, sample_windows
 from agrinerf_ns.model import edi_prior, losses
 from agrinerf_ns.model.blur_term import render_at
 from agrinerf_ns.model.event_crf import EventCRF, event_log_luma
@@ -61,6 +61,7 @@ class EventTerm(nn.Module):
             self.gate = EventGate(config, rig, self.stream or native.stream())
             if self.pairs is not None:  # the gate's held-out pixels are never trained on, under either supervision
                 self.pairs = self.pairs.at_pixels(self.gate.train_mask)
+        self._device_parts: Optional[Tuple[torch.device, EventStream, EventCamera, Tensor]] = None  # `_on_device`
         self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
@@ -155,25 +156,35 @@ class EventTerm(nn.Module):
     def stream_logs(self, render: RenderRays, like: RayBundle) -> Dict[str, Tensor]:
         """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
         rendered along the event camera's rays at both ends: their log luminance and their ON / OFF counts."""
-        rig, stream = self.rig, self.stream
-        assert stream is not None and rig.event_windows is not None and rig.trajectory is not None
-        assert rig.event_stream is not None
+        rig = self.rig
+        assert rig.trajectory is not None
+        device = like.origins.device
+        stream, camera, windows = self._on_device(device)
         m = self.config.event_rays_per_batch
-        frames = torch.randint(0, rig.event_windows.shape[0], (m,))  # cpu: the windows and the stream are on the CPU
-        t0, t1 = sample_windows(rig.event_windows, frames, self.config.event_window_min_fraction, None)
+        # drawn, counted and cast where the rays are rendered: nothing goes to the host and back per step
+        frames = torch.randint(0, windows.shape[0], (m,), device=device)
+        t0, t1 = sample_windows(windows, frames, self.config.event_window_min_fraction, None)
         if self.gate is None:
-            pixel = torch.randint(0, stream.width * stream.height, (m,))  # cpu: as above
+            pixel = torch.randint(0, stream.width * stream.height, (m,), device=device)
         else:  # the gate's held-out pixels are never trained on
-            pixel = self.gate.training_pixels(m)
+            pixel = self.gate.training_pixels(m, device)
         on, off = stream.counts(pixel, t0, t1)
         origins, directions = event_stream.event_rays(
-            rig.trajectory, rig.event_stream, pixel, torch.stack([t0, t1], -1).double() * 1e-6
+            rig.trajectory, camera, pixel, torch.stack([t0, t1], -1).double() * 1e-6
         )
         rgb = self._render_event_rays(render, like, origins, directions, frames)
-        device = like.origins.device
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
-        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
-                "event_off": off.to(device)}  # fmt: skip
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on, "event_off": off}
+
+    def _on_device(self, device: torch.device) -> Tuple[EventStream, EventCamera, Float[Tensor, "f 2"]]:
+        """The stream supervision's event stream, event camera and the frames' event windows on `device`, moved there
+        once (the stream's sorted keys: 8 bytes an event)."""
+        if self._device_parts is None or self._device_parts[0] != device:
+            assert self.stream is not None and self.rig.event_stream is not None
+            assert self.rig.event_windows is not None
+            parts = (self.stream.to(device), self.rig.event_stream.to(device), self.rig.event_windows.to(device))
+            self._device_parts = (device, *parts)
+        return self._device_parts[1:]
 
     def window_logs(self, render: RenderRays, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
         """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows,

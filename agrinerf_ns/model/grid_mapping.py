@@ -56,7 +56,7 @@ class BoxContraction(nn.Module):
     def _load_inner(self, state_dict: Dict[str, Any], prefix: str, *args: Any) -> None:
         saved = state_dict.get(prefix + "inner")
         if saved is not None:
-            self.inner_value = float(torch.as_tensor(saved, dtype=self.inner.dtype))
+            self.inner_value = float(saved.to(self.inner.dtype))  # the buffer's value once it has loaded
         self._resolutions = {}
 
     def axis_resolution(self, cube: int) -> Tuple[int, int, int]:
