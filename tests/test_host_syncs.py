@@ -79,3 +79,23 @@ def test_the_python_copies_of_buffers_follow_a_checkpoint() -> None:
     loaded = VMVolume(8, num_components=2)
     loaded.load_state_dict(volume.state_dict())
     assert loaded.resolution == (6, 9, 12) == tuple(loaded.res.tolist())
+
+
+@pytest.mark.parametrize(
+    "distortion", [(0.0, 0.0, 0.0, 0.0), (-0.12, 0.03, 1e-3, -2e-3), (-0.12, 0.03, 1e-3, -2e-3, 0.01)]
+)
+def test_the_edi_priors_projection_is_opencvs_to_the_last_digit(distortion) -> None:
+    """The EDI prior projects on the rays' device in torch, in OpenCV's order of operations: the same numbers."""
+    import cv2
+    import numpy as np
+
+    from agrinerf_ns.model.edi_prior import project_points
+
+    rng = np.random.default_rng(0)
+    points = np.stack([rng.uniform(-1, 1, 20000), rng.uniform(-1, 1, 20000), rng.uniform(0.2, 3.0, 20000)], -1)
+    intrinsics = (50.3, 49.7, 25.1, 14.6)
+    K = np.array([[50.3, 0.0, 25.1], [0.0, 49.7, 14.6], [0.0, 0.0, 1.0]])
+    expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K, np.asarray(distortion, np.float64))
+    got = project_points(torch.from_numpy(points), intrinsics, distortion).numpy()
+    assert np.array_equal(got, expected[:, 0, :])
+    assert not np.array_equal(got, project_points(torch.from_numpy(points), intrinsics, (0.1, 0.0, 0.0, 0.0)).numpy())

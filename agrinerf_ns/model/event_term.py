@@ -24,7 +24,7 @@ from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_fea
 from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.plan import ModelPlan
 from agrinerf_ns.model.rig import RenderRays, Rig
-from agrinerf_ns.model.timed_rays import camera_rows, frame_rows
+from agrinerf_ns.model.timed_rays import frame_rows, on_device
 
 
 class EventTerm(nn.Module):
@@ -61,7 +61,7 @@ class EventTerm(nn.Module):
             self.gate = EventGate(config, rig, self.stream or native.stream())
             if self.pairs is not None:  # the gate's held-out pixels are never trained on, under either supervision
                 self.pairs = self.pairs.at_pixels(self.gate.train_mask)
-        self._device_parts: Optional[Tuple[torch.device, EventStream, EventCamera, Tensor]] = None  # `_on_device`
+        self._device_parts: Optional[Tuple[torch.device, EventStream, EventCamera]] = None  # `_on_device`
         self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
@@ -101,15 +101,15 @@ class EventTerm(nn.Module):
         rig = self.rig
         assert self.edi_stream is not None and rig.event_stream is not None
         assert rig.trajectory is not None and rig.frame_times is not None and rig.exposure is not None
-        rows = camera_rows(bundle)
-        pose = rig.trajectory.poses_at_tensor(rig.frame_times[rows].double(), dtype=torch.float64)
-        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double().cpu()[..., None])[..., 0]
-        depth = float(rig.event_camera.get("plane_depth", math.inf))
-        pixel, inside = edi_prior.event_pixels(rig.event_stream, local, depth)
-        c_on, c_off = (float(c) for c in self.thresholds())
-        factor = edi_prior.edi_factors(self.edi_stream, pixel, rig.exposure[rows], c_on, c_off)
         device = bundle.origins.device
-        return {"edi_factor": factor.to(device), "edi_valid": inside.float()[:, None].to(device)}
+        stream, camera = self._on_device(device)  # all on the rays' device: nothing goes to the host and back
+        pose = rig.trajectory.poses_at_tensor(frame_rows(rig.frame_times, bundle).double(), dtype=torch.float64)
+        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double()[..., None])[..., 0]
+        depth = float(rig.event_camera.get("plane_depth", math.inf))
+        pixel, inside = edi_prior.event_pixels(camera, local, depth)
+        c_on, c_off = (c.detach() if isinstance(c, Tensor) else c for c in self.thresholds())
+        factor = edi_prior.edi_factors(stream, pixel, frame_rows(rig.exposure, bundle), c_on, c_off)
+        return {"edi_factor": factor, "edi_valid": inside.float()[:, None]}
 
     def _render_event_rays(
         self,
@@ -159,7 +159,9 @@ class EventTerm(nn.Module):
         rig = self.rig
         assert rig.trajectory is not None
         device = like.origins.device
-        stream, camera, windows = self._on_device(device)
+        assert rig.event_windows is not None
+        stream, camera = self._on_device(device)
+        windows = on_device(rig.event_windows, device)
         m = self.config.event_rays_per_batch
         # drawn, counted and cast where the rays are rendered: nothing goes to the host and back per step
         frames = torch.randint(0, windows.shape[0], (m,), device=device)
@@ -176,15 +178,14 @@ class EventTerm(nn.Module):
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on, "event_off": off}
 
-    def _on_device(self, device: torch.device) -> Tuple[EventStream, EventCamera, Float[Tensor, "f 2"]]:
-        """The stream supervision's event stream, event camera and the frames' event windows on `device`, moved there
-        once (the stream's sorted keys: 8 bytes an event)."""
+    def _on_device(self, device: torch.device) -> Tuple[EventStream, EventCamera]:
+        """The event stream (the stream supervision's and the EDI prior's) and the event camera on `device`, moved
+        there once (the stream's sorted keys: 8 bytes an event)."""
         if self._device_parts is None or self._device_parts[0] != device:
-            assert self.stream is not None and self.rig.event_stream is not None
-            assert self.rig.event_windows is not None
-            parts = (self.stream.to(device), self.rig.event_stream.to(device), self.rig.event_windows.to(device))
-            self._device_parts = (device, *parts)
-        return self._device_parts[1:]
+            stream = self.stream or self.edi_stream
+            assert stream is not None and self.rig.event_stream is not None
+            self._device_parts = (device, stream.to(device), self.rig.event_stream.to(device))
+        return self._device_parts[1], self._device_parts[2]
 
     def window_logs(self, render: RenderRays, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
         """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows,
