@@ -68,6 +68,13 @@ class EventPairs:
         kept.t_end_us, kept.polarity = self.t_end_us[select], self.polarity[select]
         return kept
 
+    def to(self, device: torch.device) -> "EventPairs":
+        """These pairs on `device`: `sample` then draws there (from that device's random stream)."""
+        moved = copy.copy(self)
+        moved.pixel, moved.t_start_us = self.pixel.to(device), self.t_start_us.to(device)
+        moved.t_end_us, moved.polarity = self.t_end_us.to(device), self.polarity.to(device)
+        return moved
+
     def __len__(self) -> int:
         return int(self.pixel.shape[0])
 
@@ -75,11 +82,11 @@ class EventPairs:
         self, m: int, generator: Optional[torch.Generator] = None
     ) -> Tuple[Int[Tensor, " m"], Int[Tensor, " m"], Int[Tensor, " m"], Int[Tensor, " m"]]:
         """`m` pairs drawn uniformly (with replacement) over all pairs: pixel, event time, successor time (us) and the
-        successor's polarity (+1 / -1). Empty tensors when the stream has no pair."""
+        successor's polarity (+1 / -1), on the pairs' device. Empty tensors when the stream has no pair."""
         if len(self) == 0 or m <= 0:
-            empty = torch.zeros(0, dtype=torch.long)  # cpu: the pairs live on the CPU (callers move them)
+            empty = torch.zeros(0, dtype=torch.long, device=self.pixel.device)
             return empty, empty, empty, empty
-        index = torch.randint(0, len(self), (m,), generator=generator)  # cpu: indexes the CPU pairs
+        index = torch.randint(0, len(self), (m,), generator=generator, device=self.pixel.device)  # where the pairs are
         return self.pixel[index], self.t_start_us[index], self.t_end_us[index], self.polarity[index].long()
 
 

@@ -61,7 +61,8 @@ class EventTerm(nn.Module):
             self.gate = EventGate(config, rig, self.stream or native.stream())
             if self.pairs is not None:  # the gate's held-out pixels are never trained on, under either supervision
                 self.pairs = self.pairs.at_pixels(self.gate.train_mask)
-        self._device_parts: Optional[Tuple[torch.device, EventStream, EventCamera]] = None  # `_on_device`
+        self._device_parts: Optional[Tuple[torch.device, Optional[EventStream], EventCamera]] = None  # `_on_device`
+        self._pairs_on: Optional[EventPairs] = None  # the pairs on the device they are drawn on
         self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
@@ -103,6 +104,7 @@ class EventTerm(nn.Module):
         assert rig.trajectory is not None and rig.frame_times is not None and rig.exposure is not None
         device = bundle.origins.device
         stream, camera = self._on_device(device)  # all on the rays' device: nothing goes to the host and back
+        assert stream is not None
         pose = rig.trajectory.poses_at_tensor(frame_rows(rig.frame_times, bundle).double(), dtype=torch.float64)
         local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double()[..., None])[..., 0]
         depth = float(rig.event_camera.get("plane_depth", math.inf))
@@ -138,20 +140,24 @@ class EventTerm(nn.Module):
         rig = self.rig
         assert self.pairs is not None and rig.trajectory is not None and rig.frame_times is not None
         assert rig.event_stream is not None
-        pixel, t0, t1, polarity = self.pairs.sample(self.config.event_rays_per_batch)
+        device = like.origins.device
+        if self._pairs_on is None or self._pairs_on.pixel.device != device:  # drawn where they are rendered
+            self._pairs_on = self.pairs.to(device)
+        _, camera = self._on_device(device)
+        pixel, t0, t1, polarity = self._pairs_on.sample(self.config.event_rays_per_batch)
         m = int(pixel.shape[0])
         if m == 0:  # a stream without two events at any pixel: no sample, no loss
             return {}
         times = torch.stack([t0, t1], -1).double() * 1e-6
-        origins, directions = event_stream.event_rays(rig.trajectory, rig.event_stream, pixel, times)
-        frames = (times[:, :1] - rig.frame_times.double()[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
+        origins, directions = event_stream.event_rays(rig.trajectory, camera, pixel, times)
+        frame_times = on_device(rig.frame_times, device).double()
+        frames = (times[:, :1] - frame_times[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
         rgb = self._render_event_rays(render, like, origins, directions, frames)
-        device = like.origins.device
         crf = self.crf if step >= self.config.event_crf_start_step else None
-        features = polarity_features(polarity).to(device)
+        features = polarity_features(polarity)
         logs = event_log_luma(colour.srgb_to_linear(rgb), self.config.event_log_eps, crf, features)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1],
-                "event_target": pair_targets(polarity, *self.thresholds()).to(device)}  # fmt: skip
+                "event_target": pair_targets(polarity, *self.thresholds())}  # fmt: skip
 
     def stream_logs(self, render: RenderRays, like: RayBundle) -> Dict[str, Tensor]:
         """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
@@ -161,6 +167,7 @@ class EventTerm(nn.Module):
         device = like.origins.device
         assert rig.event_windows is not None
         stream, camera = self._on_device(device)
+        assert stream is not None
         windows = on_device(rig.event_windows, device)
         m = self.config.event_rays_per_batch
         # drawn, counted and cast where the rays are rendered: nothing goes to the host and back per step
@@ -178,13 +185,14 @@ class EventTerm(nn.Module):
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on, "event_off": off}
 
-    def _on_device(self, device: torch.device) -> Tuple[EventStream, EventCamera]:
+    def _on_device(self, device: torch.device) -> Tuple[Optional[EventStream], EventCamera]:
         """The event stream (the stream supervision's and the EDI prior's) and the event camera on `device`, moved
         there once (the stream's sorted keys: 8 bytes an event)."""
         if self._device_parts is None or self._device_parts[0] != device:
             stream = self.stream or self.edi_stream
-            assert stream is not None and self.rig.event_stream is not None
-            self._device_parts = (device, stream.to(device), self.rig.event_stream.to(device))
+            assert self.rig.event_stream is not None
+            moved = stream.to(device) if stream is not None else None
+            self._device_parts = (device, moved, self.rig.event_stream.to(device))
         return self._device_parts[1], self._device_parts[2]
 
     def window_logs(self, render: RenderRays, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:

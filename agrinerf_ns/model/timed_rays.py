@@ -73,8 +73,8 @@ def reposed_rays(
 
 def camera_rows(bundle: RayBundle) -> Tensor:
     """Each ray's camera index (into the training cameras) as a flat long tensor on the CPU, where the frames'
-    timing (dataparser metadata) lives: a copy of n integers to the host (the EDI prior's, beside the CPU event
-    stream; the timed renders gather on the device: `frame_rows`)."""
+    timing (dataparser metadata) lives: a copy of n integers to the host, for diagnostics (the model's timed renders
+    gather on the rays' device: `frame_rows`)."""
     assert bundle.camera_indices is not None, "training rays carry their camera indices"
     return bundle.camera_indices.reshape(-1).long().cpu()
 
