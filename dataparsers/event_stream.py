@@ -13,6 +13,8 @@ int64 array per polarity), so the events of pixel ``p`` in ``[t0, t1)`` are the 
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -85,6 +87,13 @@ class EventStream:
             out.append(n.float()[:, None])
         return out[0], out[1]
 
+    def to(self, device: torch.device) -> "EventStream":
+        """This stream with its sorted keys on `device`: `counts` then runs there (`torch.searchsorted`), for pixels
+        and times drawn there, with nothing copied per call."""
+        moved = copy.copy(self)
+        moved._keys = {polarity: keys.to(device) for polarity, keys in self._keys.items()}
+        return moved
+
     def _clamped(self, t_us: Tensor) -> Tensor:
         return (t_us.long() - self.t_min).clamp(0, self.span - 1)
 
@@ -111,12 +120,14 @@ def sample_windows(
     """Random sub-windows ``[t0, t1)`` (integer microseconds) of the `frames`' windows (seconds): a length uniform in
     ``[min_fraction, 1]`` of the window, placed uniformly inside it."""
     start, end = windows[frames, 0].double(), windows[frames, 1].double()
-    # cpu: the windows, the frames drawn and the stream they index live on the host
-    draw = torch.rand(frames.shape, generator=generator, dtype=torch.float64)  # cpu: see above
-    fraction = min_fraction + (1.0 - min_fraction) * draw
+    device = windows.device  # the draws where the windows are (a generator must be of that device)
+    fraction = min_fraction + (1.0 - min_fraction) * torch.rand(
+        frames.shape, generator=generator, dtype=torch.float64, device=device
+    )
     length = (end - start) * fraction
-    place = torch.rand(frames.shape, generator=generator, dtype=torch.float64)  # cpu: see above
-    t0 = start + (end - start - length) * place
+    t0 = start + (end - start - length) * torch.rand(
+        frames.shape, generator=generator, dtype=torch.float64, device=device
+    )
     return torch.round(t0 * 1e6).long(), torch.round((t0 + length) * 1e6).long()
 
 
@@ -172,6 +183,12 @@ class EventCamera:
     def stream(self) -> EventStream:
         """The events of :attr:`path`."""
         return EventStream.from_h5(self.path, self.width, self.height)
+
+    def to(self, device: torch.device) -> "EventCamera":
+        """This camera with its rotation, centre and pixel rays on `device` (`event_rays` for pixels drawn there)."""
+        moved = dataclasses.replace(self, rotation=self.rotation.to(device), centre=self.centre.to(device))
+        moved.__dict__["directions"] = self.directions.to(device)  # the cached property, computed here once
+        return moved
 
 
 def event_rays(

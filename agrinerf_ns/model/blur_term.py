@@ -13,7 +13,7 @@ from torch import Tensor
 from agrinerf_ns import colour
 from agrinerf_ns.model.rig import RenderRays, Rig
 from agrinerf_ns.model.rigid_blur import RigidBlurKernel, blend, warp_rays
-from agrinerf_ns.model.timed_rays import camera_rows, exposure_times, reposed_rays
+from agrinerf_ns.model.timed_rays import exposure_times, frame_rows, reposed_rays
 
 FRAME_TIME_ATOL_S = 1e-6
 """A blur sample this close (seconds) to its frame's time is at the frame's pose."""
@@ -26,7 +26,7 @@ def render_at(
     density gradient scale; `camera`: the `camera_centre` and `plane_depth` of another rig camera whose frames
     were warped onto these pixels)."""
     assert rig.trajectory is not None and rig.frame_times is not None
-    frame_times = rig.frame_times[camera_rows(bundle)]
+    frame_times = frame_rows(rig.frame_times, bundle)
     moved = reposed_rays(bundle, rig.trajectory, frame_times, times, **camera)
     n, k = times.shape
     return render(moved, ("rgb",), term)["rgb"].reshape(n, k, 3)
@@ -39,6 +39,14 @@ class BlurTerm:
 
     def __init__(self, rig: Rig, samples: int, start_step: int, kernel: Optional[RigidBlurKernel] = None) -> None:
         self.rig, self.samples, self.start_step, self.kernel = rig, samples, start_step, kernel
+        # per frame: is the middle sample at the frame's time (mid-exposure stamps)? Decided once for the dataset, so
+        # that a batch needs no read-back; only a dataset with both kinds of frame checks each batch's
+        self.at_frame: Optional[Tensor] = None
+        if rig.exposure is not None and rig.frame_times is not None and samples % 2 == 1:
+            middle = exposure_times(rig.exposure, samples)[:, samples // 2]
+            self.at_frame = (middle - rig.frame_times.double()).abs() <= FRAME_TIME_ATOL_S  # allclose, rtol 0
+        self.every_at_frame = self.at_frame is not None and bool(self.at_frame.all())
+        self.some_at_frame = self.at_frame is not None and bool(self.at_frame.any())
 
     def outputs(
         self, render: RenderRays, bundle: RayBundle, sharp_rgb: Float[Tensor, "n 3"], step: int
@@ -61,12 +69,12 @@ class BlurTerm:
         again."""
         rig = self.rig
         assert rig.exposure is not None and rig.frame_times is not None
-        rows = camera_rows(bundle)
-        times = exposure_times(rig.exposure[rows], self.samples)
+        times = exposure_times(frame_rows(rig.exposure, bundle), self.samples)
         middle = times.shape[1] // 2
-        at_frame = times.shape[1] % 2 == 1 and torch.allclose(
-            times[:, middle], rig.frame_times[rows].double(), rtol=0.0, atol=FRAME_TIME_ATOL_S
-        )
+        at_frame = self.every_at_frame
+        if self.some_at_frame and not at_frame:
+            assert self.at_frame is not None
+            at_frame = bool(frame_rows(self.at_frame, bundle).all())  # frames of both kinds: this batch's
         if sharp_rgb is not None and at_frame:
             others = torch.cat([times[:, :middle], times[:, middle + 1 :]], dim=1)
             others_rgb = render_at(render, rig, bundle, others, "rgb_loss")
@@ -81,7 +89,8 @@ class BlurTerm:
         """The frame ray's colour and the renders of its learnt rigid motions, blended in linear radiance with the
         learnt weights (`model/rigid_blur.py`)."""
         assert self.kernel is not None and bundle.camera_indices is not None
-        rotation, translation, weights = self.kernel(camera_rows(bundle).to(frame_rgb.device))
+        # the rows on the rays' device: the kernel's weights live there (no round trip through the host)
+        rotation, translation, weights = self.kernel(bundle.camera_indices.reshape(-1).long())
         origins, directions = warp_rays(bundle.origins, bundle.directions, rotation, translation)
         n, m = origins.shape[:2]
         moved = RayBundle(

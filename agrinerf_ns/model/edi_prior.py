@@ -17,7 +17,7 @@ image is stored.
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Tuple, Union
 
 import numpy as np
 import torch
@@ -50,32 +50,57 @@ def event_pixels(
     """The event pixel (``y * width + x``) that sees where each RGB ray (its direction in the RGB camera's frame,
     OpenGL axes) meets the plane at `plane_depth` along the optical axis (inf: at infinity), and whether that pixel
     exists (the point is in front of the event camera and inside its image)."""
-    import cv2
-
-    d = local_directions.double().cpu()
+    d = local_directions.double()
     forward = (-d[:, 2:3]).clamp(min=1e-9)  # OpenGL: the optical axis is -z
     if math.isfinite(plane_depth):
-        point = d * (plane_depth / forward) - camera.centre.double()
+        point = d * (plane_depth / forward) - camera.centre.to(d)
     else:
         point = d
-    in_event = point @ camera.rotation.double()  # rotation^T applied to each row: into the event camera's OpenCV axes
+    in_event = point @ camera.rotation.to(d)  # rotation^T applied to each row: into the event camera's OpenCV axes
     ahead = in_event[:, 2] > 1e-9
-    fx, fy, cx, cy = camera.intrinsics
-    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    safe = torch.where(ahead[:, None], in_event, in_event.new_tensor([0.0, 0.0, 1.0]))
-    uv, _ = cv2.projectPoints(safe.numpy(), np.zeros(3), np.zeros(3), K, np.asarray(camera.distortion, np.float64))
-    uv = torch.from_numpy(uv[:, 0, :]).round().long()  # cpu: OpenCV's projection, beside the CPU event stream
+    straight = torch.zeros_like(in_event[:1])
+    straight[:, 2] = 1.0
+    safe = torch.where(ahead[:, None], in_event, straight)
+    uv = project_points(safe, camera.intrinsics, camera.distortion).round().long()
     inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
     pixel = torch.where(inside, uv[:, 1] * camera.width + uv[:, 0], torch.zeros_like(uv[:, 0]))
     return pixel, inside
+
+
+def project_points(
+    points: Float[Tensor, "n 3"], intrinsics: Tuple[float, float, float, float], distortion: Tuple[float, ...]
+) -> Float[Tensor, "n 2"]:
+    """OpenCV's `projectPoints` of camera-frame points (no pose) through the pinhole and radial-tangential model
+    (k1, k2, p1, p2[, k3]), on the points' device in float64, in OpenCV's order of operations: the same numbers to
+    the last digit (`tests/test_host_syncs.py`). Other distortion models (8 or more coefficients, not all zero past
+    the fifth) are projected by OpenCV on the host."""
+    fx, fy, cx, cy = intrinsics
+    k = [float(c) for c in distortion] + [0.0] * max(0, 5 - len(distortion))
+    if any(k[5:]):
+        import cv2
+
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        uv, _ = cv2.projectPoints(points.double().cpu().numpy(), np.zeros(3), np.zeros(3), K, np.asarray(k))
+        return torch.from_numpy(uv[:, 0, :]).to(points.device)
+    p = points.double()
+    z = 1.0 / p[:, 2]
+    x, y = p[:, 0] * z, p[:, 1] * z
+    r2 = x * x + y * y
+    r4 = r2 * r2
+    r6 = r4 * r2
+    a1, a2, a3 = 2 * x * y, r2 + 2 * x * x, r2 + 2 * y * y
+    radial = 1 + k[0] * r2 + k[1] * r4 + k[4] * r6
+    xd = x * radial + k[2] * a1 + k[3] * a2
+    yd = y * radial + k[2] * a3 + k[3] * a1
+    return torch.stack([xd * fx + cx, yd * fy + cy], dim=-1)
 
 
 def edi_factors(
     stream: EventStream,
     pixel: Int[Tensor, " n"],
     exposure: Float[Tensor, "n 2"],
-    c_on: float,
-    c_off: float,
+    c_on: Union[float, Tensor],
+    c_off: Union[float, Tensor],
     steps: int = EDI_STEPS,
 ) -> Float[Tensor, "n 1"]:
     """mean_j exp(E_j) of each pixel over its exposure [start, end] (seconds): the blurred value divided by this is

@@ -13,10 +13,10 @@ fall are events the field cannot reconcile with the frames, and the term is swit
 from __future__ import annotations
 
 import math
-from typing import Callable, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 import torch
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 from torch import Tensor, nn
 
 from agrinerf_ns.dataparsers import event_stream
@@ -59,7 +59,9 @@ class EventGate(nn.Module):
         held = torch.randperm(total, generator=generator)[: max(1, min(n, total // 8))]  # cpu: see above
         keep = torch.ones(total, dtype=torch.bool)  # cpu: see above
         keep[held] = False
+        self.train_mask: Bool[Tensor, " pixels"] = keep  # per event pixel: may training draw it
         self.train_pixels: Int[Tensor, " k"] = keep.nonzero()[:, 0]  # the pixels training may draw
+        self._train_pixels_on: Optional[Tensor] = None  # their copy on the device training draws on
         frames = torch.randint(0, rig.event_windows.shape[0], (n,), generator=generator)  # cpu: see above
         t0, t1 = sample_windows(rig.event_windows, frames, config.event_window_min_fraction, generator)
         pixel = held[torch.randint(0, held.shape[0], (n,), generator=generator)]  # cpu: see above
@@ -72,13 +74,26 @@ class EventGate(nn.Module):
         self.register_buffer("best", torch.full((), math.nan, dtype=torch.float64))
         self.register_buffer("residual", torch.full((), math.nan, dtype=torch.float64))
         self.register_buffer("last_check", torch.full((), -1, dtype=torch.int64))
+        # `last_check` as a Python number, kept with it: `due` is asked every step, and a read of the buffer on a GPU
+        # waits for the device; it changes only at a check or when a checkpoint loads
+        self.last_check_step = -1
+        self._register_load_state_dict_pre_hook(self._load_last_check)
 
-    def training_pixels(self, m: int) -> Int[Tensor, " m"]:
-        """`m` random event pixels outside the held-out share (the global random stream, as the plain sampler)."""
-        return self.train_pixels[torch.randint(0, self.train_pixels.shape[0], (m,))]  # cpu: the stream's pixels
+    def _load_last_check(self, state_dict: Dict[str, Any], prefix: str, *args: Any) -> None:
+        saved = state_dict.get(prefix + "last_check")
+        if saved is not None:
+            self.last_check_step = int(saved)
+
+    def training_pixels(self, m: int, device: Optional[torch.device] = None) -> Int[Tensor, " m"]:
+        """`m` random event pixels outside the held-out share (the global random stream of `device`, default the
+        CPU, as the plain sampler), on `device` (the training pixels are copied there once)."""
+        device = torch.device("cpu") if device is None else torch.device(device)
+        if self._train_pixels_on is None or self._train_pixels_on.device != device:
+            self._train_pixels_on = self.train_pixels.to(device)
+        return self._train_pixels_on[torch.randint(0, self.train_pixels.shape[0], (m,), device=device)]
 
     def due(self, step: int) -> bool:
-        last = int(self.last_check)
+        last = self.last_check_step
         return last < 0 or step >= last + max(1, self.config.event_gate_every)
 
     def no_change(self, thresholds: Tuple[float, float]) -> float:
@@ -105,6 +120,7 @@ class EventGate(nn.Module):
         ])  # fmt: skip
         residual = self.score(logs, thresholds)
         self.last_check.fill_(step)
+        self.last_check_step = step
         self.residual.fill_(residual)
         if not math.isfinite(residual):
             return float(self.factor)

@@ -11,12 +11,13 @@ the size of one threshold.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import Optional, Tuple, Union
 
 import numpy as np
 import torch
-from jaxtyping import Float, Int, Integer
+from jaxtyping import Bool, Float, Int, Integer
 from torch import Tensor
 
 from agrinerf_ns.dataparsers.event_stream import read_stream_h5
@@ -59,6 +60,22 @@ class EventPairs:
         """The pairs of a dataset's ``events/stream.h5``."""
         return cls(*read_stream_h5(path, width, height), width, height)
 
+    def at_pixels(self, keep: Bool[Tensor, " pixels"]) -> "EventPairs":
+        """The pairs at the pixels `keep` marks (per pixel ``y * width + x``), drawn uniformly over these alone: how
+        the event gate's held-out pixels stay out of training."""
+        kept = copy.copy(self)
+        select = keep.to(self.pixel.device)[self.pixel]
+        kept.pixel, kept.t_start_us = self.pixel[select], self.t_start_us[select]
+        kept.t_end_us, kept.polarity = self.t_end_us[select], self.polarity[select]
+        return kept
+
+    def to(self, device: torch.device) -> "EventPairs":
+        """These pairs on `device`: `sample` then draws there (from that device's random stream)."""
+        moved = copy.copy(self)
+        moved.pixel, moved.t_start_us = self.pixel.to(device), self.t_start_us.to(device)
+        moved.t_end_us, moved.polarity = self.t_end_us.to(device), self.polarity.to(device)
+        return moved
+
     def __len__(self) -> int:
         return int(self.pixel.shape[0])
 
@@ -66,11 +83,11 @@ class EventPairs:
         self, m: int, generator: Optional[torch.Generator] = None
     ) -> Tuple[Int[Tensor, " m"], Int[Tensor, " m"], Int[Tensor, " m"], Int[Tensor, " m"]]:
         """`m` pairs drawn uniformly (with replacement) over all pairs: pixel, event time, successor time (us) and the
-        successor's polarity (+1 / -1). Empty tensors when the stream has no pair."""
+        successor's polarity (+1 / -1), on the pairs' device. Empty tensors when the stream has no pair."""
         if len(self) == 0 or m <= 0:
-            empty = torch.zeros(0, dtype=torch.long)  # cpu: the pairs live on the CPU (callers move them)
+            empty = torch.zeros(0, dtype=torch.long, device=self.pixel.device)
             return empty, empty, empty, empty
-        index = torch.randint(0, len(self), (m,), generator=generator)  # cpu: indexes the CPU pairs
+        index = torch.randint(0, len(self), (m,), generator=generator, device=self.pixel.device)  # where the pairs are
         return self.pixel[index], self.t_start_us[index], self.t_end_us[index], self.polarity[index].long()
 
 

@@ -15,7 +15,7 @@ from torch.nn import Parameter
 
 from agrinerf_ns import colour
 from agrinerf_ns.dataparsers import event_stream
-from agrinerf_ns.dataparsers.event_stream import EventStream, sample_windows
+from agrinerf_ns.dataparsers.event_stream import EventCamera, EventStream, sample_windows
 from agrinerf_ns.model import edi_prior, losses
 from agrinerf_ns.model.blur_term import render_at
 from agrinerf_ns.model.event_crf import EventCRF, event_log_luma
@@ -24,7 +24,7 @@ from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_fea
 from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.plan import ModelPlan
 from agrinerf_ns.model.rig import RenderRays, Rig
-from agrinerf_ns.model.timed_rays import camera_rows
+from agrinerf_ns.model.timed_rays import frame_rows, on_device
 
 
 class EventTerm(nn.Module):
@@ -55,9 +55,14 @@ class EventTerm(nn.Module):
         if self.mode != "off" and config.event_threshold_learnt:
             self.log_threshold = Parameter(torch.full((2,), math.log(config.event_threshold)))
         self.crf = crf
-        self.gate: Optional[EventGate] = None  # config `event_gate`: held-out event samples that set the weight
-        if self.mode != "off" and config.event_gate and native is not None and rig.event_windows is not None:
+        self.gate: Optional[EventGate] = None  # `plan.event_gate`: held-out event samples that set the weight
+        if plan.event_gate:
+            assert native is not None, "the plan gates only the stream's supervisions"
             self.gate = EventGate(config, rig, self.stream or native.stream())
+            if self.pairs is not None:  # the gate's held-out pixels are never trained on, under either supervision
+                self.pairs = self.pairs.at_pixels(self.gate.train_mask)
+        self._device_parts: Optional[Tuple[torch.device, Optional[EventStream], EventCamera]] = None  # `_on_device`
+        self._pairs_on: Optional[EventPairs] = None  # the pairs on the device they are drawn on
         self.register_buffer("loss_means", torch.full((2,), math.nan, dtype=torch.float64))  # RGB, event
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
@@ -97,15 +102,16 @@ class EventTerm(nn.Module):
         rig = self.rig
         assert self.edi_stream is not None and rig.event_stream is not None
         assert rig.trajectory is not None and rig.frame_times is not None and rig.exposure is not None
-        rows = camera_rows(bundle)
-        pose = rig.trajectory.poses_at_tensor(rig.frame_times[rows].double(), dtype=torch.float64)
-        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double().cpu()[..., None])[..., 0]
-        depth = float(rig.event_camera.get("plane_depth", math.inf))
-        pixel, inside = edi_prior.event_pixels(rig.event_stream, local, depth)
-        c_on, c_off = (float(c) for c in self.thresholds())
-        factor = edi_prior.edi_factors(self.edi_stream, pixel, rig.exposure[rows], c_on, c_off)
         device = bundle.origins.device
-        return {"edi_factor": factor.to(device), "edi_valid": inside.float()[:, None].to(device)}
+        stream, camera = self._on_device(device)  # all on the rays' device: nothing goes to the host and back
+        assert stream is not None
+        pose = rig.trajectory.poses_at_tensor(frame_rows(rig.frame_times, bundle).double(), dtype=torch.float64)
+        local = (pose[:, :3, :3].transpose(-1, -2) @ bundle.directions.double()[..., None])[..., 0]
+        depth = float(rig.event_camera.get("plane_depth", math.inf))
+        pixel, inside = edi_prior.event_pixels(camera, local, depth)
+        c_on, c_off = (c.detach() if isinstance(c, Tensor) else c for c in self.thresholds())
+        factor = edi_prior.edi_factors(stream, pixel, frame_rows(rig.exposure, bundle), c_on, c_off)
+        return {"edi_factor": factor, "edi_valid": inside.float()[:, None]}
 
     def _render_event_rays(
         self,
@@ -134,43 +140,60 @@ class EventTerm(nn.Module):
         rig = self.rig
         assert self.pairs is not None and rig.trajectory is not None and rig.frame_times is not None
         assert rig.event_stream is not None
-        pixel, t0, t1, polarity = self.pairs.sample(self.config.event_rays_per_batch)
+        device = like.origins.device
+        if self._pairs_on is None or self._pairs_on.pixel.device != device:  # drawn where they are rendered
+            self._pairs_on = self.pairs.to(device)
+        _, camera = self._on_device(device)
+        pixel, t0, t1, polarity = self._pairs_on.sample(self.config.event_rays_per_batch)
         m = int(pixel.shape[0])
         if m == 0:  # a stream without two events at any pixel: no sample, no loss
             return {}
         times = torch.stack([t0, t1], -1).double() * 1e-6
-        origins, directions = event_stream.event_rays(rig.trajectory, rig.event_stream, pixel, times)
-        frames = (times[:, :1] - rig.frame_times.double()[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
+        origins, directions = event_stream.event_rays(rig.trajectory, camera, pixel, times)
+        frame_times = on_device(rig.frame_times, device).double()
+        frames = (times[:, :1] - frame_times[None, :]).abs().argmin(dim=-1)  # the nearest frame's camera
         rgb = self._render_event_rays(render, like, origins, directions, frames)
-        device = like.origins.device
         crf = self.crf if step >= self.config.event_crf_start_step else None
-        features = polarity_features(polarity).to(device)
+        features = polarity_features(polarity)
         logs = event_log_luma(colour.srgb_to_linear(rgb), self.config.event_log_eps, crf, features)
         return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1],
-                "event_target": pair_targets(polarity, *self.thresholds()).to(device)}  # fmt: skip
+                "event_target": pair_targets(polarity, *self.thresholds())}  # fmt: skip
 
     def stream_logs(self, render: RenderRays, like: RayBundle) -> Dict[str, Tensor]:
         """`event_rays_per_batch` random event pixels in random sub-windows of random training frames' windows,
         rendered along the event camera's rays at both ends: their log luminance and their ON / OFF counts."""
-        rig, stream = self.rig, self.stream
-        assert stream is not None and rig.event_windows is not None and rig.trajectory is not None
-        assert rig.event_stream is not None
+        rig = self.rig
+        assert rig.trajectory is not None
+        device = like.origins.device
+        assert rig.event_windows is not None
+        stream, camera = self._on_device(device)
+        assert stream is not None
+        windows = on_device(rig.event_windows, device)
         m = self.config.event_rays_per_batch
-        frames = torch.randint(0, rig.event_windows.shape[0], (m,))  # cpu: the windows and the stream are on the CPU
-        t0, t1 = sample_windows(rig.event_windows, frames, self.config.event_window_min_fraction, None)
+        # drawn, counted and cast where the rays are rendered: nothing goes to the host and back per step
+        frames = torch.randint(0, windows.shape[0], (m,), device=device)
+        t0, t1 = sample_windows(windows, frames, self.config.event_window_min_fraction, None)
         if self.gate is None:
-            pixel = torch.randint(0, stream.width * stream.height, (m,))  # cpu: as above
+            pixel = torch.randint(0, stream.width * stream.height, (m,), device=device)
         else:  # the gate's held-out pixels are never trained on
-            pixel = self.gate.training_pixels(m)
+            pixel = self.gate.training_pixels(m, device)
         on, off = stream.counts(pixel, t0, t1)
         origins, directions = event_stream.event_rays(
-            rig.trajectory, rig.event_stream, pixel, torch.stack([t0, t1], -1).double() * 1e-6
+            rig.trajectory, camera, pixel, torch.stack([t0, t1], -1).double() * 1e-6
         )
         rgb = self._render_event_rays(render, like, origins, directions, frames)
-        device = like.origins.device
         logs = losses.log_luminance(rgb, self.config.event_log_eps)
-        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on.to(device),
-                "event_off": off.to(device)}  # fmt: skip
+        return {"event_log_start": logs[:, 0], "event_log_end": logs[:, 1], "event_on": on, "event_off": off}
+
+    def _on_device(self, device: torch.device) -> Tuple[Optional[EventStream], EventCamera]:
+        """The event stream (the stream supervision's and the EDI prior's) and the event camera on `device`, moved
+        there once (the stream's sorted keys: 8 bytes an event)."""
+        if self._device_parts is None or self._device_parts[0] != device:
+            stream = self.stream or self.edi_stream
+            assert self.rig.event_stream is not None
+            moved = stream.to(device) if stream is not None else None
+            self._device_parts = (device, moved, self.rig.event_stream.to(device))
+        return self._device_parts[1], self._device_parts[2]
 
     def window_logs(self, render: RenderRays, bundle: RayBundle) -> Tuple[Float[Tensor, "m 1"], Float[Tensor, "m 1"]]:
         """Log luminance of the first `event_rays_per_batch` pixels at the start and end of their event windows,
@@ -180,7 +203,7 @@ class EventTerm(nn.Module):
         assert rig.event_windows is not None
         m = min(self.config.event_rays_per_batch, bundle.origins.shape[0])
         head = bundle[:m]
-        windows = rig.event_windows[camera_rows(head)].double()
+        windows = frame_rows(rig.event_windows, head).double()
         renders = render_at(render, rig, head, windows, "event_loss", **rig.event_camera)
         logs = losses.log_luminance(renders, self.config.event_log_eps)  # [m, 2, 1]
         return logs[:, 0], logs[:, 1]
@@ -222,37 +245,40 @@ class EventTerm(nn.Module):
             return {}
         return {"event_loss": loss}
 
-    def noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
+    def noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> Float[Tensor, ""]:
         """The `noise` weighting's factor (config `event_loss_weighting`): the event samples' share of the batch
-        times the ratio of the running RGB and event losses, never above an RGB ray's (means updated in training)."""
-        rgb, event = float(raw["rgb_loss"].detach()), float(raw["event_loss"].detach())
-        means = self.loss_means.tolist()
-        if self.training and math.isfinite(rgb) and math.isfinite(event):
-            old = (rgb, event) if math.isnan(means[0]) else means
-            means = [0.99 * old[0] + 0.01 * rgb, 0.99 * old[1] + 0.01 * event]  # 0.99 a step
-            self.loss_means.copy_(torch.tensor(means, dtype=torch.float64, device=self.loss_means.device))
-        if math.isnan(means[0]):
-            return 0.0
+        times the ratio of the running RGB and event losses, never above an RGB ray's (means updated in training).
+        Kept on the losses' device in float64 (the arithmetic of Python numbers): nothing is read back per step."""
+        means = self.loss_means
+        if self.training:
+            new = torch.stack([raw["rgb_loss"].detach(), raw["event_loss"].detach()]).double()
+            old = torch.where(means[0].isnan(), new, means)
+            updated = 0.99 * old + 0.01 * new  # 0.99 a step
+            means.copy_(torch.where(new.isfinite().all(), updated, means))  # a non-finite loss leaves them
         samples = outputs["event_log_start"].shape[0] / outputs["rgb"].shape[0]
-        weight = samples * min(means[0] / max(means[1], 1e-12), 1.0)
-        self.weight.fill_(weight)
-        return weight
+        weight = samples * (means[0] / means[1].clamp(min=1e-12)).clamp(max=1.0)
+        self.weight.copy_(torch.where(means[0].isnan(), 0.0, weight))
+        return self.weight
 
-    def loss_factor(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> float:
-        """The event term's factor on its coefficient: the `noise` weighting's (where configured) times the gate's."""
-        factor = 1.0
+    def weighted_loss(self, loss: Float[Tensor, ""], raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> Tensor:
+        """The weighted event loss: times the `noise` weighting's factor (where configured) and the gate's, both
+        float64 on the device, multiplied as the one factor in the loss's dtype."""
+        factor: Optional[Tensor] = None
         if self.config.event_loss_weighting == "noise" and "rgb_loss" in raw:
             factor = self.noise_weight(raw, outputs)
-        return factor * (1.0 if self.gate is None else float(self.gate.factor))
+        if self.gate is not None:
+            factor = self.gate.factor if factor is None else factor * self.gate.factor
+        return loss if factor is None else loss * factor.to(loss.dtype)
 
     def metrics(self, training: bool) -> Dict[str, Any]:
-        """`event_loss_weight` (training, once the `noise` weighting has means) and the learnt thresholds."""
+        """`event_loss_weight` (training, with the `noise` weighting: 0 until it has means), the gate's factor and
+        residual (training) and the learnt thresholds: tensors, read by the host only when logged."""
         metrics: Dict[str, Any] = {}
-        if training and not math.isnan(float(self.loss_means[0])):
-            metrics["event_loss_weight"] = float(self.weight)
+        if training and self.config.event_loss_weighting == "noise":
+            metrics["event_loss_weight"] = self.weight.detach().clone()
         if self.gate is not None and training:
-            metrics["event_gate"] = float(self.gate.factor)
-            metrics["event_gate_residual"] = float(self.gate.residual)
+            metrics["event_gate"] = self.gate.factor.detach().clone()
+            metrics["event_gate_residual"] = self.gate.residual.detach().clone()
         if self.log_threshold is not None:
             metrics["event_threshold_on"], metrics["event_threshold_off"] = self.log_threshold.detach().exp()
         return metrics

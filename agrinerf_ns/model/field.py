@@ -261,7 +261,7 @@ class AgriNeRFField(Field):
         """Grid points per axis for the voxel budget of a `cube`^3 grid, with cells of one size in the box."""
         if self.mapping is None:
             return axis_resolution(self.aabb, 1.0, cube)
-        return axis_resolution(self.mapping.box(), float(self.mapping.inner), cube)
+        return self.mapping.axis_resolution(cube)
 
     @torch.no_grad()
     def refit_box(self, box: Float[Tensor, "2 3"], inner: float, cube: int) -> None:
@@ -270,7 +270,7 @@ class AgriNeRFField(Field):
         along its own axes (`VMVolume.resample`). The occupancy grid (in grid coordinates) keeps every cell again."""
         if self.mapping is None:
             raise ValueError("A bounded field (no contraction) keeps its scene box")
-        old = BoxContraction(self.mapping.box(), float(self.mapping.inner)).to(self.aabb.device)
+        old = BoxContraction(self.mapping.box(), self.mapping.inner_value).to(self.aabb.device)
         self.mapping.set_box(box, inner)
         res = self.axis_resolution(cube)
         # per axis: the new grid points, in world coordinates, in the old grid's coordinates

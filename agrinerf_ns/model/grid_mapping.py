@@ -14,7 +14,7 @@ found that holds a share of their weight (`smallest_box`; TensoRF refits its gri
 
 from __future__ import annotations
 
-from typing import Callable, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 import torch
 from jaxtyping import Bool, Float
@@ -46,7 +46,24 @@ class BoxContraction(nn.Module):
         self.register_buffer("centre", torch.zeros(3))
         self.register_buffer("radius", torch.ones(3))
         self.register_buffer("inner", torch.tensor(float(inner)))
+        # `inner` as a Python number (the buffer's float32 value), kept with it: every map reads it, and a read of the
+        # buffer on a GPU waits for the device; it changes only when the box is set or a checkpoint loads
+        self.inner_value = float(self.inner)
+        self._resolutions: Dict[int, Tuple[int, int, int]] = {}  # `axis_resolution` per cube, until the box changes
+        self._register_load_state_dict_pre_hook(self._load_inner)
         self.set_box(box, inner)
+
+    def _load_inner(self, state_dict: Dict[str, Any], prefix: str, *args: Any) -> None:
+        saved = state_dict.get(prefix + "inner")
+        if saved is not None:
+            self.inner_value = float(saved.to(self.inner.dtype))  # the buffer's value once it has loaded
+        self._resolutions = {}
+
+    def axis_resolution(self, cube: int) -> Tuple[int, int, int]:
+        """`axis_resolution` of the box for a `cube`^3 budget, computed once per box (its extents are read back)."""
+        if cube not in self._resolutions:
+            self._resolutions[cube] = axis_resolution(self.box(), self.inner_value, cube)
+        return self._resolutions[cube]
 
     @torch.no_grad()
     def set_box(self, box: Float[Tensor, "2 3"], inner: float) -> None:
@@ -56,6 +73,8 @@ class BoxContraction(nn.Module):
         self.centre.copy_((box[0] + box[1]) / 2)
         self.radius.copy_((box[1] - box[0]) / 2)
         self.inner.fill_(float(inner))
+        self.inner_value = float(self.inner)
+        self._resolutions = {}
 
     def box(self) -> Float[Tensor, "2 3"]:
         """World lo / hi corners of the full-resolution box."""
@@ -67,11 +86,11 @@ class BoxContraction(nn.Module):
 
     def forward(self, positions: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
         """Grid coordinates in [-1, 1] (+-1 only at infinity)."""
-        return contract_axes(self.unit(positions), float(self.inner))
+        return contract_axes(self.unit(positions), self.inner_value)
 
     def inverse(self, coords: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
         """World positions of grid coordinates in (-1, 1) (+-1 maps to a large finite distance)."""
-        return uncontract_axes(coords, float(self.inner)) * self.radius + self.centre
+        return uncontract_axes(coords, self.inner_value) * self.radius + self.centre
 
     def full_resolution(self, positions: Float[Tensor, "*bs 3"]) -> Bool[Tensor, "*bs"]:
         """Whether each position lies in the box, where the grid has its full resolution."""
@@ -80,7 +99,7 @@ class BoxContraction(nn.Module):
     def voxel_size(self, positions: Float[Tensor, "*bs 3"], resolution: Sequence[int]) -> Float[Tensor, "*bs 3"]:
         """World size of a grid cell along each axis at `positions`, for a volume of `resolution` grid points."""
         u = self.unit(positions).abs()
-        a = float(self.inner)
+        a = self.inner_value
         slope = torch.where(u <= 1.0, torch.full_like(u, a), (1.0 - a) / u.clamp(min=1.0).pow(2))  # dc/du
         cell = 2.0 / (torch.tensor(resolution, dtype=u.dtype, device=u.device) - 1.0)
         return cell / slope * self.radius

@@ -6,7 +6,8 @@ return a scalar tensor. Weights are applied by the model (`loss_coefficients`), 
 
 from __future__ import annotations
 
-from typing import Optional, Union
+import functools
+from typing import Optional, Tuple, Union
 
 import torch
 from jaxtyping import Float
@@ -19,10 +20,16 @@ LUMA_WEIGHTS = (0.299, 0.587, 0.114)
 grey image computed by the processing stage and by the loss agree)."""
 
 
+@functools.lru_cache(maxsize=None)
+def constant(values: Tuple[float, ...], device: torch.device) -> Float[Tensor, " n"]:
+    """`values` as a float32 tensor on `device`, made once per device: a tensor made from Python numbers on a GPU is
+    an upload, which waits for the device, at every call."""
+    return torch.tensor(values, dtype=torch.float32, device=device)
+
+
 def luminance(rgb: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 1"]:
     """Y = 0.299 R + 0.587 G + 0.114 B of gamma-encoded RGB in [0, 1] (BT.601 luma)."""
-    weights = torch.tensor(LUMA_WEIGHTS, dtype=torch.float32, device=rgb.device)
-    return (rgb.float() * weights).sum(dim=-1, keepdim=True)
+    return (rgb.float() * constant(LUMA_WEIGHTS, rgb.device)).sum(dim=-1, keepdim=True)
 
 
 REC709_WEIGHTS = (0.2126, 0.7152, 0.0722)
@@ -36,8 +43,7 @@ def log_luminance(rgb: Float[Tensor, "*bs 3"], eps: float) -> Float[Tensor, "*bs
     Events fire on changes of this quantity; `eps` (in the linear units of the rendered colour) keeps the log finite
     at black and sets how much a change near black counts.
     """
-    weights = torch.tensor(REC709_WEIGHTS, dtype=torch.float32, device=rgb.device)
-    return torch.log((srgb_to_linear(rgb) * weights).sum(dim=-1, keepdim=True) + eps)
+    return torch.log((srgb_to_linear(rgb) * constant(REC709_WEIGHTS, rgb.device)).sum(dim=-1, keepdim=True) + eps)
 
 
 def event_loss(

@@ -423,7 +423,7 @@ class AgriNeRFModel(Model):
         if "edi_prior_loss" in loss_dict:  # EvDeblurNeRF's cosine-decayed weight
             loss_dict["edi_prior_loss"] = loss_dict["edi_prior_loss"] * edi_prior.cosine_weight(self.step)
         if "event_loss" in loss_dict and self.events is not None:  # the `noise` weighting and the data gate
-            loss_dict["event_loss"] = loss_dict["event_loss"] * self.events.loss_factor(raw, outputs)
+            loss_dict["event_loss"] = self.events.weighted_loss(loss_dict["event_loss"], raw, outputs)
         self.camera_optimizer.get_loss_dict(loss_dict)
         return loss_dict
 

@@ -255,7 +255,8 @@ class AgriNeRFSettings(ModelConfig):
     never trained on) is scored every `event_gate_every` steps without gradient. The term starts off; once the residual
     is below 0.95 x the smaller of its value at the gate's first check and its 'no change' loss, and not above 1.15 x
     its lowest, the term's weight opens at 1/16 and doubles every check up to 1; otherwise it is halved (0 below
-    1/64). Metrics `event_gate`, `event_gate_residual`."""
+    1/64). Metrics `event_gate`, `event_gate_residual`. For the stream and pairs supervisions; a dataset without the
+    event stream, or `event_supervision` frames, cannot give it: the event loss is then off (`plan.py`)."""
     event_gate_every: int = 50
     """Steps between the gate's checks of its held-out event samples."""
     event_gate_samples: int = 1024

@@ -55,6 +55,10 @@ class ModelPlan:
     """The dataset gives each frame's time and the rig's trajectory."""
     blur: BlurModel
     event_supervision: EventSupervision
+    event_gate: bool
+    """The event loss's data gate (`event_gate`, `model/event_gate.py`): held-out event-stream pixels, never trained on,
+    decide its weight. On with the config's `event_gate` for the `stream` and `pairs` supervisions; `frames` cannot be
+    gated (below), so a gated config's event loss is off there, with a note."""
     edi_prior: bool
     """EvDeblurNeRF's EDI prior on the frame rays."""
     has_fruit_head: bool
@@ -140,9 +144,27 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
         )
     native = metadata.get("event_stream") is not None
     supervision: EventSupervision = "off"
+    gate = False
     if event_loss:
         supervision = config.event_supervision if native or config.event_supervision == "frames" else "frames"
-        if supervision != config.event_supervision:
+        gate = config.event_gate
+        if gate and supervision == "frames":
+            # the gate's held-out samples are event-stream pixels: a dataset without the stream has none, and the
+            # frames' event windows (warped onto the RGB camera's pixels) cannot leave the stream's pixels out
+            gate, supervision = False, "off"
+            why = (
+                "this dataset has no event stream (events/stream.h5) to hold them out of"
+                if not native
+                else "the frames' event windows (event_supervision 'frames') are warped onto the RGB camera's pixels "
+                "and cannot leave them out"
+            )
+            notes.append(
+                "Events: event_gate weights the event loss by held-out event-stream pixels that training never sees, "
+                f"and {why}: the event loss is off, not ungated (--pipeline.model.event-gate False trains it ungated "
+                "on the frames' event windows"
+                + (")." if not native else "; event_supervision 'stream' or 'pairs' gates it).")
+            )
+        elif supervision != config.event_supervision:
             notes.append(
                 f"Events: event_supervision {config.event_supervision!r} needs the dataset's event stream "
                 "(events/stream.h5), which it lacks: the frames' event windows supervise the event loss."
@@ -190,6 +212,7 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
         timed=timed,
         blur=blur,
         event_supervision=supervision,
+        event_gate=gate,
         edi_prior=edi_prior,
         has_fruit_head=has_fruit_head,
         fruit_thermal_view=fruit_thermal_view,

@@ -17,7 +17,7 @@ from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
 from agrinerf_ns.model.rig import RenderRays, Rig
-from agrinerf_ns.model.timed_rays import camera_rows, reposed_rays
+from agrinerf_ns.model.timed_rays import frame_rows, reposed_rays
 from agrinerf_ns.trajectory import CameraTrajectory
 
 PREFIX = "thermal_view/"
@@ -47,9 +47,8 @@ class ThermalView:
         assert rig.trajectory is not None and rig.frame_times is not None
         m = min(self.rays_per_batch, bundle.origins.shape[0])
         head = bundle[:m]
-        rows = camera_rows(head)
-        frame_times = rig.frame_times[rows].double()
-        at = frame_times if rig.thermal_times is None else rig.thermal_times[rows].double()
+        frame_times = frame_rows(rig.frame_times, head).double()
+        at = frame_times if rig.thermal_times is None else frame_rows(rig.thermal_times, head).double()
         moved = reposed_rays(head, rig.trajectory, frame_times, at[:, None], **rig.thermal_camera)
         heads = ("thermal", "temperature", "fruit") if fruit else ("thermal", "temperature")
         rendered = render(moved, heads)

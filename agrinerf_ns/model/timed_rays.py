@@ -9,7 +9,7 @@ model Nerfstudio generated the ray with (distortion included), and needs only th
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Dict, Optional, Tuple
 
 import torch
 from jaxtyping import Float
@@ -54,7 +54,7 @@ def reposed_rays(
     local_o = (rot_t @ (origins - frame_pose[:, :3, 3])[..., None])[..., 0]  # [n, 3] in the camera frame
     local_d = (rot_t @ bundle.directions.to(torch.float64)[..., None])[..., 0]
     if camera_centre is not None:
-        centre = camera_centre.to(device, torch.float64)
+        centre = on_device(camera_centre, device).to(torch.float64)
         if math.isfinite(plane_depth):
             forward = (-local_d[:, 2:3]).clamp(min=1e-9)  # OpenGL: the optical axis is -z
             on_plane = local_o + local_d * (plane_depth / forward)
@@ -73,6 +73,28 @@ def reposed_rays(
 
 def camera_rows(bundle: RayBundle) -> Tensor:
     """Each ray's camera index (into the training cameras) as a flat long tensor on the CPU, where the frames'
-    timing (dataparser metadata) lives: a copy of n integers, the one read-back of a timed render on a GPU."""
+    timing (dataparser metadata) lives: a copy of n integers to the host, for diagnostics (the model's timed renders
+    gather on the rays' device: `frame_rows`)."""
     assert bundle.camera_indices is not None, "training rays carry their camera indices"
     return bundle.camera_indices.reshape(-1).long().cpu()
+
+
+_ON_DEVICE: Dict[Tuple[int, str], Tuple[Tensor, Tensor]] = {}
+"""(id of a rig table, device) -> (the table, its copy there): the rig's few per-frame tables, copied once."""
+
+
+def frame_rows(table: Tensor, bundle: RayBundle) -> Tensor:
+    """The rows of a per-training-frame table of the rig (frame times, exposures, event windows) for each ray of
+    `bundle`, gathered on the rays' device: the table is copied there once and kept, so the rows never go to the host
+    and back (the round trip of `camera_rows`)."""
+    assert bundle.camera_indices is not None, "training rays carry their camera indices"
+    return on_device(table, bundle.camera_indices.device)[bundle.camera_indices.reshape(-1).long()]
+
+
+def on_device(table: Tensor, device: torch.device) -> Tensor:
+    """A fixed tensor of the rig (a per-frame table, a camera's centre) on `device`, copied there once and kept."""
+    key = (id(table), str(device))
+    cached = _ON_DEVICE.get(key)
+    if cached is None or cached[0] is not table:  # the table is held by the entry, so its id is not reused
+        cached = _ON_DEVICE[key] = (table, table.to(device))
+    return cached[1]

@@ -359,6 +359,9 @@ class VMVolume(nn.Module):
         self.num_components = int(num_components)
         self.lookup = lookup
         self.register_buffer("res", torch.tensor(res, dtype=torch.int64))
+        # `res` as Python numbers, kept with the buffer: every lookup reads it, and a read of the buffer on a GPU waits
+        # for the device; it changes only when the volume is resampled or a checkpoint loads
+        self._resolution: Resolution = res
         comps = self.num_components
         layout = VMLayout.of(res)
         if len(set(res)) == 1:  # a cube: Nerfstudio's draws, `randn(3, C, R, R)` then `randn(3, C, R, 1)`
@@ -375,7 +378,7 @@ class VMVolume(nn.Module):
     @property
     def resolution(self) -> Resolution:
         """Grid points along x, y and z."""
-        return tuple(int(r) for r in self.res.tolist())  # type: ignore[return-value]
+        return self._resolution
 
     @property
     def layout(self) -> VMLayout:
@@ -456,6 +459,7 @@ class VMVolume(nn.Module):
         self.plane_table = nn.Parameter(torch.cat(planes).contiguous())
         self.line_table = nn.Parameter(torch.cat(lines).contiguous())
         self.res.copy_(torch.tensor(res, dtype=torch.int64, device=self.res.device))
+        self._resolution = res
 
     def upsample_grid(self, resolution: Union[int, Sequence[int]]) -> None:
         """Resample to `resolution` over the same coordinates (Nerfstudio's `upsample_grid`)."""
@@ -484,6 +488,7 @@ class VMVolume(nn.Module):
             self.plane_table = nn.Parameter(torch.empty(layout.plane_offsets[-1], comps, device=device, dtype=dtype))
             self.line_table = nn.Parameter(torch.empty(layout.line_offsets[-1], comps, device=device, dtype=dtype))
             self.res.copy_(torch.tensor(res, dtype=torch.int64, device=self.res.device))
+            self._resolution = res
 
 
 def plane_views(table: Float[Tensor, "rows c"], layout: VMLayout) -> List[Float[Tensor, "h w c"]]:
