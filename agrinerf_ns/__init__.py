@@ -2,6 +2,12 @@
 
 from pathlib import Path as _Path
 
+from agrinerf_ns.quiet_warnings import quiet_console_command as _quiet
+
+# The console of an ns-* or agrinerf-* command shows no third-party deprecation warnings (agrinerf_ns.quiet_warnings):
+# set here, before the command's modules import torch and Nerfstudio. A no-op in any other program (pytest included).
+_quiet()
+
 __version__ = "0.1.0"
 
 # Imported from a checkout (the checkout root on sys.path: a Ray worker started beside the driver, `python -c` in the
