@@ -193,3 +193,58 @@ def test_sheet_draws_the_outputs_a_model_has(tmp_path: Path) -> None:
 
     no_thermal = sheet_columns([view("c.png", False)])
     assert not any(c.title.startswith(("thermal frame", "AgriNeRF cross")) for c in no_thermal)
+
+
+def _luminance(path: Path) -> float:
+    """Mean Rec. 709 luma of an image file's sRGB values in [0, 1]."""
+    with Image.open(path) as image:
+        rgb = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+    return float((rgb @ np.array([0.2126, 0.7152, 0.0722])).mean())
+
+
+@pytest.mark.slow
+def test_dark_run_shown_at_a_lit_exposure_in_the_viewer_and_ns_render(demo: Dict, tmp_path: Path) -> None:
+    """The demo's dark run: the viewer (headless Chromium) opens on `rgb_display`, whose frame is within a factor 2 of
+    the lit truth's mean luminance, and shows the temperature legend; `ns-render --display-ev` at the viewer's
+    exposure writes `rgb` at that gain, each held-out view within a factor 2 of its lit truth."""
+    import torch
+    from playwright.sync_api import expect
+    from test_viewer import _viewport, browser_page, control_value, select_output, serve_viewer
+
+    from agrinerf_ns.colour import srgb_to_linear
+
+    config, truth = demo["summary"]["config"], demo["out"] / "raw" / "truth" / "rgb_clean"
+    lit = float(np.mean([_luminance(p) for p in truth.glob("*.png")]))
+    with serve_viewer(Path(config), tmp_path / "ns-viewer.log") as url, browser_page(url) as page:
+        assert page.get_by_label("Output type", exact=True).input_value() == "rgb_display", "a dark capture"
+        ev = float(control_value(page, "Display exposure (EV)"))
+        assert ev > 3
+        page.wait_for_timeout(3000)
+        page.screenshot(path=tmp_path / "viewer_rgb_display.png")
+        shown = _viewport(tmp_path / "viewer_rgb_display.png") / 255.0
+        luma = float((shown @ np.array([0.2126, 0.7152, 0.0722])).mean())
+        assert lit / 2 < luma < 2 * lit, (luma, lit)
+        select_output(page, "temperature_display")
+        expect(page.get_by_role("img", name="colour scale")).to_be_visible()
+        expect(page.get_by_text("(left, middle, right)")).to_be_visible()
+        assert "°C" in page.get_by_text("(left, middle, right)").inner_text()
+        page.screenshot(path=tmp_path / "viewer_temperature.png")
+
+    out = tmp_path / "render"
+    subprocess.run(["ns-render", "dataset", "--load-config", config, "--split", "test", "--image-format", "png",
+                    "--rendered-output-names", "rgb", "rgb_display", "--display-ev", str(ev), "--output-path", str(out)],
+                   cwd=demo["root"], env=demo["env"], check=True, capture_output=True, timeout=600,
+                   stdin=subprocess.DEVNULL)  # fmt: skip
+    views = sorted((out / "test" / "rgb_display").glob("*.png"))
+    assert len(views) == 2
+    for path in views:
+        with Image.open(out / "test" / "rgb" / path.name) as rgb, Image.open(path) as display:
+            rgb_linear = srgb_to_linear(torch.from_numpy(np.asarray(rgb.convert("RGB"), dtype=np.float32) / 255.0))
+            display_linear = srgb_to_linear(
+                torch.from_numpy(np.asarray(display.convert("RGB"), dtype=np.float32) / 255)
+            )
+        unclipped = display_linear < 0.95  # the 8-bit dark render is coarse per pixel; its mean carries the gain
+        gain = float(display_linear[unclipped].mean() / rgb_linear[unclipped].mean())
+        assert gain == pytest.approx(2.0**ev, rel=0.1), "the option's exposure, in linear light"
+        luma, truth_luma = _luminance(path), _luminance(truth / path.name)
+        assert truth_luma / 2 < luma < 2 * truth_luma, (path.name, luma, truth_luma)

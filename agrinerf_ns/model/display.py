@@ -4,13 +4,14 @@ A field trained on a dark capture reproduces it faithfully: its ``rgb`` is as da
 ``rgb`` times a gain in linear light, ``2 ** EV``: by default the gain that brings the training frames' mean level
 (dataparser metadata ``rgb_level`` times ``rgb_gain``) to :data:`DISPLAY_LEVEL`, a lit frame's (0 EV for frames that
 are lit already); else the EV set in the viewer's control panel ("Display exposure (EV)"), by ``ns-render ...
---display-ev EV`` or by the environment variable :data:`EV_ENV`. ``temperature_display`` is the ``temperature`` output
+--display-ev EV`` or by the environment variable :data:`~agrinerf_ns.render_option.EV_ENV`. ``temperature_display`` is the ``temperature`` output
 (degrees C) mapped to [0, 1] over the dataset's temperature range, so that a colour means the same temperature in
 every view; the viewer's control panel shows its colour bar in degrees C.
 
 Both are added where a camera is rendered whole (:meth:`DisplayOutputs.add`, called from the model's
 ``get_outputs_for_camera``: viewer, ``ns-render``, evaluation), never in training: no loss reads them, and ``ns-eval``
-still scores ``rgb``. Where the training frames are dark, ``rgb_display`` comes first, so the viewer opens on it.
+still scores ``rgb``. Where the training frames are dark (below ``DARK_RGB_LEVEL``), ``rgb_display`` comes first, so
+the viewer opens on it.
 
 ``ns-render --display-ev``: :mod:`agrinerf_ns.render_option`.
 """
@@ -24,6 +25,7 @@ from typing import Any, Callable, Dict, Mapping, Optional, Sequence, Tuple
 
 from torch import nn
 
+from agrinerf_ns.modalities import DARK_RGB_LEVEL
 from agrinerf_ns.render_option import env_ev
 
 DISPLAY_LEVEL = 0.35
@@ -79,7 +81,8 @@ def legend_markdown(low_c: float, high_c: float) -> str:
     middle = (low_c + high_c) / 2
     return (
         f"**temperature_display**, degrees C\n\n![colour scale](data:image/png;base64,{data})\n\n"
-        f"{low_c:.1f} °C | {middle:.1f} °C | {high_c:.1f} °C (left, middle, right)"
+        f"{low_c:.1f} °C | {middle:.1f} °C | {high_c:.1f} °C (left, middle, right)\n\n"
+        "The colours match this bar with Render Options > Normalize unchecked (checked, they span each frame's range)."
     )
 
 
@@ -125,8 +128,9 @@ class DisplayOutputs(nn.Module):
         level = float(metadata.get(DARK_LEVEL_NAME, math.nan))
         self.auto_ev = frames_ev(level, float(metadata.get(GAIN_NAME, 1.0)))
         """The default exposure, from the training frames."""
-        self.dark = self.auto_ev > 0.0
-        """Whether the training frames are darker than a lit frame: then the viewer opens on ``rgb_display``."""
+        self.dark = level * float(metadata.get(GAIN_NAME, 1.0)) < DARK_RGB_LEVEL
+        """Whether the training frames (as trained on) are dark (:data:`~agrinerf_ns.modalities.DARK_RGB_LEVEL`, the
+        model's low-light rule): then the viewer opens on ``rgb_display``."""
         self.temperature_range = temperature_range
         """(low, high) degrees C of ``temperature_display``'s [0, 1]; None: the model renders no temperature."""
         self.temperature_unit = temperature_unit
@@ -134,7 +138,7 @@ class DisplayOutputs(nn.Module):
         self.slider, self.legend = _viewer_elements(self.auto_ev, temperature_range)
 
     def ev(self) -> float:
-        """The exposure in stops: :data:`EV_ENV` where set, else the viewer's slider, else the training frames'."""
+        """The exposure in stops: :data:`~agrinerf_ns.render_option.EV_ENV` where set, else the viewer's slider, else the training frames'."""
         chosen = env_ev()
         if chosen is not None:
             return chosen
