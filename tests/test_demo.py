@@ -110,11 +110,31 @@ def test_labelled_numbers(demo: Dict) -> None:
     stages = demo["summary"]["stage_seconds"]
     assert list(stages) == [
         "agrinerf-synth", "agrinerf-process", "ns-train agrinerf-lite", "evaluation (held-out views)",
-        "contact sheet (render + draw)", "total",
+        "agrinerf-count", "contact sheet (render + draw)", "total",
     ]  # fmt: skip
     assert all(s is not None and s > 0 for s in stages.values()), stages
     assert stages["total"] >= sum(s for k, s in stages.items() if k != "total")
     assert "wall time per stage" in stdout
+
+
+@pytest.mark.slow
+def test_counts_the_fruit_and_draws_the_fruit_map_beside_the_twin(demo: Dict) -> None:
+    """The fruit head is trained from the built-in maker's masks, agrinerf-count counts and scores the run, and the
+    picture puts the contact sheet beside the count's fruit map, captioned with the count and its score."""
+    count, out = demo["summary"]["count"], demo["out"]
+    dataset = json.loads((out / "orchard" / "transforms.json").read_text())
+    assert dataset["agrinerf"]["fruit_masks"], "the dataset has the maker's fruit masks"
+    report = json.loads((out / "count" / "count.json").read_text())
+    assert count["counted"] == report["fruit"] and count["visible"] == report["score"]["visible"] > 0
+    assert 0.0 <= count["f1"] <= 1.0 and count["temperature_c"] is None or len(count["temperature_c"]) == 3
+    assert f"agrinerf-count found {count['counted']} fruit" in demo["stdout"]
+    assert "agrinerf-count --config" in _printed_command(demo["stdout"], "count the fruit of your own run")
+    with Image.open(demo["summary"]["picture"]) as picture, Image.open(out / "contact_sheet.png") as sheet:
+        with Image.open(out / "count" / "fruit_map.png") as fruit_map:
+            assert picture.width > sheet.width and picture.width > fruit_map.width
+            assert picture.height >= max(sheet.height, fruit_map.height)
+    config = demo["summary"]["config"]
+    assert "fruit_loss" in (Path(config).parent / "config.yml").read_text(), "the run trained the fruit head"
 
 
 def _printed_command(stdout: str, header: str) -> str:
