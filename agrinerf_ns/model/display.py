@@ -137,6 +137,14 @@ class DisplayOutputs(nn.Module):
         """Degrees C -> [0, 1] over ``temperature_range`` (the model's ``temperature_unit``)."""
         self.slider, self.legend = _viewer_elements(self.auto_ev, temperature_range)
 
+    @classmethod
+    def of(cls, model: Any, metadata: Mapping[str, Any]) -> "DisplayOutputs":
+        """The display outputs of an AgriNeRF ``model`` built on a dataset with ``metadata``: the temperature scale
+        where the model has a temperature head and the dataset its range (``model.temperature_stats``)."""
+        stats = model.temperature_stats if model.field.temperature_head is not None else None
+        low_high = (stats["min_c"], stats["max_c"]) if stats else None
+        return cls(metadata, low_high, model.temperature_unit if low_high else None)
+
     def ev(self) -> float:
         """The exposure in stops: :data:`~agrinerf_ns.render_option.EV_ENV` where set, else the viewer's slider, else the training frames'."""
         chosen = env_ev()

@@ -29,11 +29,10 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from agrinerf_ns import cpu_memory
-from agrinerf_ns.model import edi_prior, eval_metrics, losses
+from agrinerf_ns.model import display, edi_prior, eval_metrics, losses
 from agrinerf_ns.model.blur_term import BlurTerm
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
 from agrinerf_ns.model.device_sync import prune_on
-from agrinerf_ns.model.display import DisplayOutputs
 from agrinerf_ns.model.event_crf import EventCRF
 from agrinerf_ns.model.event_term import EventTerm
 from agrinerf_ns.model.field import AgriNeRFField
@@ -90,11 +89,7 @@ class AgriNeRFModel(Model):
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         super().__init__(config=config, **kwargs)
         self._register_load_state_dict_pre_hook(_load_old_state, with_module=True)
-        # rgb_display and temperature_display, and their viewer controls (display.py): added to whole-camera renders
-        stats = self.temperature_stats if self.field.temperature_head is not None else None
-        self.display = DisplayOutputs(
-            metadata, (stats["min_c"], stats["max_c"]) if stats else None, self.temperature_unit
-        )
+        self.display = display.DisplayOutputs.of(self, metadata)  # rgb_display, temperature_display, viewer controls
 
     # ------------------------------------------------------------------ setup
     def populate_modules(self) -> None:
@@ -435,8 +430,7 @@ class AgriNeRFModel(Model):
 
     # ----------------------------------------------------------- evaluation (eval_metrics.py)
     def get_outputs_for_camera(self, camera: Cameras, obb_box: Optional[OrientedBox] = None) -> Dict[str, Tensor]:
-        """Nerfstudio's render of `camera` with the display outputs (`display.DisplayOutputs`); the camera is kept:
-        the thermal metrics that follow read the thermal camera's view of it (`ThermalView.eval_outputs`)."""
+        """Nerfstudio's render of `camera` and its display outputs; the camera is kept for the thermal metrics."""
         self.eval_camera = camera
         return self.display.add(super().get_outputs_for_camera(camera, obb_box))
 
