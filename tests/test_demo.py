@@ -54,7 +54,7 @@ def demo(tmp_path_factory) -> Dict:
 @pytest.mark.slow
 def test_contact_sheet_size_and_panels(demo: Dict) -> None:
     sheet = Path(demo["summary"]["contact_sheet"])
-    assert sheet == demo["out"] / "contact_sheet.png" and f"contact sheet: {sheet}" in demo["stdout"]
+    assert sheet == demo["out"] / "contact_sheet.png" and f"(the sheet alone: {sheet})" in demo["stdout"]
     layout = SheetLayout.load(sheet.with_suffix(".json"))
     with Image.open(sheet) as image:
         assert image.size == (layout.width, layout.height)
