@@ -1,7 +1,7 @@
 """``agrinerf-demo``: the whole product on a built-in scene, as a user runs it.
 
-Synthesise a dark orchard capture, process it into a tri-modal dataset with fruit masks from the built-in maker
-(``--fruit-mask-maker auto``: thermal blobs on the dark frames), train ``agrinerf-lite`` and its fruit head with
+Synthesise an orchard capture at dusk, process it into a tri-modal dataset with fruit masks from the built-in maker
+(``--fruit-mask-maker auto``: fruit colour on lit frames, thermal blobs on dark ones), train ``agrinerf-lite`` and its fruit head with
 ``ns-train``, score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`:
 against the captured frames, against the clean truth after exposure alignment, and the thermal outputs against the
 rescaled thermal frames), count the fruit with ``agrinerf-count`` and score the count against the capture's true
@@ -47,8 +47,9 @@ class DemoConfig:
     """Everything is written here (raw capture, dataset, run, metrics, contact sheet)."""
     scene: str = "orchard"
     """orchard or garden."""
-    lighting: str = "dark"
-    """bright, shadowed, dusk or dark."""
+    lighting: str = "dusk"
+    """bright, shadowed, dusk or dark. Dusk by default: poor light in which the fruit head counts (docs/count.md);
+    in the dark the RGB twin is shown at a display exposure (rgb_display) and the count is weak (results/demo)."""
     views: int = 24
     """Frames along the row."""
     width: int = 96
