@@ -26,7 +26,7 @@ class FruitCount:
     temperature_c: Optional[List[float]]
     """(min, median, max) of the counted fruits' mean rendered temperature; None without a temperature head."""
     path: str
-    """How it counted (count.json ``path`` and ``source``)."""
+    """How it counted: count.json's ``path`` (views, field) and, on the view path, the detector's ``source``."""
     folder: str
     command: str
     """The command that counts the same way (``agrinerf-count``)."""
@@ -54,7 +54,7 @@ def count_fruit(run_config: Path, raw: Path, out: Path) -> FruitCount:
         recall=score.get("recall"),
         match_distance_m=score.get("match_distance"),
         temperature_c=spread,
-        path=" ".join(str(report[k]) for k in ("path", "source") if report.get(k)),
+        path=" ".join(str(v) for v in (report.get("path"), (report.get("detector") or {}).get("source")) if v),
         folder=str(out),
         command=f"agrinerf-count --config {run_config} --out {out} --truth {raw}",
     )
