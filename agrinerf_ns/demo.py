@@ -1,12 +1,13 @@
 """``agrinerf-demo``: the whole product on a built-in scene, as a user runs it.
 
 Synthesise an orchard capture at dusk, process it into a tri-modal dataset with fruit masks from the built-in maker
-(``--fruit-mask-maker auto``: fruit colour on lit frames, thermal blobs on dark ones), train ``agrinerf-lite`` and its fruit head with
-``ns-train``, score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`:
-against the captured frames, against the clean truth after exposure alignment, and the thermal outputs against the
-rescaled thermal frames), count the fruit with ``agrinerf-count`` and score the count against the capture's true
-fruit, draw a labelled contact sheet of those views beside the fruit map (``demo.png``), and print the commands that
-count a user's own run, open this one in Nerfstudio's viewer and render a video of it.
+(``--fruit-mask-maker auto``: fruit colour on lit frames, thermal blobs on dark ones), train ``agrinerf-lite`` and its
+fruit head with ``ns-train``, score the held-out views as ``agrinerf-bench`` does
+(:func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`: against the captured frames, against the clean truth after
+exposure alignment, and the thermal outputs against the rescaled thermal frames), count the fruit with
+``agrinerf-count`` and score the count against the capture's true fruit, draw a labelled contact sheet of those views
+beside the fruit map (``demo.png``), and print the commands that count a user's own run, open this one in Nerfstudio's
+viewer and render a video of it.
 """
 
 from __future__ import annotations
@@ -334,7 +335,8 @@ def main(config: DemoConfig) -> DemoResult:
     else:
         CONSOLE.rule(f"2/6 agrinerf-process (fruit masks: --fruit-mask-maker {config.fruit_mask_maker})")
         with _timed(stages, "agrinerf-process"):
-            settings = ProcessConfig(poses="given", overwrite=True, fruit_mask_maker=config.fruit_mask_maker)  # type: ignore[arg-type]
+            maker = config.fruit_mask_maker
+            settings = ProcessConfig(poses="given", overwrite=True, fruit_mask_maker=maker)  # type: ignore[arg-type]
             process_capture(raw, data, settings)
     CONSOLE.rule(f"3/6 ns-train agrinerf-lite ({config.steps} steps, with the fruit head)")
     with _timed(stages, "ns-train agrinerf-lite"):

@@ -5,8 +5,8 @@ Nerfstudio 1.1.5 on current PyTorch prints screens of deprecation warnings (``to
 every ``ns-*`` and ``agrinerf-*`` command. They concern code the user does not own; they bury what the command says.
 
 :func:`quiet_third_party` hides exactly those: warnings of the deprecation categories attributed to a module outside
-``agrinerf_ns``, and the few named third-party :class:`UserWarning`\\ s in :data:`THIRD_PARTY_MESSAGES`. The project's own
-warnings, and every other warning, still show. It applies only where a console command starts
+``agrinerf_ns``, and the few named third-party :class:`UserWarning`\\ s in :data:`THIRD_PARTY_MESSAGES`. The
+project's own warnings, and every other warning, still show. It applies only where a console command starts
 (:func:`quiet_console_command`): never in a test run (pytest sees every warning), and never when the user chose warning
 filters (``-W``, ``PYTHONWARNINGS``) or sets ``AGRINERF_SHOW_WARNINGS=1``.
 

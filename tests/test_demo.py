@@ -253,7 +253,8 @@ def test_dark_run_shown_at_a_lit_exposure_in_the_viewer_and_ns_render(demo: Dict
 
     out = tmp_path / "render"
     subprocess.run(["ns-render", "dataset", "--load-config", config, "--split", "test", "--image-format", "png",
-                    "--rendered-output-names", "rgb", "rgb_display", "--display-ev", str(ev), "--output-path", str(out)],
+                    "--rendered-output-names", "rgb", "rgb_display", "--display-ev", str(ev),
+                    "--output-path", str(out)],
                    cwd=demo["root"], env=demo["env"], check=True, capture_output=True, timeout=600,
                    stdin=subprocess.DEVNULL)  # fmt: skip
     views = sorted((out / "test" / "rgb_display").glob("*.png"))

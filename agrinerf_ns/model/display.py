@@ -4,9 +4,9 @@ A field trained on a dark capture reproduces it faithfully: its ``rgb`` is as da
 ``rgb`` times a gain in linear light, ``2 ** EV``: by default the gain that brings the training frames' mean level
 (dataparser metadata ``rgb_level`` times ``rgb_gain``) to :data:`DISPLAY_LEVEL`, a lit frame's (0 EV for frames that
 are lit already); else the EV set in the viewer's control panel ("Display exposure (EV)"), by ``ns-render ...
---display-ev EV`` or by the environment variable :data:`~agrinerf_ns.render_option.EV_ENV`. ``temperature_display`` is the ``temperature`` output
-(degrees C) mapped to [0, 1] over the dataset's temperature range, so that a colour means the same temperature in
-every view; the viewer's control panel shows its colour bar in degrees C.
+--display-ev EV`` or by the environment variable ``AGRINERF_DISPLAY_EV``. ``temperature_display`` is the
+``temperature`` output (degrees C) mapped to [0, 1] over the dataset's temperature range, so that a colour means the
+same temperature in every view; the viewer's control panel shows its colour bar in degrees C.
 
 Both are added where a camera is rendered whole (:meth:`DisplayOutputs.add`, called from the model's
 ``get_outputs_for_camera``: viewer, ``ns-render``, evaluation), never in training: no loss reads them, and ``ns-eval``
@@ -107,8 +107,8 @@ def _viewer_elements(auto_ev: float, temperature_range: Optional[Tuple[float, fl
             self._create_gui_handle(viser_server)
 
     low, high = EV_RANGE
-    slider = ViewerSlider("Display exposure (EV)", round(auto_ev * 4) / 4, low, high, 0.25,
-                          hint="Stops of gain on rgb_display (default: from the training frames); rgb is untouched")  # fmt: skip
+    hint = "Stops of gain on rgb_display (default: from the training frames); rgb is untouched"
+    slider = ViewerSlider("Display exposure (EV)", round(auto_ev * 4) / 4, low, high, 0.25, hint=hint)
     legend = None
     if temperature_range is not None:
         legend = ViewerLegend("Temperature scale", legend_markdown(*temperature_range))
@@ -146,7 +146,8 @@ class DisplayOutputs(nn.Module):
         return cls(metadata, low_high, model.temperature_unit if low_high else None)
 
     def ev(self) -> float:
-        """The exposure in stops: :data:`~agrinerf_ns.render_option.EV_ENV` where set, else the viewer's slider, else the training frames'."""
+        """The exposure in stops: ``AGRINERF_DISPLAY_EV`` where set, else the viewer's slider, else the training
+        frames'."""
         chosen = env_ev()
         if chosen is not None:
             return chosen
