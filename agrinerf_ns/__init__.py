@@ -2,6 +2,15 @@
 
 from pathlib import Path as _Path
 
+from agrinerf_ns.quiet_warnings import quiet_console_command as _quiet
+from agrinerf_ns.render_option import take_render_option as _take_render_option
+
+# The console of an ns-* or agrinerf-* command shows no third-party deprecation warnings (agrinerf_ns.quiet_warnings):
+# set here, before the command's modules import torch and Nerfstudio. A no-op in any other program (pytest included).
+_quiet()
+# ns-render's --display-ev, taken off its command line before Nerfstudio parses it (agrinerf_ns.render_option)
+_take_render_option()
+
 __version__ = "0.1.0"
 
 # Imported from a checkout (the checkout root on sys.path: a Ray worker started beside the driver, `python -c` in the

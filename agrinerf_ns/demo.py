@@ -1,10 +1,13 @@
 """``agrinerf-demo``: the whole product on a built-in scene, as a user runs it.
 
-Synthesise a dark orchard capture, process it into a tri-modal dataset, train ``agrinerf-lite`` with ``ns-train``,
-score the held-out views as ``agrinerf-bench`` does (:func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`: against
-the captured frames, against the clean truth after exposure alignment, and the thermal outputs against the rescaled
-thermal frames), draw a labelled contact sheet of those views, and print the commands that open the run in
-Nerfstudio's viewer and render a video of it.
+Synthesise an orchard capture at dusk, process it into a tri-modal dataset with fruit masks from the built-in maker
+(``--fruit-mask-maker auto``: fruit colour on lit frames, thermal blobs on dark ones), train ``agrinerf-lite`` and its
+fruit head with ``ns-train``, score the held-out views as ``agrinerf-bench`` does
+(:func:`agrinerf_ns.checkpoint_eval.evaluate_checkpoint`: against the captured frames, against the clean truth after
+exposure alignment, and the thermal outputs against the rescaled thermal frames), count the fruit with
+``agrinerf-count`` and score the count against the capture's true fruit, draw a labelled contact sheet of those views
+beside the fruit map (``demo.png``), and print the commands that count a user's own run, open this one in Nerfstudio's
+viewer and render a video of it.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, Iterator, List, Mapping, Optional, Sequence
+from typing import TYPE_CHECKING, Dict, Iterator, List, Mapping, Optional, Sequence
 
 import numpy as np
 import tyro
@@ -27,6 +30,10 @@ from rich.table import Table
 
 from agrinerf_ns.contact_sheet import Box, ColourScale, Column, brighten, display_gain
 from agrinerf_ns.dataset_format import TRANSFORMS
+from agrinerf_ns.demo_fruit import FruitCount, count_caption, count_fruit, side_by_side
+
+if TYPE_CHECKING:
+    from agrinerf_ns.ns_commands import TrainRun
 
 CONSOLE = Console()
 
@@ -42,8 +49,9 @@ class DemoConfig:
     """Everything is written here (raw capture, dataset, run, metrics, contact sheet)."""
     scene: str = "orchard"
     """orchard or garden."""
-    lighting: str = "dark"
-    """bright, shadowed, dusk or dark."""
+    lighting: str = "dusk"
+    """bright, shadowed, dusk or dark. Dusk by default: poor light in which the fruit head counts (docs/count.md);
+    in the dark the RGB twin is shown at a display exposure (rgb_display) and the count is weak (results/demo)."""
     views: int = 24
     """Frames along the row."""
     width: int = 96
@@ -56,6 +64,9 @@ class DemoConfig:
     """Held-out views on the contact sheet (evenly spaced over the eval split)."""
     video_steps: int = 4
     """Frames between consecutive training cameras in the printed ``ns-render interpolate`` command."""
+    fruit_mask_maker: str = "auto"
+    """The built-in maker of the fruit masks that train the fruit head (agrinerf-process --fruit-mask-maker): auto takes
+    the thermal blobs on dark frames and the fruit colour on lit ones."""
 
 
 @dataclass
@@ -224,7 +235,7 @@ def follow_up_commands(config_path: Path, out: Path, video_steps: int) -> Dict[s
         "viewer": f"{_command_path('ns-viewer')} --load-config {config_path}",
         "video": (
             f"{_command_path('ns-render')} interpolate --load-config {config_path} --pose-source train "
-            f"--interpolation-steps {video_steps} --rendered-output-names rgb thermal "
+            f"--interpolation-steps {video_steps} --rendered-output-names rgb_display thermal "
             f"--output-path {out / 'video.mp4'}"
         ),
     }
@@ -236,6 +247,9 @@ class DemoResult:
 
     config: str
     contact_sheet: str
+    picture: str
+    """The contact sheet beside the fruit map."""
+    count: FruitCount
     metrics: List[Metric]
     stage_seconds: Dict[str, Optional[float]]
     """Wall seconds per stage; None for a stage skipped because its output was already there."""
@@ -272,12 +286,36 @@ def _caption(metrics: List[Metric], steps: int, device: str) -> str:
     return " ".join(parts)
 
 
+TRAIN_PROGRESS_SAVES = 10
+"""Checkpoints written during training (every tenth of the steps): the demo reports its progress from them."""
+
+
+def train_with_progress(config: DemoConfig, data: Path) -> "TrainRun":
+    """``ns-train agrinerf-lite`` on ``data``, its progress reported from the checkpoints it writes every tenth of the
+    steps (ns-train's own output goes to its log)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from agrinerf_ns.ns_commands import checkpoints, ns_train
+    from agrinerf_ns.progress import work_progress
+
+    every = max(1, config.steps // TRAIN_PROGRESS_SAVES)
+    run_dir = config.out / "runs"
+    config_path = run_dir / "demo" / "agrinerf-lite" / "run" / "config.yml"
+    with ThreadPoolExecutor(1) as pool, work_progress(f"training {config.steps} steps", config.steps) as progress:
+        future = pool.submit(ns_train, "agrinerf-lite", data, run_dir, "demo", config.steps, steps_per_save=every)
+        while not future.done():
+            time.sleep(1.0)
+            saved = [step + 1 for step, _ in checkpoints(config_path)] if config_path.exists() else []
+            if saved and max(saved) > progress.done:
+                progress.advance(max(saved) - progress.done)
+        return future.result()
+
+
 def main(config: DemoConfig) -> DemoResult:
     from agrinerf_ns import compat
     from agrinerf_ns.checkpoint_eval import TruthImages, evaluate_checkpoint
     from agrinerf_ns.contact_sheet import write_contact_sheet
     from agrinerf_ns.method_configs.agrinerf_methods import default_device_type
-    from agrinerf_ns.ns_commands import ns_train
     from agrinerf_ns.process import ProcessConfig, process_capture
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
@@ -288,28 +326,33 @@ def main(config: DemoConfig) -> DemoResult:
     if (raw / "calib.yaml").exists():
         CONSOLE.print(f"reusing the raw capture in {raw} (delete it to synthesise again)", soft_wrap=True)
     else:
-        CONSOLE.rule("1/5 agrinerf-synth")
+        CONSOLE.rule("1/6 agrinerf-synth")
         synth = SynthConfig(scene=config.scene, lighting=config.lighting, seed=config.seed, views=config.views,
                             width=config.width, height=config.width * 3 // 4)  # fmt: skip
         with _timed(stages, "agrinerf-synth"):
-            generate_capture(synth, raw)
+            generate_capture(synth, raw, progress=True)
     if (data / TRANSFORMS).exists():
         CONSOLE.print(f"reusing the dataset in {data} (delete it to process again)", soft_wrap=True)
     else:
-        CONSOLE.rule("2/5 agrinerf-process")
+        CONSOLE.rule(f"2/6 agrinerf-process (fruit masks: --fruit-mask-maker {config.fruit_mask_maker})")
         with _timed(stages, "agrinerf-process"):
-            process_capture(raw, data, ProcessConfig(poses="given", overwrite=True))
-    CONSOLE.rule(f"3/5 ns-train agrinerf-lite ({config.steps} steps)")
+            maker = config.fruit_mask_maker
+            settings = ProcessConfig(poses="given", overwrite=True, fruit_mask_maker=maker)  # type: ignore[arg-type]
+            process_capture(raw, data, settings)
+    CONSOLE.rule(f"3/6 ns-train agrinerf-lite ({config.steps} steps, with the fruit head)")
     with _timed(stages, "ns-train agrinerf-lite"):
-        run = ns_train("agrinerf-lite", data, config.out / "runs", "demo", max_steps=config.steps)
+        run = train_with_progress(config, data)
     CONSOLE.print(f"trained in {run.wall_s:.0f} s ({run.s_per_step:.3f} s/step, peak {run.peak_rss_mb:.0f} MiB)")
-    CONSOLE.rule("4/5 evaluation of the held-out views (as agrinerf-bench)")
+    CONSOLE.rule("4/6 evaluation of the held-out views (as agrinerf-bench)")
     step = run.checkpoints()[-1][0]
     with _timed(stages, "evaluation (held-out views)"):
         results = evaluate_checkpoint(run.config, step, "rgb", TruthImages(raw))
     metrics = labelled_metrics(results)
-    CONSOLE.rule("5/5 contact sheet")
-    sheet = config.out / "contact_sheet.png"
+    CONSOLE.rule("5/6 agrinerf-count, scored against the capture's true fruit")
+    with _timed(stages, "agrinerf-count"):
+        count = count_fruit(run.config, raw, config.out / "count")
+    CONSOLE.rule("6/6 contact sheet and fruit map")
+    sheet, picture = config.out / "contact_sheet.png", config.out / "demo.png"
     with _timed(stages, "contact sheet (render + draw)"):
         views = render_held_out(run.config, raw, config.sheet_views)
         write_contact_sheet(
@@ -320,6 +363,7 @@ def main(config: DemoConfig) -> DemoResult:
             caption=_caption(metrics, config.steps, default_device_type().upper()),
             row_prefix="held-out",
         )
+        side_by_side(sheet, Path(count.folder) / "fruit_map.png", picture, count_caption(count, config.lighting))
     stages["total"] = time.perf_counter() - started
 
     held_out = int(results.get("eval_views", 0))  # type: ignore[call-overload]
@@ -333,7 +377,14 @@ def main(config: DemoConfig) -> DemoResult:
         times.add_row(name, "reused (already there)" if seconds is None else f"{seconds:.1f} s")
     CONSOLE.print(times)
     commands = follow_up_commands(run.config, config.out, config.video_steps)
-    CONSOLE.print(f"contact sheet: {sheet}", soft_wrap=True)
+    CONSOLE.print(count_caption(count, config.lighting), soft_wrap=True)
+    CONSOLE.print(f"contact sheet and fruit map: {picture} (the sheet alone: {sheet})", soft_wrap=True)
+    CONSOLE.print(
+        f"count the fruit of your own run (add --truth RAW for a synthetic capture's score):\n"
+        f"  {_command_path('agrinerf-count')} --config outputs/<experiment>/agrinerf-lite/<time>/config.yml "
+        f"--out count/\n(this run: {count.command})",
+        soft_wrap=True,
+    )
     CONSOLE.print(
         f"open this run in the viewer (then the address it prints, http://localhost:7007 by default):\n"
         f"  {commands['viewer']}",
@@ -345,6 +396,8 @@ def main(config: DemoConfig) -> DemoResult:
     result = DemoResult(
         config=str(run.config),
         contact_sheet=str(sheet),
+        picture=str(picture),
+        count=count,
         metrics=metrics,
         stage_seconds=stages,
         commands=commands,

@@ -35,11 +35,12 @@ FINITE = ("psnr_clean", "ssim_clean", "psnr", "ssim", "thermal_psnr", "thermal_s
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory) -> Dict:
-    """The demo on 13 views of 64x48 (two held-out views), 20 training steps, a video of 10 frames."""
+    """The demo on its dark scene (the default is dusk: the same code), 13 views of 64x48 (two held-out views), 20
+    training steps, a video of 10 frames."""
     root = tmp_path_factory.mktemp("demo")
     out = root / "demo"
     command = [
-        str(Path(sys.executable).parent / "agrinerf-demo"), "--out", str(out), "--views", "13",
+        str(Path(sys.executable).parent / "agrinerf-demo"), "--out", str(out), "--lighting", "dark", "--views", "13",
         "--width", str(WIDTH), "--steps", "20", "--sheet-views", "2", "--video-steps", "1",
     ]  # fmt: skip
     env = {**os.environ, "COLUMNS": "200"}
@@ -54,7 +55,7 @@ def demo(tmp_path_factory) -> Dict:
 @pytest.mark.slow
 def test_contact_sheet_size_and_panels(demo: Dict) -> None:
     sheet = Path(demo["summary"]["contact_sheet"])
-    assert sheet == demo["out"] / "contact_sheet.png" and f"contact sheet: {sheet}" in demo["stdout"]
+    assert sheet == demo["out"] / "contact_sheet.png" and f"(the sheet alone: {sheet})" in demo["stdout"]
     layout = SheetLayout.load(sheet.with_suffix(".json"))
     with Image.open(sheet) as image:
         assert image.size == (layout.width, layout.height)
@@ -110,11 +111,31 @@ def test_labelled_numbers(demo: Dict) -> None:
     stages = demo["summary"]["stage_seconds"]
     assert list(stages) == [
         "agrinerf-synth", "agrinerf-process", "ns-train agrinerf-lite", "evaluation (held-out views)",
-        "contact sheet (render + draw)", "total",
+        "agrinerf-count", "contact sheet (render + draw)", "total",
     ]  # fmt: skip
     assert all(s is not None and s > 0 for s in stages.values()), stages
     assert stages["total"] >= sum(s for k, s in stages.items() if k != "total")
     assert "wall time per stage" in stdout
+
+
+@pytest.mark.slow
+def test_counts_the_fruit_and_draws_the_fruit_map_beside_the_twin(demo: Dict) -> None:
+    """The fruit head is trained from the built-in maker's masks, agrinerf-count counts and scores the run, and the
+    picture puts the contact sheet beside the count's fruit map, captioned with the count and its score."""
+    count, out = demo["summary"]["count"], demo["out"]
+    dataset = json.loads((out / "orchard" / "transforms.json").read_text())
+    assert dataset["agrinerf"]["fruit_masks"], "the dataset has the maker's fruit masks"
+    report = json.loads((out / "count" / "count.json").read_text())
+    assert count["counted"] == report["fruit"] and count["visible"] == report["score"]["visible"] > 0
+    assert 0.0 <= count["f1"] <= 1.0 and count["temperature_c"] is None or len(count["temperature_c"]) == 3
+    assert f"agrinerf-count found {count['counted']} fruit" in demo["stdout"]
+    assert "agrinerf-count --config" in _printed_command(demo["stdout"], "count the fruit of your own run")
+    with Image.open(demo["summary"]["picture"]) as picture, Image.open(out / "contact_sheet.png") as sheet:
+        with Image.open(out / "count" / "fruit_map.png") as fruit_map:
+            assert picture.width > sheet.width and picture.width > fruit_map.width
+            assert picture.height >= max(sheet.height, fruit_map.height)
+    config = demo["summary"]["config"]
+    assert "fruit_loss" in (Path(config).parent / "config.yml").read_text(), "the run trained the fruit head"
 
 
 def _printed_command(stdout: str, header: str) -> str:
@@ -193,3 +214,59 @@ def test_sheet_draws_the_outputs_a_model_has(tmp_path: Path) -> None:
 
     no_thermal = sheet_columns([view("c.png", False)])
     assert not any(c.title.startswith(("thermal frame", "AgriNeRF cross")) for c in no_thermal)
+
+
+def _luminance(path: Path) -> float:
+    """Mean Rec. 709 luma of an image file's sRGB values in [0, 1]."""
+    with Image.open(path) as image:
+        rgb = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+    return float((rgb @ np.array([0.2126, 0.7152, 0.0722])).mean())
+
+
+@pytest.mark.slow
+def test_dark_run_shown_at_a_lit_exposure_in_the_viewer_and_ns_render(demo: Dict, tmp_path: Path) -> None:
+    """The demo's dark run: the viewer (headless Chromium) opens on `rgb_display`, whose frame is within a factor 2 of
+    the lit truth's mean luminance, and shows the temperature legend; `ns-render --display-ev` at the viewer's
+    exposure writes `rgb` at that gain, each held-out view within a factor 2 of its lit truth."""
+    import torch
+    from playwright.sync_api import expect
+    from test_viewer import _viewport, browser_page, control_value, select_output, serve_viewer
+
+    from agrinerf_ns.colour import srgb_to_linear
+
+    config, truth = demo["summary"]["config"], demo["out"] / "raw" / "truth" / "rgb_clean"
+    lit = float(np.mean([_luminance(p) for p in truth.glob("*.png")]))
+    with serve_viewer(Path(config), tmp_path / "ns-viewer.log") as url, browser_page(url) as page:
+        assert page.get_by_label("Output type", exact=True).input_value() == "rgb_display", "a dark capture"
+        ev = float(control_value(page, "Display exposure (EV)"))
+        assert ev > 3
+        page.wait_for_timeout(3000)
+        page.screenshot(path=tmp_path / "viewer_rgb_display.png")
+        shown = _viewport(tmp_path / "viewer_rgb_display.png") / 255.0
+        luma = float((shown @ np.array([0.2126, 0.7152, 0.0722])).mean())
+        assert lit / 2 < luma < 2 * lit, (luma, lit)
+        select_output(page, "temperature_display")
+        expect(page.get_by_role("img", name="colour scale")).to_be_visible()
+        expect(page.get_by_text("(left, middle, right)")).to_be_visible()
+        assert "°C" in page.get_by_text("(left, middle, right)").inner_text()
+        page.screenshot(path=tmp_path / "viewer_temperature.png")
+
+    out = tmp_path / "render"
+    subprocess.run(["ns-render", "dataset", "--load-config", config, "--split", "test", "--image-format", "png",
+                    "--rendered-output-names", "rgb", "rgb_display", "--display-ev", str(ev),
+                    "--output-path", str(out)],
+                   cwd=demo["root"], env=demo["env"], check=True, capture_output=True, timeout=600,
+                   stdin=subprocess.DEVNULL)  # fmt: skip
+    views = sorted((out / "test" / "rgb_display").glob("*.png"))
+    assert len(views) == 2
+    for path in views:
+        with Image.open(out / "test" / "rgb" / path.name) as rgb, Image.open(path) as display:
+            rgb_linear = srgb_to_linear(torch.from_numpy(np.asarray(rgb.convert("RGB"), dtype=np.float32) / 255.0))
+            display_linear = srgb_to_linear(
+                torch.from_numpy(np.asarray(display.convert("RGB"), dtype=np.float32) / 255)
+            )
+        unclipped = display_linear < 0.95  # the 8-bit dark render is coarse per pixel; its mean carries the gain
+        gain = float(display_linear[unclipped].mean() / rgb_linear[unclipped].mean())
+        assert gain == pytest.approx(2.0**ev, rel=0.1), "the option's exposure, in linear light"
+        luma, truth_luma = _luminance(path), _luminance(truth / path.name)
+        assert truth_luma / 2 < luma < 2 * truth_luma, (path.name, luma, truth_luma)

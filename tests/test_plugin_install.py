@@ -112,6 +112,7 @@ def test_wheel_adds_no_generic_top_level_modules(tmp_path: Path) -> None:
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     text = zipfile.ZipFile(wheel).read(entry_points).decode()
     assert "[nerfstudio.method_configs]" in text and "[nerfstudio.dataparser_configs]" in text
+    assert "[torch.backends]" in text and "agrinerf_ns.quiet_warnings:torch_import_hook" in text  # quiet ns-* consoles
 
 
 def test_cv2_is_the_contrib_build_with_what_the_package_uses() -> None:

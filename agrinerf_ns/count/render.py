@@ -182,7 +182,8 @@ def render_loaded_run(
     """:func:`render_run` of a run already loaded (``agrinerf_ns.run_loading.load_run``), e.g. one whose field a
     count has just sampled: the checkpoint is not read twice."""
     import torch
-    from rich.progress import Progress
+
+    from agrinerf_ns.progress import work_progress
 
     config_path = run.config_path
     frame = WorldFrame.read(config_path.parent / "dataparser_transforms.json")
@@ -192,8 +193,7 @@ def render_loaded_run(
     dataset_dir = dataset_folder(Path(data)) if data else None
     views: List[RenderedView] = []
     total = sum(len(datasets[s]) for s in splits if datasets[s] is not None)
-    with Progress(transient=True) as progress:
-        task = progress.add_task(f"rendering {total} views ({run.method})", total=total)
+    with work_progress(f"rendering {total} views ({run.method})", total) as progress:
         for split in splits:
             dataset = datasets[split]
             for index in range(0 if dataset is None else len(dataset)):
@@ -207,7 +207,7 @@ def render_loaded_run(
                 if dataset_dir is not None:
                     view.file_path = relative_path(Path(dataset.image_filenames[index]), dataset_dir)
                 views.append(view)
-                progress.advance(task)
+                progress.advance()
     result = RenderSet(views, frame, dataset_dir, config_path, run.method, rgb_frames_dark(run.pipeline.model),
                        pose_record(run.pipeline.model, dataset_dir))  # fmt: skip
     if out_dir is not None:

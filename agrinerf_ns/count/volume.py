@@ -73,40 +73,45 @@ class DepthView:
 def render_depth_views(model: Any, cameras: Any, config: VolumeConfig) -> List[DepthView]:
     """Render ``cameras`` (Nerfstudio ``Cameras``, the run's training cameras) at ``config.view_scale`` of their
     resolution with ``model``; returns their depth views (evenly spaced, at most ``config.max_views``)."""
-    import torch
+    from agrinerf_ns.progress import work_progress
 
     count = len(cameras)
     indices = np.unique(np.linspace(0, count - 1, min(count, config.max_views)).round().astype(int))
     views = []
-    for index in indices:
-        camera = cameras[int(index) : int(index) + 1].to(model.device)
-        camera.rescale_output_resolution(config.view_scale)
-        with torch.no_grad():
-            rays = camera.generate_rays(camera_indices=0, keep_shape=True)
-            outputs = model.get_outputs_for_camera(camera)
-        if "depth" not in outputs:
-            raise CountInputError(f"the run's model renders no 'depth' (outputs: {', '.join(sorted(outputs))})")
-        depth = outputs["depth"][..., 0].float().cpu().numpy().astype(np.float64)
-        acc = (
-            outputs["accumulation"][..., 0].float().cpu().numpy() if "accumulation" in outputs else np.ones_like(depth)
-        )
-        origins = rays.origins.float().cpu().numpy().astype(np.float64)
-        directions = rays.directions.float().cpu().numpy().astype(np.float64)
-        solid = (acc >= MIN_ACCUMULATION) & np.isfinite(depth)
-        surface = (origins + directions * depth[..., None])[solid]
-        views.append(
-            DepthView(
-                c2w=camera.camera_to_worlds[0].float().cpu().numpy().astype(np.float64),
-                fx=float(camera.fx[0, 0]),
-                fy=float(camera.fy[0, 0]),
-                cx=float(camera.cx[0, 0]),
-                cy=float(camera.cy[0, 0]),
-                depth=np.where(solid, depth, np.inf),
-                surface=surface,
-                pixel_area=1.0 / config.view_scale**2,
-            )
-        )
+    with work_progress(f"rendering {len(indices)} depth views", len(indices)) as progress:
+        for index in indices:
+            views.append(render_depth_view(model, cameras[int(index) : int(index) + 1], config))
+            progress.advance()
     return views
+
+
+def render_depth_view(model: Any, camera: Any, config: VolumeConfig) -> DepthView:
+    """The depth view of one camera (``Cameras`` of length 1) at ``config.view_scale`` of its resolution."""
+    import torch
+
+    camera = camera.to(model.device)
+    camera.rescale_output_resolution(config.view_scale)
+    with torch.no_grad():
+        rays = camera.generate_rays(camera_indices=0, keep_shape=True)
+        outputs = model.get_outputs_for_camera(camera)
+    if "depth" not in outputs:
+        raise CountInputError(f"the run's model renders no 'depth' (outputs: {', '.join(sorted(outputs))})")
+    depth = outputs["depth"][..., 0].float().cpu().numpy().astype(np.float64)
+    acc = outputs["accumulation"][..., 0].float().cpu().numpy() if "accumulation" in outputs else np.ones_like(depth)
+    origins = rays.origins.float().cpu().numpy().astype(np.float64)
+    directions = rays.directions.float().cpu().numpy().astype(np.float64)
+    solid = (acc >= MIN_ACCUMULATION) & np.isfinite(depth)
+    surface = (origins + directions * depth[..., None])[solid]
+    return DepthView(
+        c2w=camera.camera_to_worlds[0].float().cpu().numpy().astype(np.float64),
+        fx=float(camera.fx[0, 0]),
+        fy=float(camera.fy[0, 0]),
+        cx=float(camera.cx[0, 0]),
+        cy=float(camera.cy[0, 0]),
+        depth=np.where(solid, depth, np.inf),
+        surface=surface,
+        pixel_area=1.0 / config.view_scale**2,
+    )
 
 
 def occupied_box(
@@ -177,12 +182,16 @@ def field_density(field: Any, points: Float[np.ndarray, "n 3"], device: Any = "c
 def dense_voxels(field: Any, grid: VoxelGrid, threshold: float, device: Any = "cpu") -> np.ndarray:
     """Flat indices of the voxels whose density reaches ``threshold`` (the grid is swept in slabs of ``CHUNK``
     points)."""
+    from agrinerf_ns.progress import work_progress
+
     total = int(np.prod(grid.shape))
     keep = []
-    for start in range(0, total, CHUNK):
-        flat = np.arange(start, min(start + CHUNK, total))
-        density = field_density(field, grid.centres(flat), device)
-        keep.append(flat[density >= threshold])
+    with work_progress(f"sampling the field's density on {total} voxels", -(-total // CHUNK)) as progress:
+        for start in range(0, total, CHUNK):
+            flat = np.arange(start, min(start + CHUNK, total))
+            density = field_density(field, grid.centres(flat), device)
+            keep.append(flat[density >= threshold])
+            progress.advance()
     return np.concatenate(keep) if keep else np.zeros(0, np.int64)
 
 

@@ -29,7 +29,7 @@ from torch import Tensor
 from torch.nn import Parameter
 
 from agrinerf_ns import cpu_memory
-from agrinerf_ns.model import edi_prior, eval_metrics, losses
+from agrinerf_ns.model import display, edi_prior, eval_metrics, losses
 from agrinerf_ns.model.blur_term import BlurTerm
 from agrinerf_ns.model.box_sampler import BoxPiecewiseSampler
 from agrinerf_ns.model.device_sync import prune_on
@@ -89,6 +89,7 @@ class AgriNeRFModel(Model):
         self.step = 0  # training step, kept by a callback (the blur model starts at blur_start_step)
         super().__init__(config=config, **kwargs)
         self._register_load_state_dict_pre_hook(_load_old_state, with_module=True)
+        self.display = display.DisplayOutputs.of(self, metadata)  # rgb_display, temperature_display, viewer controls
 
     # ------------------------------------------------------------------ setup
     def populate_modules(self) -> None:
@@ -429,10 +430,9 @@ class AgriNeRFModel(Model):
 
     # ----------------------------------------------------------- evaluation (eval_metrics.py)
     def get_outputs_for_camera(self, camera: Cameras, obb_box: Optional[OrientedBox] = None) -> Dict[str, Tensor]:
-        """Nerfstudio's render of `camera`, which is kept: the thermal metrics that follow read the thermal camera's
-        view of it (`ThermalView.eval_outputs`)."""
+        """Nerfstudio's render of `camera` and its display outputs; the camera is kept for the thermal metrics."""
         self.eval_camera = camera
-        return super().get_outputs_for_camera(camera, obb_box)
+        return self.display.add(super().get_outputs_for_camera(camera, obb_box))
 
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Any]

@@ -12,6 +12,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from agrinerf_ns.images import write_png
+from agrinerf_ns.progress import WorkProgress, work_progress
 from agrinerf_ns.synth import writer as W
 from agrinerf_ns.synth.config import MAX_SUBFRAMES, SynthConfig, check_output_dir
 from agrinerf_ns.synth.motion_blur import blur_lengths_px, exposure_average, subframe_count
@@ -130,7 +131,7 @@ def event_log_luminance(
 
 
 def simulate_events(
-    config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, substeps: int, progress: Optional[object] = None
+    config: SynthConfig, scene: Scene, rig: Rig, light: Lighting, substeps: int, progress: Optional[WorkProgress] = None
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Events (x, y, t_us, p) of the event camera along the continuous path, rendered ``substeps`` times per frame
     interval."""
@@ -153,7 +154,7 @@ def simulate_events(
         else:
             sim.step(lum, float(t))
         if progress is not None:
-            progress.advance(progress.task_ids[-1])  # type: ignore[attr-defined]
+            progress.advance()
     noise_hz = config.event_noise_hz * light.event_noise_scale
     return sim.finish(float(times[0]), float(times[-1]), noise_hz, rng)
 
@@ -201,15 +202,9 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
     ev_substeps, ev_step_px = event_substeps(config, scene, rig)
     n_steps = 2 * config.views + config.num_heldout + len(event_times(config, ev_substeps))
 
-    if progress:
-        from rich.progress import Progress
-
-        ctx = Progress(transient=True)
-    else:
-        ctx = nullcontext()
+    label = f"synth {config.scene}/{config.lighting} ({config.views} frames, then events)"
+    ctx = work_progress(label, n_steps) if progress else nullcontext()
     with ctx as prog, W.atomic_folder(out) as tmp:
-        if prog is not None:
-            prog.add_task(f"synth {config.scene}/{config.lighting}", total=n_steps)
         dirs = {
             d: tmp / d
             for d in (
@@ -258,7 +253,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             boxes_all.append(boxes)
             (dirs["truth/boxes_yolo"] / names[i].replace(".png", ".txt")).write_text(W.yolo_lines(boxes, Wd, H))
             if prog is not None:
-                prog.advance(prog.task_ids[-1])
+                prog.advance()
 
             # thermal: same trigger, own pose, supersampled temperatures -> counts
             T_th = rig.pose(float(t) + THERMAL_DELAY, "thermal")
@@ -266,7 +261,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             temp = temperature(scene, hth).reshape(cam_th.height * THERMAL_SUPERSAMPLE, -1)
             write_png(dirs["thermal"] / names[i], thermal.counts(temp, THERMAL_SUPERSAMPLE, rng_th))
             if prog is not None:
-                prog.advance(prog.task_ids[-1])
+                prog.advance()
 
         W.write_timestamps(dirs["rgb"] / "timestamps.txt", names, times)
         W.write_exposures(dirs["rgb"] / "exposures.txt", names, times - exposure / 2, times + exposure / 2)
@@ -295,7 +290,7 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
             ho_times.append(t)
             ho_poses.append(T)
             if prog is not None:
-                prog.advance(prog.task_ids[-1])
+                prog.advance()
         W.write_tum(tmp / "truth" / "heldout" / "poses.txt", ho_times, ho_poses)
         W.write_json(tmp / "truth" / "heldout" / "boxes_coco.json", W.coco(ho_boxes, ho_names, Wd, H))
 
