@@ -20,6 +20,9 @@ Shims:
   with one camera (a dataset with one held-out frame) Nerfstudio's path has no poses and numpy fails to stack them.
   There the path holds still at that camera for ``--interpolation-steps`` frames, and one line names
   ``--pose-source train``. Applied where ``ns-render`` has imported Nerfstudio's camera paths.
+- :func:`agrinerf_ns.user_errors.install`: a user's error (a dataset that breaks its contract) stops a command with
+  one message instead of a traceback (``AGRINERF_DEBUG=1`` keeps it); ``ns-train`` checks the dataset before it writes
+  a run folder, and removes the folder of a run that failed before its first checkpoint.
 """
 
 from __future__ import annotations
@@ -183,7 +186,9 @@ def activate() -> None:
     """Apply every shim that this environment needs. Safe to call more than once; never raises."""
     if os.environ.get("AGRINERF_NO_COMPAT") == "1":
         return
-    for shim in (_activate_lpips, allow_checkpoint_globals, expose_ffmpeg, _activate_single_camera_interpolation):
+    shims = (_activate_lpips, allow_checkpoint_globals, expose_ffmpeg, _activate_single_camera_interpolation,
+             _activate_user_errors)  # fmt: skip
+    for shim in shims:
         try:
             shim()
         except Exception as err:  # a plugin must never break `ns-*` commands
@@ -292,3 +297,9 @@ def _activate_lpips() -> bool:
     if not lpips_shim_needed():
         return False
     return patch_lpips_offline()
+
+
+def _activate_user_errors() -> bool:
+    from agrinerf_ns import user_errors
+
+    return user_errors.install()
