@@ -342,6 +342,7 @@ def patch_eval_json() -> bool:
     """Where ``ns-eval`` is running (its module is imported: it loads the plugins while it imports), make the
     ``json.dumps`` it writes the metrics file with strict (:func:`agrinerf_ns.metrics_json.strict_dumps`). Returns
     True if applied."""
+    import functools
     import json
     import types
 
@@ -352,6 +353,18 @@ def patch_eval_json() -> bool:
         return False
     strict_json = types.ModuleType("json", "The json module, with dumps writing strict JSON (metrics_json).")
     strict_json.__dict__.update({k: v for k, v in vars(json).items() if not k.startswith("__")})
-    strict_json.dumps = strict_dumps  # type: ignore[attr-defined]
+    strict_json.dumps = functools.partial(strict_dumps, reason=metric_null_reason)  # type: ignore[attr-defined]
     module.json = strict_json  # type: ignore[attr-defined]
     return True
+
+
+def metric_null_reason(key: str) -> str:
+    """Why the metric ``key`` has no value (written beside its null in a metrics file)."""
+    from agrinerf_ns.metrics_json import not_finite
+
+    if key.startswith("lpips") and lpips_shim_needed():
+        return (
+            f"LPIPS unavailable: its AlexNet weights ({ALEXNET_WEIGHTS}) are not in {alexnet_weights_path().parent}, "
+            f"and nothing is downloaded unless {DOWNLOAD_ENV}=1"
+        )
+    return not_finite(key)
