@@ -7,9 +7,9 @@ lives here alone: when Nerfstudio ships a fix, delete the shim and its line in :
 Shims:
 
 - :func:`patch_lpips_offline`: torchmetrics' LPIPS downloads AlexNet weights when a model is constructed. Where the
-  weights are not in the torch hub cache and cannot be fetched, LPIPS becomes *unavailable* (it returns NaN) with one
-  warning that says how to provide the weights, instead of crashing model construction. With the weights present
-  nothing changes.
+  weights are not in the torch hub cache, nothing is downloaded (unless ``AGRINERF_DOWNLOAD_WEIGHTS=1`` asks for it):
+  LPIPS becomes *unavailable* (it returns NaN) with one warning that says how to provide the weights, instead of a
+  download attempt and, offline, a crash of model construction. With the weights present nothing changes.
 - :func:`allow_checkpoint_globals`: since torch 2.6 ``torch.load`` defaults to ``weights_only=True``; Nerfstudio's
   checkpoints hold numpy scalars. Exactly those numpy globals are allow-listed (no blanket ``weights_only=False``).
 - :func:`expose_ffmpeg`: Nerfstudio (``check_ffmpeg_installed``, its ffmpeg command lines) and mediapy look
@@ -20,6 +20,12 @@ Shims:
   with one camera (a dataset with one held-out frame) Nerfstudio's path has no poses and numpy fails to stack them.
   There the path holds still at that camera for ``--interpolation-steps`` frames, and one line names
   ``--pose-source train``. Applied where ``ns-render`` has imported Nerfstudio's camera paths.
+- :func:`patch_eval_json`: ``ns-eval`` writes its metrics with ``json.dumps``, so an unavailable metric (LPIPS
+  without its weights) becomes a bare ``NaN`` that strict JSON readers refuse. In ``ns-eval`` the module's ``json``
+  is given :func:`agrinerf_ns.metrics_json.strict_dumps`: ``null`` and the reason beside it.
+
+The dataparser package installs :func:`agrinerf_ns.dataparsers.user_errors.install` beside these (it checks
+datasets, so it lives with them): a user's error stops a command with one message.
 """
 
 from __future__ import annotations
@@ -31,18 +37,23 @@ import sys
 import tempfile
 import urllib.error
 import warnings
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, List, Optional, Tuple
+from typing import Any, Callable, Iterator, List, Optional, Tuple
 
 import torch
 
 ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
 """File name torchvision gives the AlexNet weights that LPIPS(net_type='alex') loads."""
 
+DOWNLOAD_ENV = "AGRINERF_DOWNLOAD_WEIGHTS"
+"""Set to 1 to let LPIPS download its AlexNet weights when they are not cached (no command downloads otherwise)."""
+
 LPIPS_UNAVAILABLE_MESSAGE = (
-    "LPIPS is unavailable: the AlexNet weights it needs are not in the torch hub cache ({path}) and could not be "
-    "downloaded. LPIPS metrics will be reported as NaN. To enable LPIPS offline, copy '{name}' into "
+    "LPIPS is unavailable: the AlexNet weights it needs are not in the torch hub cache ({path}), and nothing is "
+    "downloaded unless " + DOWNLOAD_ENV + "=1. LPIPS metrics will be reported as NaN (null in metrics files). To "
+    "enable LPIPS offline, copy '{name}' into "
     '$TORCH_HOME/hub/checkpoints on this machine (on a machine with internet, run once: python -c "import torchvision; '
     "torchvision.models.alexnet(weights='DEFAULT')\" and copy ~/.cache/torch/hub/checkpoints/{name})."
 )
@@ -86,9 +97,10 @@ def _unavailable_value() -> torch.Tensor:
 
 
 def patch_lpips_offline() -> bool:
-    """Make LPIPS construction survive missing, unfetchable weights. Returns True if the patch is installed.
+    """Make LPIPS construction survive missing weights without fetching them. Returns True if the patch is installed.
 
-    The real construction is always tried first, so a machine with a network or a filled cache gets the real metric.
+    The real construction is always run, so a filled cache (or ``AGRINERF_DOWNLOAD_WEIGHTS=1`` and a network) gets
+    the real metric; without cached weights torchvision's download is refused inside it.
     """
     from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity as LPIPS
 
@@ -99,7 +111,8 @@ def patch_lpips_offline() -> bool:
 
     def init(self: Any, *args: Any, **kwargs: Any) -> None:
         try:
-            original_init(self, *args, **kwargs)
+            with _no_weight_downloads() if lpips_shim_needed() and not downloads_allowed() else nullcontext():
+                original_init(self, *args, **kwargs)
             self._lpips_unavailable = False
         except Exception as err:  # only a failed download is absorbed; every other error propagates
             if not _is_download_failure(err):
@@ -131,6 +144,29 @@ def unpatch_lpips() -> None:
         return
     LPIPS.__init__, LPIPS.forward, LPIPS.compute = _STATE.lpips_originals
     _STATE.lpips_originals = None
+
+
+def downloads_allowed() -> bool:
+    """Whether the user asked for weight downloads (``AGRINERF_DOWNLOAD_WEIGHTS=1``)."""
+    return os.environ.get(DOWNLOAD_ENV, "") not in ("", "0")
+
+
+@contextmanager
+def _no_weight_downloads() -> Iterator[None]:
+    """Within: torchvision's weight loader raises a :class:`urllib.error.URLError` instead of fetching a file that
+    is not in the hub cache (so no connection is tried and no "Downloading" line is printed)."""
+    import torchvision.models._api as weights_api
+
+    original = weights_api.load_state_dict_from_url
+
+    def refuse(url: str, *args: Any, **kwargs: Any) -> Any:
+        raise urllib.error.URLError(f"not downloaded: {url} ({DOWNLOAD_ENV}=1 allows it)")
+
+    weights_api.load_state_dict_from_url = refuse
+    try:
+        yield
+    finally:
+        weights_api.load_state_dict_from_url = original
 
 
 def lpips_patched() -> bool:
@@ -183,7 +219,9 @@ def activate() -> None:
     """Apply every shim that this environment needs. Safe to call more than once; never raises."""
     if os.environ.get("AGRINERF_NO_COMPAT") == "1":
         return
-    for shim in (_activate_lpips, allow_checkpoint_globals, expose_ffmpeg, _activate_single_camera_interpolation):
+    shims = (_activate_lpips, allow_checkpoint_globals, expose_ffmpeg, _activate_single_camera_interpolation,
+             patch_eval_json)  # fmt: skip
+    for shim in shims:
         try:
             shim()
         except Exception as err:  # a plugin must never break `ns-*` commands
@@ -292,3 +330,35 @@ def _activate_lpips() -> bool:
     if not lpips_shim_needed():
         return False
     return patch_lpips_offline()
+
+
+def patch_eval_json() -> bool:
+    """Where ``ns-eval`` is running (its module is imported: it loads the plugins while it imports), make the
+    ``json.dumps`` it writes the metrics file with strict (:func:`agrinerf_ns.metrics_json.strict_dumps`). Returns
+    True if applied."""
+    import functools
+    import json
+    import types
+
+    from agrinerf_ns.metrics_json import strict_dumps
+
+    module = sys.modules.get("nerfstudio.scripts.eval")
+    if module is None or getattr(module, "json", None) is not json:
+        return False
+    strict_json = types.ModuleType("json", "The json module, with dumps writing strict JSON (metrics_json).")
+    strict_json.__dict__.update({k: v for k, v in vars(json).items() if not k.startswith("__")})
+    strict_json.dumps = functools.partial(strict_dumps, reason=metric_null_reason)  # type: ignore[attr-defined]
+    module.json = strict_json  # type: ignore[attr-defined]
+    return True
+
+
+def metric_null_reason(key: str) -> str:
+    """Why the metric ``key`` has no value (written beside its null in a metrics file)."""
+    from agrinerf_ns.metrics_json import not_finite
+
+    if key.startswith("lpips") and lpips_shim_needed():
+        return (
+            f"LPIPS unavailable: its AlexNet weights ({ALEXNET_WEIGHTS}) are not in {alexnet_weights_path().parent}, "
+            f"and nothing is downloaded unless {DOWNLOAD_ENV}=1"
+        )
+    return not_finite(key)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import re
 import shutil
@@ -281,14 +282,18 @@ def ns_train(
 
 
 def ns_eval(config: Path, output_json: Path, timeout: Optional[float] = None) -> Dict[str, float]:
-    """Evaluate a trained run on its eval split with ``ns-eval``; return the ``results`` dict (NaN where unavailable)."""
+    """Evaluate a trained run on its eval split with ``ns-eval``; return the ``results`` dict's metrics (NaN where
+    unavailable: the file, strict JSON, holds null there and the reason under ``unavailable``)."""
+    from agrinerf_ns.metrics_json import UNAVAILABLE_KEY
+
     run_ns(
         "eval",
         ["--load-config", str(config), "--output-path", str(output_json)],
         log_path=output_json.with_suffix(".log"),
         timeout=timeout,
     )
-    return json.loads(output_json.read_text())["results"]
+    results = json.loads(output_json.read_text())["results"]
+    return {k: math.nan if v is None else v for k, v in results.items() if k != UNAVAILABLE_KEY}
 
 
 def ns_render_dataset(

@@ -28,8 +28,8 @@ the thermal and event frames (and their valid masks) and hands their paths to th
 
 The thermal and event frames are aligned to the RGB camera, so they must have the RGB frame's full resolution
 (``w`` x ``h`` in ``transforms.json``); the dataset resizes them like the image when the image is downscaled.
-Before Nerfstudio's parser runs, ``dataset_checks`` checks the JSON, every frame's pose, intrinsics and RGB image;
-every :class:`AgriNeRFDataError` names the file (and the frame).
+Before Nerfstudio's parser runs, ``dataset_checks`` checks the JSON, every frame's pose, intrinsics and every image it
+names (there, whole, at the RGB frame's size); every :class:`AgriNeRFDataError` names the file (and the frame).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, Nerfst
 from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_transforms, image_size, read_transforms
+from agrinerf_ns.dataparsers.dataset_checks import AgriNeRFDataError, check_dataset
 from agrinerf_ns.dataparsers.fruit_masks import fruit_mask_paths
 from agrinerf_ns.dataparsers.sfm_points import PlyError, load_points3d, saved_to_output
 from agrinerf_ns.dataset_format import (
@@ -95,9 +95,9 @@ class AgriNeRFDataParser(Nerfstudio):
 
     def _generate_dataparser_outputs(self, split: str = "train") -> DataparserOutputs:
         transforms_path = self.config.data if self.config.data.suffix == ".json" else self.config.data / TRANSFORMS
-        # checked before Nerfstudio's parser reads it, so a bad file fails with its name before any training
-        meta = read_transforms(transforms_path)
-        check_transforms(meta, transforms_path)
+        # checked before Nerfstudio's parser reads it, so a bad file fails with its name before any training: the
+        # JSON, every frame's pose and intrinsics, and every image it names (there, whole, at the RGB frame's size)
+        meta = check_dataset(transforms_path)
         outputs = super()._generate_dataparser_outputs(split)
         data_dir = transforms_path.parent
         frames: List[Dict[str, Any]] = meta["frames"]
@@ -114,15 +114,10 @@ class AgriNeRFDataParser(Nerfstudio):
         for aligned in ALIGNED_FRAMES:
             if aligned.key not in present or aligned.modality not in self.config.modalities:
                 continue
-            paths = [data_dir / frame[aligned.key] for frame in kept]
-            for frame, path in zip(kept, paths, strict=True):
-                _check_aligned_frame(path, frame, meta, aligned.key, transforms_path)
-            metadata[aligned.metadata] = paths
+            metadata[aligned.metadata] = [data_dir / frame[aligned.key] for frame in kept]
 
         fruit_masks = fruit_mask_paths(kept, data_dir, transforms_path)
         if fruit_masks is not None:
-            for frame, path in zip(kept, fruit_masks, strict=True):
-                _check_aligned_frame(path, frame, meta, FRUIT_MASK.key, transforms_path)
             metadata[FRUIT_MASK.metadata] = fruit_masks
             # whose view each mask holds: the thermal camera's masks are supervised along its rays
             metadata["fruit_mask_thermal"] = [frame.get(FRUIT_MASK_CAMERA, "rgb") == "thermal" for frame in kept]
@@ -244,8 +239,6 @@ def _temperature(
             "every frame or none."
         )
     paths = [data_dir / frame[TEMPERATURE.key] for frame in kept]
-    for frame, path in zip(kept, paths, strict=True):
-        _check_aligned_frame(path, frame, meta, TEMPERATURE.key, transforms_path)
     recorded = block.get("thermal_temperature") or {}
     if all(k in recorded for k in TEMPERATURE_STATS):
         stats = {k: float(recorded[k]) for k in TEMPERATURE_STATS}
@@ -450,19 +443,6 @@ def _frame_size(frame: Dict[str, Any], meta: Dict[str, Any]) -> Optional[Tuple[i
     if width is None or height is None:
         return None
     return int(width), int(height)
-
-
-def _check_aligned_frame(
-    path: Path, frame: Dict[str, Any], meta: Dict[str, Any], frame_key: str, transforms_path: Path
-) -> None:
-    """Checks that a thermal/event frame or mask exists and has the RGB frame's full resolution (header read only)."""
-    size = image_size(path, f"'{frame_key}' in {transforms_path}")
-    expected = _frame_size(frame, meta)
-    if expected is not None and size != expected:
-        raise AgriNeRFDataError(
-            f"{path}: image is {size[0]}x{size[1]} but its RGB frame {frame['file_path']} is "
-            f"{expected[0]}x{expected[1]}; '{frame_key}' frames must be warped into the RGB camera at its resolution."
-        )
 
 
 agrinerf_dataparser = DataParserSpecification(

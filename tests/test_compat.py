@@ -47,6 +47,43 @@ def test_lpips_needed_without_weights_and_network(tmp_path: Path, monkeypatch, l
     assert torch.isnan(second(images, images.flip(-1)))
 
 
+@pytest.fixture
+def network_guard(monkeypatch):
+    """Every attempt to resolve a host or open a connection is recorded and refused (the network is blocked)."""
+    import socket
+
+    attempts = []
+
+    def refuse(*args, **kwargs):
+        attempts.append(args)
+        raise OSError("network blocked (test)")
+
+    monkeypatch.setattr(socket, "getaddrinfo", refuse)
+    monkeypatch.setattr(socket, "create_connection", refuse)
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    return attempts
+
+
+def test_lpips_without_weights_tries_no_download(tmp_path: Path, monkeypatch, lpips_patched, network_guard, capfd):
+    """With the network blocked and no cached weights: no connection is tried, no "Downloading" line is printed,
+    the absence is said once, and LPIPS is NaN. With AGRINERF_DOWNLOAD_WEIGHTS=1 the download is tried (and here
+    refused by the blocked network), so the guard sees the attempt the default does not make."""
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    monkeypatch.delenv(compat.DOWNLOAD_ENV, raising=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        metric = LearnedPerceptualImagePatchSimilarity(normalize=True)
+        LearnedPerceptualImagePatchSimilarity(normalize=True)
+    images = torch.rand(1, 3, 32, 32)
+    assert torch.isnan(metric(images, images))
+    assert network_guard == [] and "Downloading" not in capfd.readouterr().err
+    said = [str(w.message) for w in caught if "LPIPS is unavailable" in str(w.message)]
+    assert len(said) == 1 and compat.DOWNLOAD_ENV in said[0]
+    monkeypatch.setenv(compat.DOWNLOAD_ENV, "1")
+    LearnedPerceptualImagePatchSimilarity(normalize=True)
+    assert network_guard, "asked to download, it tries the network"
+
+
 def test_lpips_unpatched_crashes_offline(tmp_path: Path, monkeypatch) -> None:
     """Shows the shim is needed: without it, construction dies on the download."""
     was_patched = compat.lpips_patched()
@@ -183,3 +220,31 @@ def test_interpolation_between_one_camera_holds_still_and_names_the_train_camera
     path = camera_paths.get_interpolated_camera_path(cameras=two, steps=3, order_poses=False)
     assert path.shape == (3,)  # two cameras: Nerfstudio's own path, unchanged
     assert "--pose-source" not in capsys.readouterr().out
+
+
+def test_metrics_files_are_strict_json() -> None:
+    """A NaN metric is written as null with its reason; ns-eval's json is given the strict writer."""
+    import json
+    import math
+
+    from nerfstudio.scripts import eval as ns_eval_script
+
+    from agrinerf_ns.metrics_json import UNAVAILABLE_KEY, strict_dumps
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"not strict JSON: {constant}")
+
+    info = {"results": {"psnr": 20.5, "lpips": math.nan, "psnr_std": math.inf, "views": [1.0, math.nan]}}
+    text = strict_dumps(info, indent=2)
+    back = json.loads(text, parse_constant=refuse)["results"]
+    assert back["psnr"] == 20.5 and back["lpips"] is None and back["psnr_std"] is None and back["views"] == [1.0, None]
+    assert set(back[UNAVAILABLE_KEY]) == {"lpips", "psnr_std"} and "not finite" in back[UNAVAILABLE_KEY]["psnr_std"]
+    with pytest.raises(ValueError, match="not strict JSON: NaN"):
+        json.loads(json.dumps(info), parse_constant=refuse)  # what ns-eval wrote before
+    was = ns_eval_script.json
+    try:
+        ns_eval_script.json = json
+        assert compat.patch_eval_json()
+        assert json.loads(ns_eval_script.json.dumps(info), parse_constant=refuse)["results"]["lpips"] is None
+    finally:
+        ns_eval_script.json = was

@@ -576,7 +576,9 @@ def test_the_oracle_fruit_channel_counts_and_the_misses_report_reads_it(
     save_renders(renders, tmp_path / "renders")
     settings = CountConfig(detect=DetectorConfig(source="fruit"))
     result = main(CountArgs(out=tmp_path / "count", renders=tmp_path / "renders", truth=raw, count=settings))
-    assert result.score is not None and result.score.counted > 0 and result.score.well_seen >= 0
+    # against the truth: measured F1 0.889 (16 of 17 counted fruit true, 3 of 19 visible missed; 2026-12-07, AMD EPYC
+    # 2 cores); the truth's own fruit pixels must count most of the visible fruit and little else
+    assert result.score is not None and result.score.f1 >= 0.7, result.score
     misses = load_bench_script("fruit_count_misses")
     report = misses.main(misses.MissArgs(tmp_path / "renders", tmp_path / "renders", raw, tmp_path / "count"))
     assert "median 0.000 m, within 5 cm 1.00" in str(report["depth error at found fruit pixels"])

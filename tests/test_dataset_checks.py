@@ -32,7 +32,9 @@ def test_truncated_json_names_the_file_line_and_column(tmp_path: Path) -> None:
     path = root / "transforms.json"
     text = path.read_text()
     path.write_text(text[: len(text) // 2])
-    with pytest.raises(AgriNeRFDataError, match=r"transforms\.json: not valid JSON \(.* at line \d+, column \d+\)"):
+    with pytest.raises(
+        AgriNeRFDataError, match=r"transforms\.json: not valid JSON: it ends early, at line \d+, column \d+"
+    ):
         _parse(root)
 
 
@@ -108,7 +110,9 @@ def test_ns_train_stops_on_a_nan_pose_before_training(tmp_path: Path) -> None:
     cpu_s = (cpu_after.ru_utime - cpu_before.ru_utime) + (cpu_after.ru_stime - cpu_before.ru_stime)
     output = done.stdout + done.stderr
     assert done.returncode != 0, output[-3000:]
-    assert "AgriNeRFDataError" in output and "frame images/frame_00004.png" in output, output[-3000:]
+    assert "error: " in output and "Traceback" not in output, output[
+        -3000:
+    ]  # one message (agrinerf_ns.dataparsers.user_errors)
     assert f"{root / 'transforms.json'}: frame images/frame_00004.png: 'transform_matrix' has non-finite" in output
     assert not list((tmp_path / "outputs").rglob("step-*.ckpt"))
     # quickly: the command's CPU time (wall time depends on the machine's other load) is about its imports

@@ -48,19 +48,21 @@ def test_box_voxel_arithmetic_takes_the_device_of_its_box(monkeypatch) -> None:
 
 
 def test_box_voxel_under_fake_cuda_raises_no_device_mismatch(fake_cuda, monkeypatch) -> None:
-    """`box_voxel` on a fake CUDA box runs to its final read-back without a device mismatch."""
-    from torch._subclasses.fake_tensor import FakeTensorDeviceMismatchError
+    """`box_voxel` on a fake CUDA box runs to its final read-back (``float()``, which a fake tensor cannot answer:
+    ``aten._local_scalar_dense``) without a device mismatch; the same call with its resolution tensor planted on the
+    CPU (the bug this guards against) stops earlier, at the device mismatch."""
+    from torch._subclasses.fake_tensor import DataDependentOutputException, FakeTensorDeviceMismatchError
 
     from agrinerf_ns.model import grid_mapping
 
     monkeypatch.setattr(grid_mapping, "axis_resolution", lambda *a, **k: (40, 20, 8))
     box = torch.tensor([[-1.0, -0.5, -0.2], [1.0, 0.5, 0.2]], device="cuda")
-    try:
+    with pytest.raises(DataDependentOutputException, match="_local_scalar_dense"):
         grid_mapping.box_voxel(box, 0.8, 20)
-    except FakeTensorDeviceMismatchError as err:  # the bug
-        pytest.fail(f"box_voxel mixes devices: {err}")
-    except Exception as err:  # noqa: BLE001 - the fake run stops at float(): data-dependent, not a device error
-        assert "device" not in str(err).lower(), err
+    real = torch.tensor
+    monkeypatch.setattr(torch, "tensor", lambda *a, **k: real(*a, **{**k, "device": "cpu"}))
+    with pytest.raises(FakeTensorDeviceMismatchError, match="cuda:0 and cpu"):
+        grid_mapping.box_voxel(box, 0.8, 20)
 
 
 def test_box_mapping_under_fake_cuda(fake_cuda) -> None:

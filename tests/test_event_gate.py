@@ -105,9 +105,13 @@ def test_the_gate_keeps_agreeing_events_and_switches_contradicting_ones_down(cap
     data, flipped = captures
     agree, agree_factors = _train(data, **FIELD)
     contradict, contradict_factors = _train(flipped, **FIELD)
-    # both start closed while the young field explains nothing (a warm-up the data decides); the agreeing events'
-    # residual then falls below 'no change' and the term opens, the contradicting one's rises and it stays off
-    assert agree_factors[0] == 0.0 and agree_factors[-1] >= 0.5, agree_factors[::25]
+    # both start closed while the young field explains nothing (a warm-up the data decides: checks at steps 25 and
+    # 50 found the residual above the bar); the agreeing events' residual then falls below 'no change' and the term
+    # opens at RESTART, the contradicting one's rises and it stays off. Measured: opened at step 100 at 0.0625, 1.0
+    # from step 200 (2026-12-07, AMD EPYC 2 cores, OMP_NUM_THREADS=1)
+    opened = next((step for step, factor in enumerate(agree_factors) if factor > 0.0), None)
+    assert opened is not None and 50 <= opened <= 200, agree_factors[::25]
+    assert agree_factors[opened] == event_gate.RESTART and agree_factors[-1] >= 0.5, agree_factors[::25]
     assert max(contradict_factors) == 0.0, contradict_factors[::25]
     assert float(contradict.events.gate.residual) > float(agree.events.gate.residual)
     metrics = agree.get_metrics_dict(*_one_batch(agree, data))

@@ -101,10 +101,12 @@ def test_the_fruit_head_trains_to_the_true_fruit_and_no_masks_build_no_head(tmp_
         inside.append(float(rendered[known & (item["fruit"] > 0.5)].mean()))
         outside.append(float(rendered[known & (item["fruit"] < 0.5)].mean()))
     # seen: IoU 0.31-0.34, mean probability 0.42 on the fruit against 0.19 off it after 150 steps (untrained: IoU 0,
-    # the same probability on and off the fruit)
+    # the same probability on and off the fruit); 2026-12-07, AMD EPYC 2 cores, OMP_NUM_THREADS=1: IoU 0.496-0.499
     assert np.mean(ious) > 0.15 and np.mean(inside) > 1.6 * np.mean(outside), (ious, inside, outside)
     metrics = trainer.pipeline.get_average_eval_image_metrics()
-    assert 0.0 <= metrics["fruit_iou"] <= 1.0  # ns-eval reports it
+    # ns-eval's fruit_iou over the held-out views (poorer than the training views on this tiny field): measured
+    # 0.0772-0.0775 (two runs, 2026-12-07, AMD EPYC 2 cores, OMP_NUM_THREADS=1); an untrained head scores 0
+    assert metrics["fruit_iou"] > 0.04, metrics["fruit_iou"]
 
     plain = write_model_scene(tmp_path / "plain", views=6, modalities=("rgb",))
     config = tiny_trainer_config(plain, tmp_path / "out_plain", max_num_iterations=3, rays=128, modalities=("rgb",))

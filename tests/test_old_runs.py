@@ -88,14 +88,20 @@ def test_the_old_event_switches_read_as_event_supervision(dataset: Path, tmp_pat
     assert _load(weight).pipeline.model.event_supervision == "off"
 
 
+def _refuse(constant: str) -> None:
+    raise ValueError(f"not strict JSON: {constant}")
+
+
 def test_ns_eval_and_agrinerf_count_run_on_an_old_run(dataset: Path, tmp_path: Path) -> None:
     config_yml = _moved_run("agrinerf-lite", dataset, tmp_path)
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
     out_json = tmp_path / "eval.json"
     subprocess.run(["ns-eval", "--load-config", str(config_yml), "--output-path", str(out_json)],
                    check=True, env=env, timeout=600)  # fmt: skip
-    results = json.loads(out_json.read_text())["results"]
-    assert results["psnr"] > 0 and "thermal_camera_psnr" in results
+    results = json.loads(out_json.read_text(), parse_constant=_refuse)["results"]  # strict JSON: no NaN
+    # the stored step-2 checkpoint evaluated on its one held-out view: PSNR 15.93 dB, thermal-camera PSNR 12.80 dB
+    # (2026-12-07, AMD EPYC 2 cores, OMP_NUM_THREADS=1); a checkpoint loaded wrongly renders other pixels
+    assert abs(results["psnr"] - 15.93) < 1.0 and abs(results["thermal_camera_psnr"] - 12.80) < 1.0, results
     count = tmp_path / "count"
     subprocess.run(["agrinerf-count", "--config", str(config_yml), "--out", str(count)],
                    check=True, env=env, timeout=600)  # fmt: skip

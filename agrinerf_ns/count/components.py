@@ -179,7 +179,7 @@ def _components(
             continue
         if sampled.views:
             views = views_showing_pixels(sampled.points()[members], sampled.views, sampled.seen_margin,
-                                         config.min_pixels)  # fmt: skip
+                                         config.min_pixels, sampled.field, _device(sampled.field))  # fmt: skip
         else:
             views = int(sampled.seen_by[members].max())
         if views < config.min_views:
@@ -199,3 +199,10 @@ def _components(
             )
         )
     return fruit, dropped
+
+
+def _device(field: object) -> object:
+    """Where the field's parameters are (``cpu`` without any)."""
+    parameters = getattr(field, "parameters", None)
+    first = next(iter(parameters()), None) if callable(parameters) else None
+    return first.device if first is not None else "cpu"

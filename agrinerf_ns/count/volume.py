@@ -226,18 +226,97 @@ def views_seeing(points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], m
     return counts
 
 
+MIN_ON_OBJECT_SHARE = 0.5
+"""A view shows an object when its rays stop on the object (:func:`pixels_on_object`) in at least this share of the
+pixels the object's seen points cover: most of it is in sight, not a rim beside an occluder."""
+
+
+MIN_BODY_WEIGHT = 0.5
+"""A view sees a body when its ray through the body's centre puts at least this rendering weight within the body
+(:func:`body_weights`): the body stops at least half of the ray, as a fruit in sight does."""
+
+
 def views_showing_pixels(
-    points: Float[np.ndarray, "n 3"], views: Sequence[DepthView], margin: float, min_pixels: float
+    points: Float[np.ndarray, "n 3"],
+    views: Sequence[DepthView],
+    margin: float,
+    min_pixels: float,
+    field: Any = None,
+    device: Any = "cpu",
 ) -> int:
     """In how many ``views`` the seen ``points`` (one object's voxels) cover at least ``min_pixels`` pixels of the
     dataset's images (distinct pixels of the view times its ``pixel_area``; one pixel of a coarser view counts
-    its area at most once)."""
-    shown = 0
+    its area at most once) on which the view renders the object itself (:func:`pixels_on_object`), when those are at
+    least :data:`MIN_ON_OBJECT_SHARE` of the pixels its seen points cover; with the ``field``, only views whose ray
+    through the object's centre puts :data:`MIN_BODY_WEIGHT` of its weight on it (:func:`body_weights`)."""
+    showing = []
     for view in views:
         seen, pixel = seen_pixels(points, view, margin)
-        if seen.any() and len(np.unique(pixel[seen])) * view.pixel_area >= min_pixels:
-            shown += 1
-    return shown
+        if not seen.any():
+            continue
+        covered = len(np.unique(pixel[seen]))
+        on = len(pixels_on_object(points[seen], pixel[seen], view, margin))
+        if on * view.pixel_area >= min_pixels and on >= MIN_ON_OBJECT_SHARE * covered:
+            showing.append(view)
+    if field is None or not showing:
+        return len(showing)
+    variance = float(np.linalg.eigvalsh(np.atleast_2d(np.cov(points.T))).max()) if len(points) > 1 else 0.0
+    radius = max(float(np.sqrt(5.0 * variance)), margin)  # a solid ball's radius from its variance, as components
+    weights = body_weights(field, showing, points.mean(0), radius, device)
+    return int(np.count_nonzero(weights >= MIN_BODY_WEIGHT))
+
+
+BODY_SAMPLES_PER_RADIUS = 4
+"""Density samples per body radius along a ray marched by :func:`body_weights`."""
+
+
+def body_weights(
+    field: Any, views: Sequence[DepthView], centre: Float[np.ndarray, "3"], radius: float, device: Any = "cpu"
+) -> Float[np.ndarray, " v"]:
+    """For each view, the rendering weight its ray through ``centre`` (Nerfstudio frame) puts within ``radius`` of it
+    (0 to 1): the field's density marched from the camera (transmittance to the body times its opacity).
+
+    Near 1 for a dense body in sight; low for one hidden behind leaves or the canopy's edge (the ray stopped before
+    it: the sky painted on fog behind the canopy's top, in the dark demo) and for a translucent floater (the ray
+    passes through it)."""
+    step = radius / BODY_SAMPLES_PER_RADIUS
+    distances = [float(np.linalg.norm(centre - view.centre)) for view in views]
+    count = int(np.ceil((max(distances) + radius) / step))
+    t = (np.arange(count) + 0.5) * step
+    rays = []
+    for view, distance in zip(views, distances, strict=True):
+        direction = (centre - view.centre) / max(distance, 1e-9)
+        rays.append(view.centre + t[:, None] * direction)
+    density = field_density(field, np.concatenate(rays), device).reshape(len(views), count).astype(np.float64)
+    distance_of = np.asarray(distances)[:, None]
+    density = np.where(t[None] <= distance_of + radius, density, 0.0)
+    alpha = 1.0 - np.exp(-density * step)
+    transmittance = np.cumprod(np.concatenate([np.ones((len(views), 1)), 1.0 - alpha[:, :-1]], axis=1), axis=1)
+    within = np.abs(t[None] - distance_of) <= radius
+    return (transmittance * alpha * within).sum(1)
+
+
+def pixels_on_object(
+    points: Float[np.ndarray, "n 3"], pixel: Int[np.ndarray, " n"], view: DepthView, margin: float
+) -> Int[np.ndarray, " m"]:
+    """The pixels (flat indices) of ``view`` whose rendered surface lies on the object of ``points`` (projecting to
+    ``pixel``): the pixel's own depth is within ``margin`` of the span of distances of the object's points in it.
+
+    A body the camera sees stops the pixel's ray. Where the ray stops well in front of the object (a leaf, or the
+    canopy's edge hiding what lies behind it: the 3x3 rim allowance of :func:`seen_pixels` lets such points count as
+    seen) or passes through it to a surface behind (a translucent floater), the camera does not see the object
+    there; nor where nothing is rendered (sky)."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    distance = np.linalg.norm(points - view.centre, axis=1)
+    pixels, index = np.unique(pixel, return_inverse=True)
+    near = np.full(len(pixels), np.inf)
+    far = np.full(len(pixels), -np.inf)
+    np.minimum.at(near, index, distance)
+    np.maximum.at(far, index, distance)
+    depth = view.depth.reshape(-1)[pixels]
+    on = np.isfinite(depth) & (depth >= near - margin) & (depth <= far + margin)
+    return pixels[on]
 
 
 def field_features(
@@ -306,6 +385,8 @@ class SampledField:
     """The depth views that decided what is seen."""
     seen_margin: float = 0.0
     """Their margin (Nerfstudio units)."""
+    field: Any = None
+    """The field sampled (its density marched by :func:`body_weights`); None: not marched."""
 
     def points(self) -> Float[np.ndarray, "n 3"]:
         return self.grid.centres(self.flat)
@@ -344,7 +425,7 @@ def sample_field(
     eye = np.mean([v.centre for v in views], axis=0) if views else middle - np.array([0.0, 0.0, 1.0])
     feature, temperature = field_features(model, points, source, eye, device)
     return SampledField(grid, flat, feature, temperature, seen_by, dense, source, source_note, frame, eye, views,
-                        seen_margin)  # fmt: skip
+                        seen_margin, model.field)  # fmt: skip
 
 
 def mask_of(grid: VoxelGrid, flat: np.ndarray) -> Bool[np.ndarray, "i j k"]:
