@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Dict, List, NamedTuple, Optional
 
 import numpy as np
-from jaxtyping import Bool, Float
+from jaxtyping import Float
 
 TRUTH_BOXES_DIR = Path("truth") / "boxes_yolo"
 TRUTH_RGB_DIR = Path("truth") / "rgb_clean"
@@ -61,15 +61,6 @@ def yolo_to_xyxy(boxes: Float[np.ndarray, "m 4"], width: int, height: int) -> Fl
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     cx, cy, w, h = boxes[:, 0] * width, boxes[:, 1] * height, boxes[:, 2] * width, boxes[:, 3] * height
     return np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], axis=1)
-
-
-def inscribed_ellipse(height: int, width: int, box: Float[np.ndarray, " 4"]) -> Bool[np.ndarray, "h w"]:
-    """The pixels of an ``height`` x ``width`` image whose centres lie in the ellipse inscribed in the pixel box
-    ``x1 y1 x2 y2``: a round fruit's pixels, from its box (half-axes at least half a pixel)."""
-    y, x = np.mgrid[0:height, 0:width] + 0.5
-    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-    rx, ry = max((box[2] - box[0]) / 2, 0.5), max((box[3] - box[1]) / 2, 0.5)
-    return ((x - cx) / rx) ** 2 + ((y - cy) / ry) ** 2 <= 1.0
 
 
 def xyxy_to_yolo(boxes: Float[np.ndarray, "m 4"], width: int, height: int) -> Float[np.ndarray, "m 4"]:
