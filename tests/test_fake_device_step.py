@@ -21,6 +21,7 @@ What does not run on the pretend device, and where it is tested instead:
 from __future__ import annotations
 
 import copy
+import re
 import sys
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Set, Tuple
@@ -234,7 +235,8 @@ def test_preset_step_eval_and_count_render_on_a_pretend_device(preset: str, runs
 
     # the static scan reads every project module that handles tensors and that this run called
     outside = {f for f in files - _scanned() if f.startswith(("agrinerf_ns/", "dataparsers/", "method_configs/"))}
-    assert not {f for f in outside if "torch" in (ROOT / f).read_text()}, sorted(outside)
+    uses_torch = re.compile(r"^\s*(import torch|from torch\b)", re.M)  # a module that imports torch, not one naming it
+    assert not {f for f in outside if uses_torch.search((ROOT / f).read_text())}, sorted(outside)
 
 
 def _scanned() -> Set[str]:
@@ -252,14 +254,14 @@ def test_the_benchmarks_sample_the_field_on_the_models_device(runs: Callable, da
     on CUDA before: CPU points into the device's field and box)."""
     from helpers.bench_script import load_bench_script
 
-    from agrinerf_ns.detect import render_views
-    from agrinerf_ns.detect.render_views import LoadedRun
+    from agrinerf_ns import run_loading
+    from agrinerf_ns.run_loading import LoadedRun
 
     pipeline, shown, _, _, preset = runs("agrinerf-lite")
     config = shown["config"]  # a run folder holding the run's dataparser_transforms.json
     run = LoadedRun(config_path=config, method=preset, pipeline=pipeline, checkpoint=config.parent, step=STEPS)
     contrast, ceiling = load_bench_script("count_field_contrast"), load_bench_script("box_truth_ceiling")
-    monkeypatch.setattr(render_views, "load_run", lambda *a, **k: run)  # the run in memory, not from disk
+    monkeypatch.setattr(run_loading, "load_run", lambda *a, **k: run)  # the run in memory, not from disk
     monkeypatch.setattr(ceiling, "load_run", lambda *a, **k: run)
     monkeypatch.setattr(contrast, "trained_run_config", lambda path: path)
     raw = dataset.parent / "raw"

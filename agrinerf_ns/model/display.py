@@ -68,7 +68,7 @@ def colour_bar_png(width: int = 256, height: int = 14) -> bytes:
     from nerfstudio.utils import colormaps
     from PIL import Image
 
-    ramp = torch.linspace(0.0, 1.0, width)[None, :, None].expand(height, width, 1)
+    ramp = torch.linspace(0.0, 1.0, width)[None, :, None].expand(height, width, 1)  # cpu: a legend image, not a render
     colours = colormaps.apply_colormap(ramp, colormaps.ColormapOptions())
     buffer = io.BytesIO()
     Image.fromarray((colours.numpy() * 255).round().astype(np.uint8)).save(buffer, format="PNG")

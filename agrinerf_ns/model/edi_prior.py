@@ -81,7 +81,7 @@ def project_points(
 
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         uv, _ = cv2.projectPoints(points.double().cpu().numpy(), np.zeros(3), np.zeros(3), K, np.asarray(k))
-        return torch.from_numpy(uv[:, 0, :]).to(points.device)
+        return torch.from_numpy(uv[:, 0, :]).to(points.device)  # host: OpenCV's rare distortion models only
     p = points.double()
     z = 1.0 / p[:, 2]
     x, y = p[:, 0] * z, p[:, 1] * z
