@@ -113,21 +113,14 @@ class FrameGeometry:
         return rows, cols, np.linalg.norm(d, axis=-1)
 
 
-@dataclass(frozen=True)
-class Placed:
-    """Blobs placed in 3D (NaN rows: no depth where ``min_views`` frames see them)."""
-
-    points: Float[np.ndarray, "n 3"]
-    views: np.ndarray
-    """Frames that show each blob at its depth, its own included."""
-
-
-def place_blobs(blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settings: BodySettings) -> Placed:
+def place_blobs(
+    blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settings: BodySettings
+) -> Float[np.ndarray, "n 3"]:
     """Each blob at the depth along its ray where blobs of its side and size show in the most neighbouring frames
-    (see the module)."""
+    (see the module), placed where the rays of those blobs meet; NaN rows where fewer than ``min_views`` frames
+    show it."""
     n = len(blobs)
     points = np.full((n, 3), np.nan)
-    views = np.ones(n, np.int64)
     by_frame: Dict[int, List[int]] = {}
     for k, b in enumerate(blobs):
         by_frame.setdefault(b.frame, []).append(k)
@@ -158,7 +151,6 @@ def place_blobs(blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settin
             support += match >= 0
             matched.append((f, match))
         best = int(np.argmax(support))
-        views[k] = int(support[best])
         if support[best] >= settings.min_views:
             origins, directions = [origin[0]], [direction[0]]
             for f, match in matched:
@@ -168,7 +160,7 @@ def place_blobs(blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settin
                     origins.append(o[0])
                     directions.append(d[0])
             points[k] = closest_point(np.stack(origins), np.stack(directions))
-    return Placed(points, views)
+    return points
 
 
 def closest_point(origins: Float[np.ndarray, "m 3"], directions: Float[np.ndarray, "m 3"]) -> Float[np.ndarray, "3"]:
@@ -179,7 +171,7 @@ def closest_point(origins: Float[np.ndarray, "m 3"], directions: Float[np.ndarra
 
 
 def camera_step(geometry: Sequence[FrameGeometry]) -> float:
-    """The median distance between consecutive cameras (the unit of depth and height; 1 for a single frame)."""
+    """The median distance between consecutive cameras (the unit of depth; 1 for a single frame)."""
     centres = np.stack([g.rgb_c2w[:3, 3] for g in geometry])
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     steps = steps[steps > 0]
@@ -205,7 +197,8 @@ class BodyDecision:
     placed: Bool[np.ndarray, " n"]
     """Blobs seen at one place in ``min_views`` frames."""
     polarity: Optional[Side]
-    bodies: Dict[str, int]
+    sightings: Dict[str, int]
+    """Placed, kept blobs per side (what decided the polarity)."""
     dropped: Dict[str, int]
 
 
@@ -216,14 +209,14 @@ def decide_bodies(
     n = len(blobs)
     if n == 0:
         return BodyDecision(np.zeros(0, bool), np.zeros(0, bool), None, {"warm": 0, "cool": 0}, {})
-    placed = place_blobs(blobs, geometry, settings)
+    points = place_blobs(blobs, geometry, settings)
     signs = np.array([b.sign for b in blobs])
     offsets = np.array([b.offset for b in blobs])
-    body = np.isfinite(placed.points[:, 0])
+    body = np.isfinite(points[:, 0])
     plausible = np.abs(offsets) <= settings.max_offset_c if radiometric else np.ones(n, bool)
     compact = np.array([0.0 < b.region_ratio <= settings.max_region_ratio for b in blobs])
     candidate = body & plausible & compact
-    polarity, counts = decide_polarity(signs[candidate], settings.polarity_margin)
+    polarity, sightings = decide_polarity(signs[candidate], settings.polarity_margin)
     side = np.ones(n, bool) if polarity is None else signs == (1.0 if polarity == "warm" else -1.0)
     dropped = {
         "not placed": int((~body).sum()),
@@ -231,4 +224,4 @@ def decide_bodies(
         "not compact": int((body & plausible & ~compact).sum()),
         "other side": int((candidate & ~side).sum()),
     }
-    return BodyDecision(candidate & side, body, polarity, counts, dropped)
+    return BodyDecision(candidate & side, body, polarity, sightings, dropped)

@@ -140,7 +140,7 @@ def thermal_mask(
     unknown outside the thermal camera's view."""
     if not seen.any():
         return np.full(thermal.shape, UNKNOWN, np.uint8)
-    thermal = thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
+    thermal = as_float(thermal)
     if config.thermal_rule != "contrast":  # one frame: the bodies rule has only its blobs
         fruit = thermal_blobs(thermal, seen, sizes=config.thermal_sizes, polarity=config.polarity,
                               threshold=config.blob_threshold, min_canopy_offset=config.min_canopy_offset)  # fmt: skip
@@ -149,6 +149,11 @@ def thermal_mask(
         t = config.thermal_threshold
         fruit = {"warm": z >= t, "cool": z <= -t, "both": np.abs(z) >= t}[config.polarity]
     return np.where(~seen, UNKNOWN, np.where(fruit, FRUIT, BACKGROUND)).astype(np.uint8)
+
+
+def as_float(thermal: Shaped[np.ndarray, "h w"]) -> Float[np.ndarray, "h w"]:
+    """A thermal frame as float32: an 8-bit frame in [0, 1], a temperature (degrees C) as it is."""
+    return thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
 
 
 def box_mask(
@@ -230,45 +235,51 @@ def make_fruit_masks(
         predict = box_predictor(
             config.yolo_weights, min(config.unsure_confidence, config.box_confidence), hint="--mask-maker.yolo-weights"
         )
-    kinds = [_mask_kind(tmp, frame, maker, config) for frame in frames]
-    thermal_index = [i for i, kind in enumerate(kinds) if kind == "thermal"]
-    record: dict = {}
-    bodies: Dict[int, np.ndarray] = {}
-    if thermal_index and config.thermal_rule == "bodies":
-        bodies, record["bodies"] = thermal_body_masks(tmp, frames, thermal_index, config, geometry)
-    for i, (frame, name, kind) in enumerate(zip(frames, names, kinds, strict=True)):
-        if kind == "thermal":
-            if i in bodies:
-                mask = bodies[i]
-            else:
-                thermal, seen = thermal_frame(tmp, frame, config)
-                mask = thermal_mask(thermal, seen, config)
-        else:
-            bgr = _read(tmp / frame[IMAGE.key], cv2.IMREAD_COLOR)
-            if kind == "yolo" and predict is not None:
-                boxes, scores = predict(bgr)
-                mask = box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, config)
-            else:
-                mask = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
+    masks: Dict[int, np.ndarray] = {}
+    thermal_index: List[int] = []
+    for i, frame in enumerate(frames):  # the RGB frames' makers now (one read each); the thermal frames' below
+        kind, bgr = _mask_kind(tmp, frame, maker, config)
         used[kind] += 1
+        if kind == "thermal":
+            thermal_index.append(i)
+        elif kind == "yolo" and predict is not None:
+            boxes, scores = predict(bgr)
+            masks[i] = box_mask(bgr.shape[0], bgr.shape[1], boxes, scores, config)
+        else:
+            masks[i] = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
+    record: dict = {}
+    if thermal_index and config.thermal_rule == "bodies":  # decided across the frames at once
+        bodies, record["bodies"] = thermal_body_masks(tmp, frames, thermal_index, config, geometry)
+        masks.update(bodies)
+    for i in thermal_index:
+        if i not in masks:
+            masks[i] = thermal_mask(*thermal_frame(tmp, frames[i], config), config)
+    thermal_set = set(thermal_index)
+    for i, (frame, name) in enumerate(zip(frames, names, strict=True)):
         frame[FRUIT_MASK.key] = FRUIT_MASK.path(name)
-        if kind == "thermal":  # the thermal camera's view: supervised along its rays
+        if i in thermal_set:  # the thermal camera's view: supervised along its rays
             frame[FRUIT_MASK_CAMERA] = "thermal"
-        write_png(tmp / frame[FRUIT_MASK.key], mask)
+        write_png(tmp / frame[FRUIT_MASK.key], masks[i])
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}
     return {"source": f"maker:{maker}", "frames": used, "settings": settings,
             "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit", **record}  # fmt: skip
 
 
-def _mask_kind(tmp: Path, frame: Dict, maker: MaskMaker, config: MaskMakerConfig) -> str:
-    """Which maker labels a frame: ``thermal`` for a dark frame with a thermal frame under ``auto`` and ``yolo``."""
+def _mask_kind(
+    tmp: Path, frame: Dict, maker: MaskMaker, config: MaskMakerConfig
+) -> Tuple[str, Optional[UInt8[np.ndarray, "h w 3"]]]:
+    """Which maker labels a frame (``thermal`` for a dark frame with a thermal frame under ``auto`` and ``yolo``),
+    with its RGB frame (BGR) where that maker reads it or the choice needed it (None under ``thermal``)."""
     has_thermal = THERMAL.key in frame
-    if maker == "thermal" and not has_thermal:
-        raise ValueError(f"--fruit-mask-maker thermal: frame {frame['file_path']} has no thermal frame")
-    if maker in ("colour", "thermal"):
-        return maker
-    dark = float(_read(tmp / frame[IMAGE.key], cv2.IMREAD_COLOR).mean()) / 255.0 < config.dark_level
-    return "thermal" if dark and has_thermal else ("yolo" if maker == "yolo" else "colour")
+    if maker == "thermal":
+        if not has_thermal:
+            raise ValueError(f"--fruit-mask-maker thermal: frame {frame[IMAGE.key]} has no thermal frame")
+        return "thermal", None
+    bgr = _read(tmp / frame[IMAGE.key], cv2.IMREAD_COLOR)
+    if maker == "colour":
+        return "colour", bgr
+    dark = float(bgr.mean()) / 255.0 < config.dark_level
+    return ("thermal" if dark and has_thermal else ("yolo" if maker == "yolo" else "colour")), bgr
 
 
 def thermal_views(
@@ -332,8 +343,7 @@ def body_masks(
     and where the thermal camera saw) and their views: a mask per frame and the decision's record."""
     blobs: List[Blob] = []
     for k, (thermal, seen) in enumerate(images):
-        thermal = thermal.astype(np.float32) / 255.0 if thermal.dtype == np.uint8 else thermal.astype(np.float32)
-        blobs += thermal_blob_list(thermal, seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
+        blobs += thermal_blob_list(as_float(thermal), seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
                                    min_canopy_offset=config.min_canopy_offset, frame=k)  # fmt: skip
     decision = decide_bodies(blobs, views, config.bodies, radiometric)
     sides = (1.0, -1.0) if decision.polarity is None else ((1.0,) if decision.polarity == "warm" else (-1.0,))
@@ -351,7 +361,7 @@ def body_masks(
         masks.append(mask.astype(np.uint8))
     record = {
         "polarity": decision.polarity or "both (undecided)",
-        "sightings_per_side": decision.bodies,
+        "sightings_per_side": decision.sightings,
         "blobs": len(blobs),
         "fruit_blobs": int(decision.fruit.sum()),
         "dropped": decision.dropped,
