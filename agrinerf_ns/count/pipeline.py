@@ -18,6 +18,7 @@ from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit, merge_distance
 from agrinerf_ns.count.detectors import DetectorConfig, make_detector, view_source
 from agrinerf_ns.count.fruit_score import (
+    TIER_DISTANCES,
     TRUE_DEPTH_DIR,
     Align,
     CountScore,
@@ -55,8 +56,9 @@ if TYPE_CHECKING:
 CONSOLE = Console()
 FLAT_DEPTH = 0.02
 """A relative depth spread (see :func:`depth_spread`) below which the count warns that the geometry is flat."""
-SCORE_DISTANCES = (0.05, 0.1, 0.15, 0.2)
-"""Match distances (capture units) of the F1 curve in count.json, beside the score at ``--match-distance``."""
+SCORE_DISTANCES = (*TIER_DISTANCES, 0.2)
+"""Match distances (capture units) of the F1 curve in count.json, beside the score at ``--match-distance``; the tiers
+are given at ``TIER_DISTANCES`` of them."""
 MAP_POINTS = 200_000
 """Rendered surface points drawn under the fruit map at most."""
 
@@ -347,11 +349,13 @@ def write_count(
     if result.score is not None and result.to_capture is not None:
         report["truth"] = str(Path(truth).resolve()) if truth is not None else None
         report["score"] = result.score.as_dict()
-        capture_centres = result.to_capture.apply(centres)
-        report["f1_at_distance"] = {
-            f"{d:g}": score_fruit(capture_centres, result.truth, result.visible, d).f1 for d in SCORE_DISTANCES
-        } if result.truth is not None else {}  # fmt: skip
-        tiers = tier_scores(capture_centres, result.truth, result.tiers) if result.truth is not None else {}
+        scored = (
+            tier_scores(result.to_capture.apply(centres), result.truth, result.tiers, SCORE_DISTANCES)
+            if result.truth is not None
+            else {}
+        )  # one scoring for the F1 curve and the tiers
+        report["f1_at_distance"] = {d: by_distance["f1"] for d, by_distance in scored.get("visible", {}).items()}
+        tiers = {tier: {d: v for d, v in by.items() if float(d) in TIER_DISTANCES} for tier, by in scored.items()}
         report["tiers"] = tiers
         report["alignment"] = {
             "mode": config.align,
