@@ -72,10 +72,10 @@ def check_transforms(meta: Dict[str, Any], path: Path) -> None:
         name = frame[IMAGE.key]
         _check_pose(frame.get("transform_matrix"), f"{path}: frame {name}")
         _check_intrinsics(frame, meta, f"{path}: frame {name}")
-        _check_image(data_dir / name, frame, meta, path)
+        check_frame_image(data_dir / name, frame, meta, IMAGE.key, path)
         for key in ALIGNED_IMAGE_KEYS:
             if isinstance(frame.get(key), str):
-                check_aligned_frame(data_dir / frame[key], frame, meta, key, path)
+                check_frame_image(data_dir / frame[key], frame, meta, key, path)
 
 
 def _check_pose(matrix: Any, where: str) -> None:
@@ -162,29 +162,25 @@ def _whole_image_fault(image: Image.Image, path: Path) -> Optional[str]:
     return None
 
 
-def _check_image(image_path: Path, frame: Dict[str, Any], meta: Dict[str, Any], transforms_path: Path) -> None:
-    """The RGB image exists, is whole and has the frame's ``w`` x ``h`` when those are given."""
-    size = check_image_file(image_path, f"'file_path' in {transforms_path}")
-    width, height = frame.get("w", meta.get("w")), frame.get("h", meta.get("h"))
-    if width is not None and height is not None and size != (int(width), int(height)):
-        raise AgriNeRFDataError(
-            f"{image_path}: image is {size[0]}x{size[1]} but {transforms_path} gives its frame w x h = "
-            f"{int(width)}x{int(height)}."
-        )
-
-
-def check_aligned_frame(
+def check_frame_image(
     path: Path, frame: Dict[str, Any], meta: Dict[str, Any], frame_key: str, transforms_path: Path
 ) -> None:
-    """A thermal/event frame, mask, temperature image or fruit mask exists, is whole and has the RGB frame's full
-    resolution."""
+    """An image a frame names under ``frame_key`` (the RGB image, or a thermal/event frame, mask, temperature image
+    or fruit mask) exists, is whole and has the frame's ``w`` x ``h`` when those are given: the RGB frame's full
+    resolution, which every aligned image is warped to."""
     size = check_image_file(path, f"'{frame_key}' in {transforms_path}")
     width, height = frame.get("w", meta.get("w")), frame.get("h", meta.get("h"))
-    if width is not None and height is not None and size != (int(width), int(height)):
+    if width is None or height is None or size == (int(width), int(height)):
+        return
+    if frame_key == IMAGE.key:
         raise AgriNeRFDataError(
-            f"{path}: image is {size[0]}x{size[1]} but its RGB frame {frame['file_path']} is "
-            f"{int(width)}x{int(height)}; '{frame_key}' images must be warped into the RGB camera at its resolution."
+            f"{path}: image is {size[0]}x{size[1]} but {transforms_path} gives its frame w x h = "
+            f"{int(width)}x{int(height)}."
         )
+    raise AgriNeRFDataError(
+        f"{path}: image is {size[0]}x{size[1]} but its RGB frame {frame[IMAGE.key]} is "
+        f"{int(width)}x{int(height)}; '{frame_key}' images must be warped into the RGB camera at its resolution."
+    )
 
 
 def check_dataset(data: Path) -> Dict[str, Any]:
