@@ -240,7 +240,7 @@ def make_fruit_masks(
     for i, frame in enumerate(frames):  # the RGB frames' makers now (one read each); the thermal frames' below
         kind, bgr = _mask_kind(tmp, frame, maker, config)
         used[kind] += 1
-        if kind == "thermal":
+        if kind == "thermal" or bgr is None:
             thermal_index.append(i)
         elif kind == "yolo" and predict is not None:
             boxes, scores = predict(bgr)
