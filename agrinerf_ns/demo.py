@@ -311,6 +311,48 @@ def train_with_progress(config: DemoConfig, data: Path) -> "TrainRun":
         return future.result()
 
 
+def _print_summary(
+    config: DemoConfig,
+    results: Mapping[str, object],
+    metrics: List[Metric],
+    stages: Dict[str, Optional[float]],
+    count: FruitCount,
+    run_config: Path,
+    picture: Path,
+    sheet: Path,
+) -> Dict[str, str]:
+    """The demo's closing screen: the held-out metrics, the stages' wall times, the count and the commands for the
+    user's own run (returned: viewer and video)."""
+    held_out = int(results.get("eval_views", 0))  # type: ignore[call-overload]
+    table = Table("metric", "compares", "value", title=f"agrinerf-lite on the {config.lighting} {config.scene}, "
+                  f"mean of {held_out} held-out views", title_justify="left")  # fmt: skip
+    for metric in metrics:
+        table.add_row(metric.name, metric.compares, _fmt(metric))
+    CONSOLE.print(table)
+    times = Table("stage", "wall time", title="wall time per stage", title_justify="left")
+    for name, seconds in stages.items():
+        times.add_row(name, "reused (already there)" if seconds is None else f"{seconds:.1f} s")
+    CONSOLE.print(times)
+    commands = follow_up_commands(run_config, config.out, config.video_steps)
+    CONSOLE.print(count_caption(count, config.lighting), soft_wrap=True)
+    CONSOLE.print(f"contact sheet and fruit map: {picture} (the sheet alone: {sheet})", soft_wrap=True)
+    CONSOLE.print(
+        f"count the fruit of your own run (add --truth RAW for a synthetic capture's score):\n"
+        f"  {_command_path('agrinerf-count')} --config outputs/<experiment>/agrinerf-lite/<time>/config.yml "
+        f"--out count/\n(this run: {count.command})",
+        soft_wrap=True,
+    )
+    CONSOLE.print(
+        f"open this run in the viewer (then the address it prints, http://localhost:7007 by default):\n"
+        f"  {commands['viewer']}",
+        soft_wrap=True,
+    )
+    video_note = "" if shutil.which("ffmpeg") else " (needs ffmpeg on PATH: apt-get install ffmpeg)"
+    CONSOLE.print(f"render a video of it{video_note}:\n  {commands['video']}", soft_wrap=True)
+
+    return commands
+
+
 def main(config: DemoConfig) -> DemoResult:
     from agrinerf_ns import compat
     from agrinerf_ns.checkpoint_eval import TruthImages, evaluate_checkpoint
@@ -366,32 +408,7 @@ def main(config: DemoConfig) -> DemoResult:
         side_by_side(sheet, Path(count.folder) / "fruit_map.png", picture, count_caption(count, config.lighting))
     stages["total"] = time.perf_counter() - started
 
-    held_out = int(results.get("eval_views", 0))  # type: ignore[call-overload]
-    table = Table("metric", "compares", "value", title=f"agrinerf-lite on the {config.lighting} {config.scene}, "
-                  f"mean of {held_out} held-out views", title_justify="left")  # fmt: skip
-    for metric in metrics:
-        table.add_row(metric.name, metric.compares, _fmt(metric))
-    CONSOLE.print(table)
-    times = Table("stage", "wall time", title="wall time per stage", title_justify="left")
-    for name, seconds in stages.items():
-        times.add_row(name, "reused (already there)" if seconds is None else f"{seconds:.1f} s")
-    CONSOLE.print(times)
-    commands = follow_up_commands(run.config, config.out, config.video_steps)
-    CONSOLE.print(count_caption(count, config.lighting), soft_wrap=True)
-    CONSOLE.print(f"contact sheet and fruit map: {picture} (the sheet alone: {sheet})", soft_wrap=True)
-    CONSOLE.print(
-        f"count the fruit of your own run (add --truth RAW for a synthetic capture's score):\n"
-        f"  {_command_path('agrinerf-count')} --config outputs/<experiment>/agrinerf-lite/<time>/config.yml "
-        f"--out count/\n(this run: {count.command})",
-        soft_wrap=True,
-    )
-    CONSOLE.print(
-        f"open this run in the viewer (then the address it prints, http://localhost:7007 by default):\n"
-        f"  {commands['viewer']}",
-        soft_wrap=True,
-    )
-    video_note = "" if shutil.which("ffmpeg") else " (needs ffmpeg on PATH: apt-get install ffmpeg)"
-    CONSOLE.print(f"render a video of it{video_note}:\n  {commands['video']}", soft_wrap=True)
+    commands = _print_summary(config, results, metrics, stages, count, run.config, picture, sheet)
 
     result = DemoResult(
         config=str(run.config),
