@@ -38,7 +38,8 @@ def _strings(tree: ast.AST) -> List[ast.Constant]:
 def _spelled(names: Dict[str, str]) -> List[str]:
     """``file:line: 'key' (row)`` for every module but the table that spells one of ``names`` (key -> its row)."""
     found = []
-    table = Path(dataset_format.__file__).resolve()
+    table = (Path(__file__).resolve().parents[1] / "agrinerf_ns" / "dataset_format.py").resolve()  # the checkout's
+    # own file: a non-editable install (CI's) puts the imported module in site-packages
     for path in sorted(_modules().values()):
         if path.resolve() == table:
             continue
