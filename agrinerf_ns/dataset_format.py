@@ -23,6 +23,10 @@ EVENT_STREAM = "events/stream.h5"
 """The dataset's copy of the events inside the frames' windows, at the event camera's pixels, times in microseconds of
 the frames' clock (the event loss reads it: ``agrinerf_ns.dataparsers.event_stream``)."""
 
+FRUIT_BODIES = "fruit_bodies.json"
+"""Where the ``bodies`` rule placed the thermal fruit it decided, one sighting per frame that saw each (frame, centre
+in the poses' world frame, diameter, temperature): what ``agrinerf-count --path bodies`` counts."""
+
 
 @dataclass(frozen=True)
 class FrameFile:

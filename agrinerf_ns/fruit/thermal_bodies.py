@@ -27,7 +27,7 @@ cut the lowest fruit; results/fruit-masks-dark.)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Dict, List, Literal, Optional, Sequence, Tuple
 
 import numpy as np
@@ -200,6 +200,8 @@ class BodyDecision:
     sightings: Dict[str, int]
     """Placed, kept blobs per side (what decided the polarity)."""
     dropped: Dict[str, int]
+    points: Float[np.ndarray, "n 3"] = field(default_factory=lambda: np.zeros((0, 3)))
+    """Where each placed blob lies (world frame of the geometry; NaN rows unplaced)."""
 
 
 def decide_bodies(
@@ -208,7 +210,7 @@ def decide_bodies(
     """Which ``blobs`` are fruit (see the module)."""
     n = len(blobs)
     if n == 0:
-        return BodyDecision(np.zeros(0, bool), np.zeros(0, bool), None, {"warm": 0, "cool": 0}, {})
+        return BodyDecision(np.zeros(0, bool), np.zeros(0, bool), None, {"warm": 0, "cool": 0}, {}, np.zeros((0, 3)))
     points = place_blobs(blobs, geometry, settings)
     signs = np.array([b.sign for b in blobs])
     offsets = np.array([b.offset for b in blobs])
@@ -224,4 +226,47 @@ def decide_bodies(
         "not compact": int((body & plausible & ~compact).sum()),
         "other side": int((candidate & ~side).sum()),
     }
-    return BodyDecision(candidate & side, body, polarity, sightings, dropped)
+    return BodyDecision(candidate & side, body, polarity, sightings, dropped, points)
+
+
+@dataclass(frozen=True)
+class Sighting:
+    """One frame's sighting of a thermal fruit body, placed in 3D (the geometry's world frame)."""
+
+    frame: int
+    """The frame's index in the sequence the bodies were decided on."""
+    centre: Float[np.ndarray, "3"]
+    diameter: float
+    """The blob's disc (radius sqrt(2) sigma) at its distance from the thermal camera, in world units."""
+    temperature: Optional[float]
+    """The median over the blob's disc (degrees C) on a radiometric capture."""
+    origin: Float[np.ndarray, "3"]
+    """The thermal camera's centre at the frame's time."""
+    ray: Float[np.ndarray, "3"]
+    """The unit ray from ``origin`` through the blob's centre."""
+
+
+def fruit_sightings(
+    blobs: Sequence[Blob],
+    decision: BodyDecision,
+    geometry: Sequence[FrameGeometry],
+    celsius: Optional[Sequence[Float[np.ndarray, "h w"]]] = None,
+) -> List[Sighting]:
+    """The blobs decided fruit, each where it was placed; with the median temperature of its disc where ``celsius``
+    (per frame) is given."""
+    found = []
+    for k in np.flatnonzero(decision.fruit):
+        b, centre = blobs[k], decision.points[k]
+        view = geometry[b.frame]
+        origin, ray = (a[0] for a in view.rays(np.array([b.row]), np.array([b.col])))
+        distance = float(np.linalg.norm(centre - origin))
+        diameter = 2.0 * np.sqrt(2.0) * b.sigma * distance / float(view.K[0, 0])
+        temperature = None
+        if celsius is not None:
+            image = celsius[b.frame]
+            rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]]
+            disc = (rows - b.row) ** 2 + (cols - b.col) ** 2 <= 2.0 * b.sigma**2
+            values = image[disc & np.isfinite(image)]
+            temperature = float(np.median(values)) if values.size else None
+        found.append(Sighting(b.frame, np.asarray(centre, np.float64), float(diameter), temperature, origin, ray))
+    return found

@@ -22,7 +22,8 @@ results/fruit-masks), the thermal rule's on the dark garden of seeds 0 and 2 and
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import json
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Dict, List, Literal, Optional, Tuple
 
@@ -32,6 +33,7 @@ from jaxtyping import Bool, Float, Shaped, UInt8
 from scipy import ndimage
 
 from agrinerf_ns.dataset_format import (
+    FRUIT_BODIES,
     FRUIT_MASK,
     FRUIT_MASK_CAMERA,
     IMAGE,
@@ -45,7 +47,7 @@ from agrinerf_ns.fruit.colour_score import fruit_colour
 from agrinerf_ns.fruit.contrast import Polarity, contrast
 from agrinerf_ns.fruit.ellipse import inscribed_ellipse
 from agrinerf_ns.fruit.thermal_blobs import Blob, blob_discs, thermal_blob_list, thermal_blobs
-from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, decide_bodies
+from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, Sighting, decide_bodies, fruit_sightings
 from agrinerf_ns.fruit.yolo import INSTALL_HINT, box_predictor
 from agrinerf_ns.fruit_mask_format import BACKGROUND, FRUIT, UNKNOWN
 from agrinerf_ns.images import write_png
@@ -251,6 +253,9 @@ def make_fruit_masks(
     if thermal_index and config.thermal_rule == "bodies":  # decided across the frames at once
         bodies, record["bodies"] = thermal_body_masks(tmp, frames, thermal_index, config, geometry)
         masks.update(bodies)
+        sightings = record["bodies"].pop("sightings")
+        write_sightings(tmp / FRUIT_BODIES, sightings, frames)
+        record["bodies"]["file"] = FRUIT_BODIES
     for i in thermal_index:
         if i not in masks:
             masks[i] = thermal_mask(*thermal_frame(tmp, frames[i], config), config)
@@ -263,6 +268,18 @@ def make_fruit_masks(
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items()}
     return {"source": f"maker:{maker}", "frames": used, "settings": settings,
             "values": f"0 background, {UNKNOWN} unknown, {FRUIT} fruit", **record}  # fmt: skip
+
+
+def write_sightings(path: Path, sightings: List[Sighting], frames: List[Dict]) -> None:
+    """The thermal fruit bodies' sightings (``FRUIT_BODIES``): each by its frame's RGB file, its centre in the
+    poses' world frame (that of ``transforms.json``), its diameter, temperature and thermal ray."""
+    rows = [
+        {"frame": frames[s.frame][IMAGE.key], "centre": [round(float(v), 6) for v in s.centre],
+         "diameter": round(s.diameter, 6), "temperature": None if s.temperature is None else round(s.temperature, 3),
+         "origin": [round(float(v), 6) for v in s.origin], "ray": [round(float(v), 7) for v in s.ray]}
+        for s in sightings
+    ]  # fmt: skip
+    path.write_text(json.dumps({"sightings": rows}, indent=1) + "\n")
 
 
 def _mask_kind(
@@ -325,8 +342,9 @@ def thermal_body_masks(
     posed = [i for i in index if geometry[i] is not None]
     images = {i: thermal_frame(tmp, frames[i], config) for i in index}
     radiometric = all(TEMPERATURE.key in frames[i] for i in posed)
-    found, record = body_masks([images[i] for i in posed], [geometry[i] for i in posed], config, radiometric)  # type: ignore[misc]
+    found, record, sightings = body_masks([images[i] for i in posed], [geometry[i] for i in posed], config, radiometric)  # type: ignore[misc]
     masks = dict(zip(posed, found, strict=True))
+    record["sightings"] = [replace(s, frame=posed[s.frame]) for s in sightings]  # frames by their index in ``frames``
     for i in index:
         if i not in masks:  # no pose: the frame is dropped; its mask says nothing
             masks[i] = np.full(images[i][0].shape, UNKNOWN, np.uint8)
@@ -338,9 +356,10 @@ def body_masks(
     views: List[FrameGeometry],
     config: MaskMakerConfig,
     radiometric: bool,
-) -> Tuple[List[np.ndarray], dict]:
+) -> Tuple[List[np.ndarray], dict, List[Sighting]]:
     """The ``bodies`` rule on consecutive thermal frames (each its image, degrees C where ``radiometric`` else 8-bit,
-    and where the thermal camera saw) and their views: a mask per frame and the decision's record."""
+    and where the thermal camera saw) and their views: a mask per frame, the decision's record and the fruit
+    sightings placed in 3D (frames by their index in ``images``)."""
     blobs: List[Blob] = []
     for k, (thermal, seen) in enumerate(images):
         blobs += thermal_blob_list(as_float(thermal), seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
@@ -366,4 +385,5 @@ def body_masks(
         "fruit_blobs": int(decision.fruit.sum()),
         "dropped": decision.dropped,
     }
-    return masks, record
+    celsius = [np.where(seen, as_float(thermal), np.nan) for thermal, seen in images] if radiometric else None
+    return masks, record, fruit_sightings(blobs, decision, views, celsius)
