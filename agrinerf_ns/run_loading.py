@@ -51,6 +51,18 @@ class LoadedRun:
     checkpoint: Path
     step: int
 
+    @property
+    def dataset_dir(self) -> Optional[Path]:
+        """The dataset folder the run was trained on (None where its datamanager does not say)."""
+        data = getattr(self.pipeline.datamanager.config, "data", None)
+        return dataset_folder(Path(data)) if data else None
+
+
+def dataset_folder(data: Path) -> Path:
+    """The dataset folder of a run's ``--data``: the folder itself, or the folder of the transforms JSON it names
+    (``ns-train ... --data DATA/transforms.json``, as ``agrinerf-bench`` trains)."""
+    return data.parent if data.suffix == ".json" else data
+
 
 def load_run(config_path: Path, eval_num_rays_per_chunk: Optional[int] = None) -> LoadedRun:
     """Load a saved Nerfstudio run (config.yml + latest checkpoint) with its train and eval datasets, rendering

@@ -29,7 +29,7 @@ from jaxtyping import Float, Int
 from PIL import Image
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from agrinerf_ns.count.render import dataset_folder
+from agrinerf_ns.run_loading import dataset_folder
 
 
 @dataclass

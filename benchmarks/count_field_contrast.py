@@ -19,9 +19,9 @@ import tyro
 from agrinerf_ns.count.field_count import FieldCountConfig, count_model
 from agrinerf_ns.count.fruit_score import align_to_capture, read_truth_fruit, visible_fruit
 from agrinerf_ns.count.pipeline import raw_training_frames
-from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
+from agrinerf_ns.count.render import WorldFrame, relative_path
 from agrinerf_ns.count.volume import field_density, field_features
-from agrinerf_ns.run_loading import trained_run_config
+from agrinerf_ns.run_loading import dataset_folder, trained_run_config
 
 
 @dataclass

@@ -30,7 +30,6 @@ from agrinerf_ns.count.render import (
     RenderedView,
     RenderSet,
     WorldFrame,
-    dataset_folder,
     load_renders,
     require_depth,
     save_renders,
@@ -40,6 +39,7 @@ from agrinerf_ns.fruit.blobs import BlobConfig, detect_blobs, surround_sides
 from agrinerf_ns.lab.count_diagnose import diagnose
 from agrinerf_ns.lab.count_oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
+from agrinerf_ns.run_loading import dataset_folder
 
 IDENTITY = WorldFrame(np.eye(4)[:3], 1.0)
 FRUIT_D = 0.08

@@ -4,6 +4,7 @@ dark (the model's low-light rule) or absent."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Sequence
 
 import pytest
@@ -13,6 +14,7 @@ from nerfstudio.data.scene_box import SceneBox
 
 from agrinerf_ns.count.auto_path import choose_plan
 from agrinerf_ns.count.sources import field_outputs, resolve_source
+from agrinerf_ns.dataset_format import FRUIT_BODIES
 from agrinerf_ns.model.model import AgriNeRFModelConfig
 
 
@@ -53,3 +55,20 @@ def test_a_run_with_a_fruit_head_is_counted_on_its_fruit_channel(rgb_level: floa
     plan = choose_plan(model)
     assert plan.path == "views" and not plan.triangulate and "fruit head" in plan.why
     assert resolve_source("auto", "views", field_outputs(model))[0] == "fruit"
+
+
+@pytest.mark.parametrize(
+    ("rgb_level", "bodies", "path"), [(0.01, True, "bodies"), (0.4, True, "views"), (0.01, False, "views")]
+)
+def test_a_dark_run_whose_dataset_holds_thermal_bodies_is_counted_from_them(
+    tmp_path: Path, rgb_level: float, bodies: bool, path: str
+) -> None:
+    """The bodies path where the RGB frames are dark and the data stage placed thermal fruit bodies; a lit run, or a
+    dark one without them, keeps its fruit channel."""
+    box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
+    metadata = {"modalities": ("rgb", "thermal"), "rgb_level": rgb_level, "fruit_mask_filenames": ["m.png"] * 4}
+    model = AgriNeRFModelConfig(**SMALL_MODEL).setup(scene_box=box, num_train_data=4, metadata=metadata)
+    if bodies:
+        (tmp_path / FRUIT_BODIES).write_text('{"sightings": []}')
+    plan = choose_plan(model, tmp_path)
+    assert plan.path == path, plan

@@ -6,14 +6,19 @@ as a rig does. One frame cannot tell the ground's patches from warm fruit or the
 rule must, for fruit warmer and fruit cooler than the leaves, without being told which.
 """
 
+from pathlib import Path
 from typing import List, Tuple
 
 import numpy as np
 import pytest
 from scipy import ndimage
 
+from agrinerf_ns.count.body_count import BODIES_MERGE_FRACTION, body_detections, read_sightings
+from agrinerf_ns.count.cluster import ClusterConfig, cluster_fruit
+from agrinerf_ns.count.errors import CountInputError
+from agrinerf_ns.dataset_format import FRUIT_BODIES
 from agrinerf_ns.fruit.thermal_bodies import FrameGeometry, decide_polarity
-from agrinerf_ns.process.fruit_mask_makers import FRUIT, MaskMakerConfig, body_masks
+from agrinerf_ns.process.fruit_mask_makers import FRUIT, MaskMakerConfig, body_masks, write_sightings
 
 LEAF, SKY, GROUND, PATCH = 15.0, 0.0, 18.5, 21.0
 CANOPY_Y, CANOPY_Z = 2.0, (0.55, 1.6)
@@ -75,7 +80,7 @@ def _capture(fruit_c: float, frames: int = 14) -> Tuple[List[FrameGeometry], Lis
 def test_bodies_find_the_fruit_not_the_ground_or_the_sky_on_either_side(fruit_c: float, side: str) -> None:
     views, images, truths = _capture(fruit_c)
     seen = np.ones((HEIGHT, WIDTH), bool)
-    masks, record = body_masks([(im, seen) for im in images], views, MaskMakerConfig(), radiometric=True)
+    masks, record, _ = body_masks([(im, seen) for im in images], views, MaskMakerConfig(), radiometric=True)
     assert record["polarity"] == side, record
     fruit = np.stack(masks) == FRUIT
     truth = np.stack(truths)
@@ -99,3 +104,41 @@ def test_the_polarity_needs_a_margin() -> None:
     assert decide_polarity(np.array([1.0] * 30 + [-1.0] * 10), 1.5)[0] == "warm"
     assert decide_polarity(np.array([1.0] * 10 + [-1.0] * 30), 1.5)[0] == "cool"
     assert decide_polarity(np.array([1.0] * 12 + [-1.0] * 10), 1.5)[0] is None  # too close to call: both kept
+
+
+def _fruit_centres() -> np.ndarray:
+    """The true fruit's centres: each disc's centre pushed back by a radius (the sightings place a fruit's front)."""
+    return np.column_stack([FRUIT_XZ[:, 0], np.full(len(FRUIT_XZ), CANOPY_Y - 0.08), FRUIT_XZ[:, 1]])
+
+
+def test_the_bodies_count_the_fruit_in_3d_from_their_sightings(tmp_path: Path) -> None:
+    """The sightings the rule keeps, written to the dataset and read back, cluster into the fruit at their places,
+    at their temperature, without a field: each true fruit found once, nothing on the ground or in the sky."""
+    views, images, _ = _capture(LEAF + 3.0)
+    seen = np.ones((HEIGHT, WIDTH), bool)
+    _, _, sightings = body_masks([(im, seen) for im in images], views, MaskMakerConfig(), radiometric=True)
+    frames = [{"file_path": f"images/{k:06d}.png"} for k in range(len(views))]
+    write_sightings(tmp_path / FRUIT_BODIES, sightings, frames)
+    detections = body_detections(read_sightings(tmp_path), [f["file_path"] for f in frames])
+    assert len(detections) == len(sightings) > 2 * len(FRUIT_XZ)
+    fruit = cluster_fruit(detections, ClusterConfig(min_views=2, merge_fraction=BODIES_MERGE_FRACTION))
+    truth = _fruit_centres()
+    gaps = np.linalg.norm(np.stack([f.centre for f in fruit])[:, None] - truth[None], axis=-1)
+    nearest = gaps.min(axis=1)
+    assert (nearest < 0.04).all(), nearest  # every counted fruit is a fruit, placed within a radius of its disc
+    assert len(set(gaps.argmin(axis=1))) == len(fruit)  # no fruit counted twice
+    shown = np.zeros(len(truth), int)  # frames that show each fruit whole (8 px inside the frame)
+    for view in views:
+        rows, cols, _ = view.project(truth)
+        shown += (rows > 8) & (rows < HEIGHT - 8) & (cols > 8) & (cols < WIDTH - 8)
+    assert len(fruit) >= 0.7 * (shown >= 2).sum(), (len(fruit), shown)
+    assert all(abs(f.temperature - (LEAF + 3.0)) < 0.5 for f in fruit if f.temperature is not None)
+    assert all(0.04 < f.diameter < 0.16 for f in fruit), [f.diameter for f in fruit]
+
+
+def test_a_bad_bodies_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(CountInputError, match=f"{FRUIT_BODIES}: no thermal fruit bodies"):
+        read_sightings(tmp_path)
+    (tmp_path / FRUIT_BODIES).write_text('{"sightings": [{"frame": "images/0.png", "centre": [0, 1], "diameter": 1}]}')
+    with pytest.raises(CountInputError, match=f"{tmp_path / FRUIT_BODIES}: not a fruit bodies file"):
+        read_sightings(tmp_path)

@@ -30,8 +30,10 @@ class ClusterConfig:
     merge_distance: Optional[float] = None
     """Largest distance between two detections of one fruit (dataset units); None: ``merge_fraction`` x the median
     detected diameter."""
-    merge_fraction: float = 0.8
-    """The default merge distance as a fraction of the median detected diameter."""
+    merge_fraction: Optional[float] = None
+    """The default merge distance as a fraction of the median detected diameter; None: the path's own (views 0.8;
+    bodies 1.2, whose sightings scatter more along the thermal rays: chosen on tuning captures,
+    results/fruit-count-dark)."""
     triangulate: bool = False
     """Place each fruit where the rays of its detections meet (`triangulate.py`) rather than at the median of their
     depth-lifted centres; the rendered depth then only groups them. Better where the field's depth at the fruit is
@@ -75,13 +77,18 @@ def cluster_labels(points: Float[np.ndarray, "n 3"], distance: float) -> Int[np.
     return fcluster(tree, t=distance, criterion="distance").astype(np.int64) - 1
 
 
+VIEWS_MERGE_FRACTION = 0.8
+"""The views path's merge fraction (:attr:`ClusterConfig.merge_fraction`)."""
+
+
 def merge_distance(detections: Sequence[LiftedDetection], config: ClusterConfig) -> float:
     """The merge distance of ``config`` for these detections."""
     if config.merge_distance is not None:
         return config.merge_distance
     if not detections:
         return 0.0
-    return config.merge_fraction * float(np.median([d.diameter for d in detections]))
+    fraction = VIEWS_MERGE_FRACTION if config.merge_fraction is None else config.merge_fraction
+    return fraction * float(np.median([d.diameter for d in detections]))
 
 
 Group = Tuple[List[LiftedDetection], Float[np.ndarray, "3"]]

@@ -16,7 +16,7 @@ from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.components import ComponentConfig, find_fruit
 from agrinerf_ns.count.fruit_score import read_truth_fruit
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, raw_training_frames, score_result, write_count
-from agrinerf_ns.count.render import CountInputError, WorldFrame, dataset_folder, relative_path
+from agrinerf_ns.count.render import CountInputError, WorldFrame, relative_path
 from agrinerf_ns.count.row_range import fruit_in_range
 from agrinerf_ns.count.sources import CountSource, field_outputs, resolve_source
 from agrinerf_ns.count.volume import SampledField, VolumeConfig, render_depth_views, sample_field
@@ -113,8 +113,7 @@ def run_field_count(
         CONSOLE.print(f"[yellow]{config_path}: {info['warning']}", soft_wrap=True)
     cameras_ds = frame.to_dataset(cameras.camera_to_worlds[:, :3, 3].cpu().numpy().astype(np.float64))
     result.fruit = fruit_in_range(result.fruit, cameras_ds, score.max_range)
-    data = getattr(datamanager.config, "data", None)
-    dataset = dataset_folder(Path(data)) if data else None
+    dataset = loaded.dataset_dir
     if truth is not None:
         if dataset is None:
             raise CountInputError(f"{config_path}: the run does not name its dataset folder, needed to score it")

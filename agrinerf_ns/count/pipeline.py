@@ -286,7 +286,7 @@ def run_count(
         if truth is not None:
             score_against_truth(renders, result, Path(truth), config)
         _write_outputs(tmp, renders, result, config, truth, run_config or renders_dir)
-    _print_summary(out, result, config.max_range)
+    print_summary(out, result, config.max_range)
     return result
 
 
@@ -383,7 +383,7 @@ def write_count(
     (tmp / "count.json").write_text(json.dumps(report, indent=1, default=str) + "\n")
 
 
-def _print_summary(out: Path, result: CountResult, max_range: Optional[float] = None) -> None:
+def print_summary(out: Path, result: CountResult, max_range: Optional[float] = None) -> None:
     CONSOLE.print(
         f"[bold green]{len(result.fruit)} fruit[/bold green] from {len(result.detections)} detections in "
         f"{len(result.detections_per_view)} views -> {out}",

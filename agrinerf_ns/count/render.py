@@ -189,8 +189,7 @@ def render_loaded_run(
     frame = WorldFrame.read(config_path.parent / "dataparser_transforms.json")
     datamanager = run.pipeline.datamanager
     datasets = {"train": datamanager.train_dataset, "eval": datamanager.eval_dataset}
-    data = getattr(datamanager.config, "data", None)
-    dataset_dir = dataset_folder(Path(data)) if data else None
+    dataset_dir = run.dataset_dir
     views: List[RenderedView] = []
     total = sum(len(datasets[s]) for s in splits if datasets[s] is not None)
     with work_progress(f"rendering {total} views ({run.method})", total) as progress:
@@ -238,22 +237,19 @@ def refined_camera(model: Any, camera: Any, index: int) -> Any:
 
 def pose_record(model: Any, dataset_dir: Optional[Path]) -> Dict[str, str]:
     """Where the views' poses come from (:attr:`RenderSet.poses`)."""
-    source = "unknown"
-    if dataset_dir is not None and (dataset_dir / TRANSFORMS).is_file():
-        try:
-            meta = json.loads((dataset_dir / TRANSFORMS).read_text()).get(BLOCK, {})
-            source = str(meta.get("poses", {}).get("source", "unknown"))
-        except (json.JSONDecodeError, AttributeError):
-            pass
+    source = "unknown" if dataset_dir is None else dataset_pose_source(dataset_dir)
     mode = refinement_mode(model)
     train = "as in the dataset" if mode == "off" else f"refined by the run ({mode})"
     return {"source": source, "train_views": train, "eval_views": "as in the dataset"}
 
 
-def dataset_folder(data: Path) -> Path:
-    """The dataset folder of a run's ``--data``: the folder itself, or the folder of the transforms JSON it names
-    (``ns-train ... --data DATA/transforms.json``, as ``agrinerf-bench`` trains)."""
-    return data.parent if data.suffix == ".json" else data
+def dataset_pose_source(dataset: Path) -> str:
+    """Where a dataset's poses came from (``given``, ``sfm``; ``unknown`` where it does not say)."""
+    try:
+        meta = json.loads((Path(dataset) / TRANSFORMS).read_text()).get(BLOCK, {})
+        return str(meta.get("poses", {}).get("source", "unknown"))
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return "unknown"
 
 
 def relative_path(image: Path, dataset_dir: Path) -> str:

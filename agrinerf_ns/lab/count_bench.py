@@ -29,12 +29,13 @@ from agrinerf_ns.count.pipeline import (
     score_result,
     surface_points,
 )
-from agrinerf_ns.count.render import WorldFrame, dataset_folder, relative_path
+from agrinerf_ns.count.render import WorldFrame, relative_path
 from agrinerf_ns.count.sources import VIEW_ORDER, CountSource
 from agrinerf_ns.lab.count_tables import append_rows, markdown, read_rows
 from agrinerf_ns.lab.layout import BenchLayout, split_scene
 from agrinerf_ns.lab.methods import METHODS
 from agrinerf_ns.lab.results import seed_base
+from agrinerf_ns.run_loading import dataset_folder
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.field_count import FieldCountConfig
