@@ -14,10 +14,10 @@ from jaxtyping import Float, Int
 from agrinerf_ns.images import write_png
 from agrinerf_ns.progress import WorkProgress, work_progress
 from agrinerf_ns.synth import writer as W
+from agrinerf_ns.synth.camera_rig import T0, THERMAL_DELAY, Rig, build_rig, frame_times, heldout_poses, odometry
 from agrinerf_ns.synth.config import MAX_SUBFRAMES, SynthConfig, check_output_dir
 from agrinerf_ns.synth.motion_blur import blur_lengths_px, exposure_average, subframe_count
 from agrinerf_ns.synth.raycast import Hits, PinholeRadtan, cast
-from agrinerf_ns.synth.rig import T0, THERMAL_DELAY, Rig, build_rig, frame_times, heldout_poses, odometry
 from agrinerf_ns.synth.scene import (
     LIGHTING_PRESETS,
     Lighting,
