@@ -13,13 +13,17 @@ import os
 import textwrap
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
 from jaxtyping import Float
 
 from agrinerf_ns.colour import linear_to_srgb, srgb_to_linear
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 Box = Tuple[float, float, float, float]
 """(x0, y0, x1, y1) in the pixels of a view's image."""
@@ -121,30 +125,34 @@ def _scale_runs(columns: Sequence[Column]) -> List[Tuple[ColourScale, int, int]]
     return runs
 
 
-def write_contact_sheet(
-    columns: Sequence[Column],
-    views: Sequence[str],
-    out: Path,
-    title: str = "",
-    caption: str = "",
-    row_prefix: str = "",
-    min_tile_px: int = 240,
-) -> SheetLayout:
-    """Draw the sheet to ``out`` (PNG, written atomically) and its layout to ``out`` with suffix ``.json``; each row
-    is labelled ``row_prefix`` above its view's name."""
-    from matplotlib import colormaps
-    from matplotlib.axes import Axes
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Rectangle
+@dataclass(frozen=True)
+class SheetGrid:
+    """Where the sheet's parts go, in pixels from the top left: figure size, tile size, and the top of the rows."""
 
-    if not columns or not views:
-        raise ValueError("a contact sheet needs at least one column and one view")
-    for column in columns:
-        if len(column.images) != len(views):
-            raise ValueError(f"column {column.title!r} has {len(column.images)} images for {len(views)} views")
+    fig_w: int
+    fig_h: int
+    tile_w: int
+    tile_h: int
+    top: int
+    """Top of the first row of tiles (under the title and the column titles)."""
+    titles: List[str]
+    """Each column's title, wrapped to its tile's width."""
+    caption_lines: List[str]
+
+    def column_x(self, index: int) -> int:
+        """Left edge of column ``index``."""
+        return MARGIN_PX + LABEL_PX + index * (self.tile_w + GAP_PX)
+
+    def row_y(self, index: int) -> int:
+        """Top edge of row ``index``."""
+        return self.top + index * (self.tile_h + GAP_PX)
+
+
+def sheet_grid(
+    columns: Sequence[Column], views: Sequence[str], title: str, caption: str, min_tile_px: int
+) -> SheetGrid:
+    """The grid of a sheet of ``columns`` x ``views``: tiles at least ``min_tile_px`` wide, text bands sized to the
+    wrapped titles and caption."""
     height, width = np.asarray(columns[0].images[0]).shape[:2]
     zoom = tile_scale(width, min_tile_px)
     tile_w, tile_h = width * zoom, height * zoom
@@ -161,67 +169,128 @@ def write_contact_sheet(
         MARGIN_PX * 2 + header_px + title_px + len(views) * tile_h + (len(views) - 1) * GAP_PX
         + (BAR_PX if has_scale else 0) + LINE_PX * len(caption_lines)
     )  # fmt: skip
-    fig = Figure(figsize=(fig_w / DPI, fig_h / DPI), dpi=DPI)
-    FigureCanvasAgg(fig)
+    return SheetGrid(fig_w, fig_h, tile_w, tile_h, MARGIN_PX + header_px + title_px, titles, caption_lines)
 
-    def axes_at(x: int, y: int, w: int, h: int) -> Axes:
-        """Axes at pixel box (x, y, w, h) measured from the top left."""
-        ax = fig.add_axes((x / fig_w, 1.0 - (y + h) / fig_h, w / fig_w, h / fig_h))
-        ax.set_axis_off()
-        return ax
 
-    if title:
-        fig.text(MARGIN_PX / fig_w, 1.0 - (MARGIN_PX + 2) / fig_h, title, fontsize=FONT_PT + 2, weight="bold", va="top")
-    top = MARGIN_PX + header_px + title_px
-    placed: List[Tuple[Axes, str, str]] = []
-    for c, column in enumerate(columns):
-        x = MARGIN_PX + LABEL_PX + c * (tile_w + GAP_PX)
-        fig.text((x + tile_w / 2) / fig_w, 1.0 - (top - 4) / fig_h, titles[c], fontsize=FONT_PT, ha="center",
-                 va="bottom", linespacing=1.15)  # fmt: skip
-        cmap = None
-        if column.scale is not None:
-            cmap = colormaps[column.scale.cmap].with_extremes(bad="0.5")
-        for r, (view, image) in enumerate(zip(views, column.images, strict=True)):
-            y = top + r * (tile_h + GAP_PX)
-            ax = axes_at(x, y, tile_w, tile_h)
-            image = np.asarray(image, dtype=np.float32)
-            if column.scale is None:
-                ax.imshow(np.clip(image[..., :3], 0.0, 1.0), interpolation="nearest")
-            else:
-                ax.imshow(np.squeeze(image), cmap=cmap, vmin=column.scale.vmin, vmax=column.scale.vmax,
-                          interpolation="nearest")  # fmt: skip
-            for x0, y0, x1, y1 in column.boxes[r] if column.boxes is not None else ():
-                ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor="lime", lw=1.2))
-            placed.append((ax, column.title, view))
-    bar_y = top + len(views) * (tile_h + GAP_PX) + 2
+def _axes_at(fig: Figure, grid: SheetGrid, x: int, y: int, w: int, h: int) -> Axes:
+    """Axes at pixel box (x, y, w, h) measured from the top left, without axis lines."""
+    ax = fig.add_axes((x / grid.fig_w, 1.0 - (y + h) / grid.fig_h, w / grid.fig_w, h / grid.fig_h))
+    ax.set_axis_off()
+    return ax
+
+
+Placed = Tuple["Axes", str, str]
+"""An axes drawn on the sheet, the name it is recorded under, and its view ("" for a colour scale)."""
+
+
+def _draw_column(fig: Figure, grid: SheetGrid, index: int, column: Column, views: Sequence[str]) -> List[Placed]:
+    """Column ``index``: its title and one tile per view (false colour when it has a scale), boxes on top."""
+    from matplotlib import colormaps
+    from matplotlib.patches import Rectangle
+
+    x = grid.column_x(index)
+    fig.text((x + grid.tile_w / 2) / grid.fig_w, 1.0 - (grid.top - 4) / grid.fig_h, grid.titles[index],
+             fontsize=FONT_PT, ha="center", va="bottom", linespacing=1.15)  # fmt: skip
+    cmap = None
+    if column.scale is not None:
+        cmap = colormaps[column.scale.cmap].with_extremes(bad="0.5")
+    placed: List[Placed] = []
+    for r, (view, image) in enumerate(zip(views, column.images, strict=True)):
+        ax = _axes_at(fig, grid, x, grid.row_y(r), grid.tile_w, grid.tile_h)
+        image = np.asarray(image, dtype=np.float32)
+        if column.scale is None:
+            ax.imshow(np.clip(image[..., :3], 0.0, 1.0), interpolation="nearest")
+        else:
+            ax.imshow(np.squeeze(image), cmap=cmap, vmin=column.scale.vmin, vmax=column.scale.vmax,
+                      interpolation="nearest")  # fmt: skip
+        for x0, y0, x1, y1 in column.boxes[r] if column.boxes is not None else ():
+            ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, edgecolor="lime", lw=1.2))
+        placed.append((ax, column.title, view))
+    return placed
+
+
+def _draw_scales(fig: Figure, grid: SheetGrid, columns: Sequence[Column], num_views: int) -> List[Placed]:
+    """One labelled colour bar under each run of adjacent columns that share a colour scale."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    bar_y = grid.row_y(num_views) + 2
+    placed: List[Placed] = []
     for scale, first, last in _scale_runs(columns):
-        x = MARGIN_PX + LABEL_PX + first * (tile_w + GAP_PX)
-        w = (last - first + 1) * (tile_w + GAP_PX) - GAP_PX
-        cax = fig.add_axes((x / fig_w, 1.0 - (bar_y + 10) / fig_h, w / fig_w, 10 / fig_h))
+        x = grid.column_x(first)
+        w = (last - first + 1) * (grid.tile_w + GAP_PX) - GAP_PX
+        cax = fig.add_axes((x / grid.fig_w, 1.0 - (bar_y + 10) / grid.fig_h, w / grid.fig_w, 10 / grid.fig_h))
         cmap = colormaps[scale.cmap].with_extremes(bad="0.5")
         bar = fig.colorbar(ScalarMappable(Normalize(scale.vmin, scale.vmax), cmap), cax=cax, orientation="horizontal")
         bar.set_label(scale.label, fontsize=FONT_PT - 1, labelpad=2)
         bar.ax.tick_params(labelsize=FONT_PT - 1, length=2, pad=1)
         placed.append((cax, scale.label, ""))
+    return placed
+
+
+def _draw_row_labels_and_caption(fig: Figure, grid: SheetGrid, views: Sequence[str], row_prefix: str) -> None:
+    """Each row's label left of it (``row_prefix`` above the view's name) and the caption at the bottom."""
     for r, view in enumerate(views):
-        y_mid = top + r * (tile_h + GAP_PX) + tile_h / 2
+        y_mid = grid.row_y(r) + grid.tile_h / 2
         label = f"{row_prefix}\n{view}" if row_prefix else view
         fig.text(
-            (MARGIN_PX + LABEL_PX - 8) / fig_w, 1.0 - y_mid / fig_h, label, fontsize=FONT_PT, ha="right", va="center"
-        )
-    if caption_lines:
-        fig.text(MARGIN_PX / fig_w, (MARGIN_PX + LINE_PX * len(caption_lines)) / fig_h, "\n".join(caption_lines),
-                 fontsize=FONT_PT, va="top", linespacing=1.15)  # fmt: skip
+            (MARGIN_PX + LABEL_PX - 8) / grid.fig_w, 1.0 - y_mid / grid.fig_h, label, fontsize=FONT_PT, ha="right",
+            va="center",
+        )  # fmt: skip
+    if grid.caption_lines:
+        fig.text(MARGIN_PX / grid.fig_w, (MARGIN_PX + LINE_PX * len(grid.caption_lines)) / grid.fig_h,
+                 "\n".join(grid.caption_lines), fontsize=FONT_PT, va="top", linespacing=1.15)  # fmt: skip
 
-    fig.canvas.draw()
-    layout = SheetLayout(int(round(fig_w)), int(round(fig_h)), [c.title for c in columns], list(views))
+
+def _measured_layout(
+    grid: SheetGrid, columns: Sequence[Column], views: Sequence[str], placed: List[Placed]
+) -> SheetLayout:
+    """The layout of the drawn sheet: each placed axes' box as the renderer put it."""
+    layout = SheetLayout(int(round(grid.fig_w)), int(round(grid.fig_h)), [c.title for c in columns], list(views))
     for ax, name, view in placed:
         x0, y0, x1, y1 = ax.get_window_extent().extents
-        box = (int(round(x0)), int(round(fig_h - y1)), int(round(x1)), int(round(fig_h - y0)))
+        box = (int(round(x0)), int(round(grid.fig_h - y1)), int(round(x1)), int(round(grid.fig_h - y0)))
         if view:
             layout.panels.append(Panel(name, view, box))
         else:
             layout.scales[name] = box
+    return layout
+
+
+def write_contact_sheet(
+    columns: Sequence[Column],
+    views: Sequence[str],
+    out: Path,
+    title: str = "",
+    caption: str = "",
+    row_prefix: str = "",
+    min_tile_px: int = 240,
+) -> SheetLayout:
+    """Draw the sheet to ``out`` (PNG, written atomically) and its layout to ``out`` with suffix ``.json``; each row
+    is labelled ``row_prefix`` above its view's name."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    if not columns or not views:
+        raise ValueError("a contact sheet needs at least one column and one view")
+    for column in columns:
+        if len(column.images) != len(views):
+            raise ValueError(f"column {column.title!r} has {len(column.images)} images for {len(views)} views")
+    grid = sheet_grid(columns, views, title, caption, min_tile_px)
+    fig = Figure(figsize=(grid.fig_w / DPI, grid.fig_h / DPI), dpi=DPI)
+    FigureCanvasAgg(fig)
+    if title:
+        fig.text(MARGIN_PX / grid.fig_w, 1.0 - (MARGIN_PX + 2) / grid.fig_h, title, fontsize=FONT_PT + 2,
+                 weight="bold", va="top")  # fmt: skip
+    placed: List[Placed] = []
+    for c, column in enumerate(columns):
+        placed += _draw_column(fig, grid, c, column, views)
+    placed += _draw_scales(fig, grid, columns, len(views))
+    _draw_row_labels_and_caption(fig, grid, views, row_prefix)
+
+    fig.canvas.draw()
+    layout = _measured_layout(grid, columns, views, placed)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.png")

@@ -17,7 +17,7 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.synth import SynthConfig
-from agrinerf_ns.synth.rig import build_rig
+from agrinerf_ns.synth.camera_rig import build_rig
 
 
 @dataclass

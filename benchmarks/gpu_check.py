@@ -115,46 +115,23 @@ def _step_figure(path: Path) -> Callable[[], str]:
     return read
 
 
-def steps(args: Args) -> List[Step]:
-    """Every command of the check, in order."""
-    out, raw, data = args.out, args.out / "raw", args.out / "data"
-    plan = [
-        Step(
-            "scene",
-            [
-                "agrinerf-synth",
-                "--out",
-                str(raw),
-                "--scene",
-                "garden",
-                "--lighting",
-                "dusk",
-                "--seed",
-                "0",
-                "--views",
-                "24",
-                "--no-preview",
-            ],
-        ),  # fmt: skip
+def _data_steps(raw: Path, data: Path) -> List[Step]:
+    """The synthetic scene and its dataset."""
+    synth = ["--scene", "garden", "--lighting", "dusk", "--seed", "0", "--views", "24", "--no-preview"]
+    masks = ["--poses", "given", "--fruit-mask-maker", "auto"]
+    return [
+        Step("scene", ["agrinerf-synth", "--out", str(raw), *synth]),
         # fruit masks from the frames (colour where lit, thermal where dark): the fruit head trains, its CUDA path runs
-        Step(
-            "dataset",
-            [
-                "agrinerf-process",
-                "--raw",
-                str(raw),
-                "--out",
-                str(data),
-                "--poses",
-                "given",
-                "--fruit-mask-maker",
-                "auto",
-            ],
-        ),
+        Step("dataset", ["agrinerf-process", "--raw", str(raw), "--out", str(data), *masks]),
     ]
+
+
+def _train_steps(args: Args) -> List[Step]:
+    """Training and evaluating every preset."""
+    plan = []
     for preset in args.presets:
         plan.append(Step(f"train {preset}", ["ns-train", *_train_args(args, preset)]))
-        metrics = out / "eval" / f"{preset}.json"
+        metrics = args.out / "eval" / f"{preset}.json"
         plan.append(
             Step(
                 f"eval {preset}",
@@ -162,49 +139,34 @@ def steps(args: Args) -> List[Step]:
                 _json_figure(metrics, "results", "psnr"),
             )
         )
-    paper = _config(args, args.presets[0])
-    plan += [
-        Step(
-            "render",
-            [
-                "ns-render",
-                "dataset",
-                "--load-config",
-                str(paper),
-                "--rendered-output-names",
-                "rgb",
-                "thermal",
-                "--output-path",
-                str(out / "renders"),
-            ],
-        ),  # fmt: skip
+    return plan
+
+
+def _paper_steps(args: Args, raw: Path, data: Path) -> List[Step]:
+    """The stock render and the count on the paper preset's run, and the step time against tensorf."""
+    out, paper = args.out, _config(args, args.presets[0])
+    render = ["--rendered-output-names", "rgb", "thermal", "--output-path", str(out / "renders")]
+    timing = ["--data", str(data), "--out", str(out / "step-speed"), "--runs", "tensorf", "agrinerf", "agrinerf@7000"]
+    timing += ["--steps", "20", "--rays-per-batch", str(args.rays_per_batch)]
+    return [
+        Step("render", ["ns-render", "dataset", "--load-config", str(paper), *render]),
         Step(
             "count",
             ["agrinerf-count", "--config", str(paper), "--out", str(out / "count"), "--truth", str(raw)],
             _count_figure(out / "count" / "count.json"),
-        ),  # fmt: skip
+        ),
         Step(
             "step time",
-            [
-                sys.executable,
-                str(BENCH / "bench_step_interleaved.py"),
-                "--data",
-                str(data),
-                "--out",
-                str(out / "step-speed"),
-                "--runs",
-                "tensorf",
-                "agrinerf",
-                "agrinerf@7000",
-                "--steps",
-                "20",
-                "--rays-per-batch",
-                str(args.rays_per_batch),
-            ],  # fmt: skip
+            [sys.executable, str(BENCH / "bench_step_interleaved.py"), *timing],
             _step_figure(out / "step-speed" / "step_speed.md"),
         ),
     ]
-    return plan
+
+
+def steps(args: Args) -> List[Step]:
+    """Every command of the check, in order."""
+    raw, data = args.out / "raw", args.out / "data"
+    return _data_steps(raw, data) + _train_steps(args) + _paper_steps(args, raw, data)
 
 
 def _parsers() -> Dict[str, Callable[[List[str]], object]]:

@@ -25,7 +25,7 @@ from agrinerf_ns.run_loading import load_run
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory: pytest.TempPathFactory):
     """Tiny dark orchard (12 frames, so the processed dataset has held-out test frames) and its processed dataset."""
-    from agrinerf_ns.process.pipeline import ProcessConfig, process_capture
+    from agrinerf_ns.process.capture_to_dataset import ProcessConfig, process_capture
     from agrinerf_ns.synth import generate_capture
     from agrinerf_ns.synth.config import SynthConfig
 

@@ -12,8 +12,8 @@ from helpers.process_raw_fixture import make_raw_capture
 
 from agrinerf_ns.dataparsers.agrinerf_dataparser import AgriNeRFDataParserConfig
 from agrinerf_ns.dataparsers.agrinerf_dataset import AgriNeRFDataset
+from agrinerf_ns.process.capture_to_dataset import ProcessConfig, process_capture
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.pipeline import ProcessConfig, process_capture
 
 
 def _masks(raw: Path, folder: Path, value: int = 255) -> None:

@@ -181,8 +181,8 @@ def test_a_narrower_field_of_view_shows_fruit_larger_and_a_bad_one_is_refused() 
     import pytest
 
     from agrinerf_ns.synth import SynthConfig
+    from agrinerf_ns.synth.camera_rig import build_rig
     from agrinerf_ns.synth.config import SynthConfigError
-    from agrinerf_ns.synth.rig import build_rig
 
     wide, narrow = build_rig(SynthConfig()), build_rig(SynthConfig(rgb_hfov_deg=22.0, thermal_hfov_deg=20.0))
     assert (

@@ -10,10 +10,10 @@ import pytest
 from PIL import Image
 
 from agrinerf_ns.synth import SynthConfig, SynthConfigError, generate_capture
+from agrinerf_ns.synth.camera_rig import frame_times
 from agrinerf_ns.synth.capture import make_scene
 from agrinerf_ns.synth.motion_blur import blur_lengths_px, exposure_average, subframe_count
 from agrinerf_ns.synth.raycast import cast
-from agrinerf_ns.synth.rig import frame_times
 from agrinerf_ns.synth.scene import LIGHTING_PRESETS
 
 

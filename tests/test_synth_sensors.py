@@ -10,9 +10,9 @@ import pytest
 from PIL import Image
 
 from agrinerf_ns.synth import SynthConfig, generate_capture
+from agrinerf_ns.synth.camera_rig import THERMAL_DELAY, frame_times
 from agrinerf_ns.synth.capture import event_luminance, event_times, make_scene
 from agrinerf_ns.synth.raycast import cast
-from agrinerf_ns.synth.rig import THERMAL_DELAY, frame_times
 from agrinerf_ns.synth.scene import FRUIT, LEAF, LIGHTING_PRESETS, SKY, material_of
 from agrinerf_ns.synth.sensors import EventSimulator
 

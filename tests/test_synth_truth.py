@@ -12,9 +12,9 @@ import yaml
 from PIL import Image
 
 from agrinerf_ns.synth import SynthConfig, generate_capture
+from agrinerf_ns.synth.camera_rig import THERMAL_DELAY
 from agrinerf_ns.synth.capture import make_scene
 from agrinerf_ns.synth.raycast import cast
-from agrinerf_ns.synth.rig import THERMAL_DELAY
 
 CONFIG = SynthConfig.tiny(seed=2, width=96, height=72, views=4)
 

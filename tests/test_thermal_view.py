@@ -20,8 +20,8 @@ from agrinerf_ns.model.model import AgriNeRFModel, AgriNeRFModelConfig
 from agrinerf_ns.model.thermal_view import PREFIX
 from agrinerf_ns.process import ProcessConfig, process_capture
 from agrinerf_ns.synth import SynthConfig, generate_capture
+from agrinerf_ns.synth.camera_rig import THERMAL_DELAY
 from agrinerf_ns.synth.capture import make_scene
-from agrinerf_ns.synth.rig import THERMAL_DELAY
 from agrinerf_ns.trajectory import CameraTrajectory
 
 CENTRE = (0.07, -0.012, 0.004)

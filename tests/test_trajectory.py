@@ -8,7 +8,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from agrinerf_ns.synth import SynthConfig
-from agrinerf_ns.synth.rig import build_rig, frame_times
+from agrinerf_ns.synth.camera_rig import build_rig, frame_times
 from agrinerf_ns.trajectory import CameraTrajectory, TrajectoryError, exposure_subtimes
 
 

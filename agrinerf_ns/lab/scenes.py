@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tuple[Path, Path]:
     """Synthesise and process one scene (cached under ``root``); returns (raw capture, dataset)."""
     from agrinerf_ns.process import ProcessConfig, process_capture
-    from agrinerf_ns.process.pipeline import recorded_plane_depth
+    from agrinerf_ns.process.capture_to_dataset import recorded_plane_depth
     from agrinerf_ns.synth import SynthConfig, generate_capture
 
     scene, _, lighting = name.partition("-")

@@ -9,8 +9,8 @@ from typing import Annotated
 
 import tyro
 
+from agrinerf_ns.process.capture_to_dataset import CONSOLE, ProcessConfig, process_capture
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.pipeline import CONSOLE, ProcessConfig, process_capture
 
 
 @dataclass

@@ -21,7 +21,7 @@ import tyro
 
 from agrinerf_ns.dataset_format import TRANSFORMS
 from agrinerf_ns.process import align, readers
-from agrinerf_ns.process.pipeline import recorded_plane_depth
+from agrinerf_ns.process.capture_to_dataset import recorded_plane_depth
 from agrinerf_ns.process.poses import match_times, opencv_to_opengl, pose_errors
 from agrinerf_ns.trajectory import read_tum
 

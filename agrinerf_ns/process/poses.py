@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Literal, Optional, Tuple
+from typing import Any, Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 from jaxtyping import Float
@@ -165,21 +165,13 @@ class SfmResult:
         return int(self.registered.sum())
 
 
-def run_sfm(
-    images: List[np.ndarray],
-    K: Float[np.ndarray, "3 3"],
-    work_dir: Path,
-    config: SfmConfig,
-    source: str,
-    masks: Optional[List[np.ndarray]] = None,
-) -> SfmResult:
-    """Feature extraction, matching and incremental mapping with pycolmap on ``images`` (uint8, one shared
-    pinhole camera with known, fixed intrinsics K). The largest reconstruction is kept."""
+def write_sfm_images(
+    images: List[np.ndarray], masks: Optional[List[np.ndarray]], work_dir: Path, upscale: int
+) -> Tuple[Path, Optional[Path], List[str]]:
+    """``images`` (RGB or grey uint8) as PNGs for COLMAP, upscaled by ``upscale``, and their ``masks`` (COLMAP's
+    ``<image name>.png``): the image folder, the mask folder (None without masks) and the image names in order."""
     import cv2
-    import pycolmap
 
-    pycolmap.logging.minloglevel = 1 if config.verbose else 2  # glog: 0 INFO, 1 WARNING, 2 ERROR
-    work_dir.mkdir(parents=True, exist_ok=True)
     img_dir = work_dir / "images"
     img_dir.mkdir(exist_ok=True)
     mask_dir = work_dir / "masks"
@@ -187,28 +179,40 @@ def run_sfm(
     for i, img in enumerate(images):
         name = f"{i:06d}.png"
         big = img
-        if config.upscale > 1:
-            big = cv2.resize(img, None, fx=config.upscale, fy=config.upscale, interpolation=cv2.INTER_CUBIC)
+        if upscale > 1:
+            big = cv2.resize(img, None, fx=upscale, fy=upscale, interpolation=cv2.INTER_CUBIC)
         if big.ndim == 3:
             big = cv2.cvtColor(big, cv2.COLOR_RGB2BGR)
         cv2.imwrite(str(img_dir / name), big)
         if masks is not None:
             mask_dir.mkdir(exist_ok=True)
-            m = cv2.resize(masks[i], None, fx=config.upscale, fy=config.upscale, interpolation=cv2.INTER_NEAREST)
+            m = cv2.resize(masks[i], None, fx=upscale, fy=upscale, interpolation=cv2.INTER_NEAREST)
             cv2.imwrite(str(mask_dir / f"{name}.png"), m)
         names.append(name)
-    h, w = images[0].shape[:2]
+    return img_dir, (mask_dir if masks is not None else None), names
+
+
+def extract_and_match(
+    db_path: Path,
+    img_dir: Path,
+    mask_dir: Optional[Path],
+    K: Float[np.ndarray, "3 3"],
+    config: SfmConfig,
+    num_frames: int,
+) -> None:
+    """SIFT features of every image in ``img_dir`` (one shared pinhole camera, ``K`` scaled by ``config.upscale``)
+    and their verified matches, into a new COLMAP database at ``db_path``."""
+    import pycolmap
+
     s = config.upscale
     # COLMAP puts the centre of the top-left pixel at (0.5, 0.5); OpenCV and Kalibr at (0, 0)
     fx, fy, cx, cy = K[0, 0] * s, K[1, 1] * s, (K[0, 2] + 0.5) * s, (K[1, 2] + 0.5) * s
-
-    db_path = work_dir / "database.db"
     if db_path.exists():
         db_path.unlink()
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "PINHOLE"
     reader.camera_params = f"{fx},{fy},{cx},{cy}"
-    if masks is not None:
+    if mask_dir is not None:
         reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = config.max_num_features
@@ -223,7 +227,7 @@ def run_sfm(
     matching.num_threads = config.num_threads
     verification = pycolmap.TwoViewGeometryOptions()
     verification.min_num_inliers = config.min_num_matches
-    if sfm_matching(config, len(images)) == "exhaustive":
+    if sfm_matching(config, num_frames) == "exhaustive":
         # every pair (on short thermal sequences sequential pairing registered far fewer frames in trials here)
         pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification)
     else:
@@ -235,7 +239,13 @@ def run_sfm(
             db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
         )
 
-    (work_dir / "sparse").mkdir(exist_ok=True)
+
+def map_reconstructions(db_path: Path, img_dir: Path, sparse_dir: Path, config: SfmConfig) -> Dict[int, Any]:
+    """The reconstructions (id -> pycolmap.Reconstruction) of ``config.mapper`` from the matches in ``db_path``;
+    the intrinsics stay fixed."""
+    import pycolmap
+
+    sparse_dir.mkdir(exist_ok=True)
     if config.mapper == "global":
         gopts = pycolmap.GlobalPipelineOptions()
         gopts.min_num_matches = config.min_num_matches
@@ -244,17 +254,20 @@ def run_sfm(
         ba = gopts.mapper.bundle_adjustment
         ba.refine_focal_length = ba.refine_principal_point = ba.refine_extra_params = False
         ba.ceres.use_gpu = False
-        recs = pycolmap.global_mapping(db_path, img_dir, work_dir / "sparse", options=gopts)
-    else:
-        pipeline = pycolmap.IncrementalPipelineOptions()
-        pipeline.min_num_matches = config.min_num_matches
-        pipeline.ba_refine_focal_length = False
-        pipeline.ba_refine_principal_point = False
-        pipeline.ba_refine_extra_params = False
-        pipeline.num_threads = config.num_threads
-        pipeline.random_seed = config.seed
-        recs = pycolmap.incremental_mapping(db_path, img_dir, work_dir / "sparse", options=pipeline)
-    n = len(images)
+        return pycolmap.global_mapping(db_path, img_dir, sparse_dir, options=gopts)
+    pipeline = pycolmap.IncrementalPipelineOptions()
+    pipeline.min_num_matches = config.min_num_matches
+    pipeline.ba_refine_focal_length = False
+    pipeline.ba_refine_principal_point = False
+    pipeline.ba_refine_extra_params = False
+    pipeline.num_threads = config.num_threads
+    pipeline.random_seed = config.seed
+    return pycolmap.incremental_mapping(db_path, img_dir, sparse_dir, options=pipeline)
+
+
+def largest_reconstruction_poses(recs: Dict[int, Any], names: List[str], source: str) -> SfmResult:
+    """Camera-to-world of the frames ``names`` registered in the reconstruction with the most registered images."""
+    n = len(names)
     c2w = np.tile(np.eye(4), (n, 1, 1))
     registered = np.zeros(n, dtype=bool)
     if not recs:
@@ -269,6 +282,27 @@ def run_sfm(
         c2w[i] = np.linalg.inv(w2c)
         registered[i] = True
     return SfmResult(c2w, registered, source)
+
+
+def run_sfm(
+    images: List[np.ndarray],
+    K: Float[np.ndarray, "3 3"],
+    work_dir: Path,
+    config: SfmConfig,
+    source: str,
+    masks: Optional[List[np.ndarray]] = None,
+) -> SfmResult:
+    """Feature extraction, matching and incremental mapping with pycolmap on ``images`` (uint8, one shared
+    pinhole camera with known, fixed intrinsics K). The largest reconstruction is kept."""
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 1 if config.verbose else 2  # glog: 0 INFO, 1 WARNING, 2 ERROR
+    work_dir.mkdir(parents=True, exist_ok=True)
+    img_dir, mask_dir, names = write_sfm_images(images, masks, work_dir, config.upscale)
+    db_path = work_dir / "database.db"
+    extract_and_match(db_path, img_dir, mask_dir, K, config, len(images))
+    recs = map_reconstructions(db_path, img_dir, work_dir / "sparse", config)
+    return largest_reconstruction_poses(recs, names, source)
 
 
 def sfm_matching(config: SfmConfig, num_frames: int) -> str:

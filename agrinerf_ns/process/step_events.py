@@ -13,10 +13,10 @@ from rich.progress import Progress
 from agrinerf_ns.dataset_format import EVENT_MASK, EVENT_STREAM, EVENT_SUMS, EVENTS
 from agrinerf_ns.images import to_uint8, write_png
 from agrinerf_ns.process import align, event_frames, readers
-from agrinerf_ns.process.capture import Capture
 from agrinerf_ns.process.config import ProcessConfig
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.event_h5 import EventH5Writer
+from agrinerf_ns.process.raw_capture import Capture
 
 
 def write_event_frames(

@@ -14,10 +14,10 @@ from rich.progress import Progress
 
 from agrinerf_ns.dataset_format import IMAGE, THERMAL, THERMAL_MASK, TRAJECTORY
 from agrinerf_ns.process import poses as pose_utils
-from agrinerf_ns.process.capture import Capture, frame_interval
 from agrinerf_ns.process.config import ProcessConfig
 from agrinerf_ns.process.console import CONSOLE
 from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.raw_capture import Capture, frame_interval
 from agrinerf_ns.trajectory import read_tum, write_tum
 
 

@@ -11,8 +11,8 @@ from rich.progress import Progress
 
 from agrinerf_ns.images import write_png
 from agrinerf_ns.process import align, readers
-from agrinerf_ns.process.capture import Capture
 from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.raw_capture import Capture
 
 
 def write_rgb_frames(cap: Capture, tmp: Path, frames: List[Dict], progress: Progress) -> None:

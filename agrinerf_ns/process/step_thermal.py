@@ -16,9 +16,9 @@ from agrinerf_ns.dataset_format import TEMPERATURE, THERMAL, THERMAL_MASK, THERM
 from agrinerf_ns.images import write_png
 from agrinerf_ns.process import align, flir, radiometric, readers
 from agrinerf_ns.process import poses as pose_utils
-from agrinerf_ns.process.capture import Capture, frame_interval
 from agrinerf_ns.process.config import ProcessConfig
 from agrinerf_ns.process.errors import RawInputError
+from agrinerf_ns.process.raw_capture import Capture, frame_interval
 from agrinerf_ns.process.thermal_rescale import ThermalRescaler
 
 

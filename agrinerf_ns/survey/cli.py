@@ -31,7 +31,7 @@ from agrinerf_ns.orchestrate.jobs import (
     run_jobs,
     write_failures,
 )
-from agrinerf_ns.process.pipeline import ProcessConfig
+from agrinerf_ns.process.capture_to_dataset import ProcessConfig
 from agrinerf_ns.survey import stages, table
 
 CONSOLE = Console()

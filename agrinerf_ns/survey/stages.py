@@ -24,7 +24,7 @@ from typing import Any, Dict, Optional, Tuple
 
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.dataset_format import TRANSFORMS
-from agrinerf_ns.process.pipeline import ProcessConfig
+from agrinerf_ns.process.capture_to_dataset import ProcessConfig
 
 STAGES = ("process", "train", "count")
 CAPTURES_DIR = "captures"

@@ -6,7 +6,7 @@ import dataclasses
 import math
 from contextlib import nullcontext
 from pathlib import Path
-from typing import List, Optional, Tuple, Union
+from typing import Dict, List, Optional, Tuple, Union
 
 import numpy as np
 from jaxtyping import Float, Int
@@ -14,10 +14,10 @@ from jaxtyping import Float, Int
 from agrinerf_ns.images import write_png
 from agrinerf_ns.progress import WorkProgress, work_progress
 from agrinerf_ns.synth import writer as W
+from agrinerf_ns.synth.camera_rig import T0, THERMAL_DELAY, Rig, build_rig, frame_times, heldout_poses, odometry
 from agrinerf_ns.synth.config import MAX_SUBFRAMES, SynthConfig, check_output_dir
 from agrinerf_ns.synth.motion_blur import blur_lengths_px, exposure_average, subframe_count
 from agrinerf_ns.synth.raycast import Hits, PinholeRadtan, cast
-from agrinerf_ns.synth.rig import T0, THERMAL_DELAY, Rig, build_rig, frame_times, heldout_poses, odometry
 from agrinerf_ns.synth.scene import (
     LIGHTING_PRESETS,
     Lighting,
@@ -173,19 +173,59 @@ def blur_summary(enabled: bool, exposure_s: float, subframes: List[int], blur_px
     }
 
 
-def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool = False) -> Path:
-    """Write the raw capture of ``config`` to ``out`` (absent or empty) atomically; returns ``out``.
+CAPTURE_DIRS = (
+    "rgb",
+    "thermal",
+    "events",
+    "truth/rgb_clean",
+    "truth/depth",
+    "truth/boxes_yolo",
+    "truth/fruit_ids",
+    "truth/temperature",
+    "truth/heldout/boxes_yolo",
+    "truth/heldout/temperature",
+)
+"""The folders of a raw capture and its truth, relative to the capture folder."""
 
-    Raises :class:`~agrinerf_ns.synth.config.SynthConfigError` for invalid arguments, before writing anything.
-    """
-    config.validate()
-    out = Path(out)
-    check_output_dir(out)
+
+@dataclasses.dataclass
+class CaptureSetup:
+    """What every frame of one capture shares: the scene, rig and lighting, the RGB exposure and gains, and the
+    sensors' noise streams (each drawn in frame order, so a capture is reproducible from ``config.seed``)."""
+
+    config: SynthConfig
+    scene: Scene
+    rig: Rig
+    light: Lighting
+    times: Float[np.ndarray, " n"]
+    gain: float
+    """Gain of the camera frames: auto-exposed on the first frame, capped (dark stays dark)."""
+    truth_gain: float
+    """Gain of the truth frames: auto-exposed as if the scene were lit by the bright preset."""
+    exposure: float
+    rng_rgb: np.random.Generator
+    rng_th: np.random.Generator
+    thermal: ThermalSensor
+    ev_substeps: int
+    ev_step_px: float
+
+
+@dataclasses.dataclass
+class PathRecord:
+    """What the frames along the path leave for the files written after them."""
+
+    poses: List[np.ndarray] = dataclasses.field(default_factory=list)
+    boxes: List[List[BOX]] = dataclasses.field(default_factory=list)
+    subframes: List[int] = dataclasses.field(default_factory=list)
+    blur_px: List[np.ndarray] = dataclasses.field(default_factory=list)
+
+
+def capture_setup(config: SynthConfig) -> CaptureSetup:
+    """The scene, rig, exposure gains, sensors and event sampling of ``config`` (validated)."""
     scene, rig = make_scene(config)
     light = LIGHTING_PRESETS[config.lighting]
     times = frame_times(config)
     cam_rgb, cam_th = rig.cams["rgb"], rig.cams["thermal"]
-    H, Wd = cam_rgb.height, cam_rgb.width
     s = config.rgb_supersample
 
     # exposure from the first frame: the truth is auto-exposed, the camera is capped (dark stays dark)
@@ -194,128 +234,164 @@ def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool 
     gain, truth_gain = exposure_gains(
         float(rec709_luminance(rad0.reshape(-1, 3)).mean()), float(rec709_luminance(rad0_bright.reshape(-1, 3)).mean())
     )
-
-    exposure = config.rgb_exposure_s(light.exposure_s)
-    rng_rgb = np.random.default_rng([config.seed, 41])
-    rng_th = np.random.default_rng([config.seed, 43])
-    thermal = ThermalSensor.create(cam_th.width, cam_th.height, np.random.default_rng([config.seed, 44]))
     ev_substeps, ev_step_px = event_substeps(config, scene, rig)
-    n_steps = 2 * config.views + config.num_heldout + len(event_times(config, ev_substeps))
+    return CaptureSetup(
+        config=config,
+        scene=scene,
+        rig=rig,
+        light=light,
+        times=times,
+        gain=gain,
+        truth_gain=truth_gain,
+        exposure=config.rgb_exposure_s(light.exposure_s),
+        rng_rgb=np.random.default_rng([config.seed, 41]),
+        rng_th=np.random.default_rng([config.seed, 43]),
+        thermal=ThermalSensor.create(cam_th.width, cam_th.height, np.random.default_rng([config.seed, 44])),
+        ev_substeps=ev_substeps,
+        ev_step_px=ev_step_px,
+    )
+
+
+def write_rgb_frame(setup: CaptureSetup, dirs: Dict[str, Path], name: str, t: float, record: PathRecord) -> None:
+    """The RGB camera frame at ``t`` (blurred over its exposure, noisy) and its truth: sharp frame, depth, surface
+    temperature, fruit ids and boxes; its pose, boxes, sub-frames and blur streaks go to ``record``."""
+    config, scene, rig, light = setup.config, setup.scene, setup.rig, setup.light
+    cam_rgb = rig.cams["rgb"]
+    H, Wd = cam_rgb.height, cam_rgb.width
+    s, exposure = config.rgb_supersample, setup.exposure
+    T = rig.pose(t)
+    record.poses.append(T)
+    rad, hits = render_radiance(scene, cam_rgb, T, light, s)
+    np.save(dirs["truth/temperature"] / name.replace(".png", ".npy"), truth_temperature(scene, hits, cam_rgb, s))
+    if s > 1:
+        hits = cast(scene.prims, cam_rgb, T)
+    # the camera frame integrates the moving scene over its exposure; the truth stays the sharp frame at t
+    t_a, t_b = t - exposure / 2, t + exposure / 2
+    streak = blur_lengths_px(cam_rgb, hits, rig.pose(t_a), rig.pose(t_b))
+    record.blur_px.append(streak)
+    p95 = float(np.percentile(streak, 95))
+    k = config.blur_subframes or subframe_count(p95, config.blur_step_px, MAX_SUBFRAMES)
+    record.subframes.append(k if exposure > 0 else 1)
+    rad_cam = exposure_average(lambda tj: render_radiance(scene, cam_rgb, rig.pose(tj), light, s)[0],
+                               rad, t, exposure, record.subframes[-1])  # fmt: skip
+    write_png(dirs["rgb"] / name, noisy_rgb(rad_cam, setup.gain, setup.rng_rgb))
+    write_png(dirs["truth/rgb_clean"] / name, clean_rgb(rad, setup.truth_gain))
+    np.save(dirs["truth/depth"] / name.replace(".png", ".npy"), hits.zdepth.reshape(H, Wd).astype(np.float32))
+    ids = fruit_ids(scene, hits).reshape(H, Wd)
+    write_png(dirs["truth/fruit_ids"] / name, (ids + 1).astype(np.uint16))
+    boxes = fruit_boxes(ids, config.min_box_pixels)
+    record.boxes.append(boxes)
+    (dirs["truth/boxes_yolo"] / name.replace(".png", ".txt")).write_text(W.yolo_lines(boxes, Wd, H))
+
+
+def write_thermal_frame(setup: CaptureSetup, dirs: Dict[str, Path], name: str, t: float) -> None:
+    """The thermal frame triggered with the RGB frame at ``t``: its own pose, supersampled temperatures -> counts."""
+    cam_th = setup.rig.cams["thermal"]
+    T_th = setup.rig.pose(t + THERMAL_DELAY, "thermal")
+    hth = cast(setup.scene.prims, cam_th.scaled(THERMAL_SUPERSAMPLE), T_th)
+    temp = temperature(setup.scene, hth).reshape(cam_th.height * THERMAL_SUPERSAMPLE, -1)
+    write_png(dirs["thermal"] / name, setup.thermal.counts(temp, THERMAL_SUPERSAMPLE, setup.rng_th))
+
+
+def write_path_frames(
+    setup: CaptureSetup, dirs: Dict[str, Path], tmp: Path, prog: Optional[WorkProgress]
+) -> PathRecord:
+    """Every RGB and thermal frame along the path with its truth, their timestamps, the poses and the odometry."""
+    config, times = setup.config, setup.times
+    cam_rgb = setup.rig.cams["rgb"]
+    names = [W.frame_name(i) for i in range(config.views)]
+    record = PathRecord()
+    for i, t in enumerate(times):
+        write_rgb_frame(setup, dirs, names[i], float(t), record)
+        if prog is not None:
+            prog.advance()
+        write_thermal_frame(setup, dirs, names[i], float(t))
+        if prog is not None:
+            prog.advance()
+
+    exposure = setup.exposure
+    W.write_timestamps(dirs["rgb"] / "timestamps.txt", names, times)
+    W.write_exposures(dirs["rgb"] / "exposures.txt", names, times - exposure / 2, times + exposure / 2)
+    W.write_timestamps(dirs["thermal"] / "timestamps.txt", names, times + THERMAL_DELAY)
+    W.write_tum(tmp / "truth" / "poses.txt", times, record.poses)
+    W.write_tum(tmp / "odometry.txt", times, odometry(record.poses, config.seed))
+    W.write_json(tmp / "truth" / "boxes_coco.json", W.coco(record.boxes, names, cam_rgb.width, cam_rgb.height))
+    return record
+
+
+def write_heldout_views(setup: CaptureSetup, dirs: Dict[str, Path], tmp: Path, prog: Optional[WorkProgress]) -> None:
+    """The held-out truth views off the path: sharp frame, surface temperature, fruit boxes, poses."""
+    config, scene, light = setup.config, setup.scene, setup.light
+    cam_rgb = setup.rig.cams["rgb"]
+    H, Wd = cam_rgb.height, cam_rgb.width
+    s = config.rgb_supersample
+    ho_times, ho_poses, ho_boxes = [], [], []
+    ho_names = [W.frame_name(k) for k in range(config.num_heldout)]
+    for k, (t, T) in enumerate(heldout_poses(setup.rig, config)):
+        rad, hits = render_radiance(scene, cam_rgb, T, light, s)
+        np.save(
+            dirs["truth/heldout/temperature"] / ho_names[k].replace(".png", ".npy"),
+            truth_temperature(scene, hits, cam_rgb, s),
+        )
+        if s > 1:
+            hits = cast(scene.prims, cam_rgb, T)
+        write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, setup.truth_gain))
+        boxes = fruit_boxes(fruit_ids(scene, hits).reshape(H, Wd), config.min_box_pixels)
+        ho_boxes.append(boxes)
+        (dirs["truth/heldout/boxes_yolo"] / ho_names[k].replace(".png", ".txt")).write_text(W.yolo_lines(boxes, Wd, H))
+        ho_times.append(t)
+        ho_poses.append(T)
+        if prog is not None:
+            prog.advance()
+    W.write_tum(tmp / "truth" / "heldout" / "poses.txt", ho_times, ho_poses)
+    W.write_json(tmp / "truth" / "heldout" / "boxes_coco.json", W.coco(ho_boxes, ho_names, Wd, H))
+
+
+def scene_record(setup: CaptureSetup, path: PathRecord, num_events: int) -> dict:
+    """truth/scene.json: the config, the scene's temperatures, the sensors' calibration and sampling."""
+    config = setup.config
+    return {
+        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
+        "temperatures_c": {k: round(v, 4) for k, v in setup.scene.temps.items()},
+        "thermal_counts": {
+            "offset_at_0c": RADIOMETRIC_CALIBRATION["counts_at_0c"],
+            "per_kelvin": RADIOMETRIC_CALIBRATION["counts_per_kelvin"],
+        },
+        "rgb_gain": setup.gain,
+        "truth_gain": setup.truth_gain,
+        "num_events": num_events,
+        "event_sampling": {"substeps_per_frame": setup.ev_substeps, "step_px_p95": round(setup.ev_step_px, 4)},
+        "rgb_motion_blur": blur_summary(config.motion_blur, setup.exposure, path.subframes, path.blur_px),
+        "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
+        "world": "x along the row, y across it away from the rig, z up; metres",
+    }
+
+
+def generate_capture(config: SynthConfig, out: Union[str, Path], progress: bool = False) -> Path:
+    """Write the raw capture of ``config`` to ``out`` (absent or empty) atomically; returns ``out``.
+
+    Raises :class:`~agrinerf_ns.synth.config.SynthConfigError` for invalid arguments, before writing anything.
+    """
+    config.validate()
+    out = Path(out)
+    check_output_dir(out)
+    setup = capture_setup(config)
+    n_steps = 2 * config.views + config.num_heldout + len(event_times(config, setup.ev_substeps))
 
     label = f"synth {config.scene}/{config.lighting} ({config.views} frames, then events)"
     ctx = work_progress(label, n_steps) if progress else nullcontext()
     with ctx as prog, W.atomic_folder(out) as tmp:
-        dirs = {
-            d: tmp / d
-            for d in (
-                "rgb",
-                "thermal",
-                "events",
-                "truth/rgb_clean",
-                "truth/depth",
-                "truth/boxes_yolo",
-                "truth/fruit_ids",
-                "truth/temperature",
-                "truth/heldout/boxes_yolo",
-                "truth/heldout/temperature",
-            )
-        }
+        dirs = {d: tmp / d for d in CAPTURE_DIRS}
         for d in dirs.values():
             d.mkdir(parents=True, exist_ok=True)
-        names = [W.frame_name(i) for i in range(config.views)]
-        poses, boxes_all, subframes, blur_px = [], [], [], []
-        for i, t in enumerate(times):
-            T = rig.pose(float(t))
-            poses.append(T)
-            rad, hits = render_radiance(scene, cam_rgb, T, light, s)
-            np.save(
-                dirs["truth/temperature"] / names[i].replace(".png", ".npy"), truth_temperature(scene, hits, cam_rgb, s)
-            )
-            if s > 1:
-                hits = cast(scene.prims, cam_rgb, T)
-            # the camera frame integrates the moving scene over its exposure; the truth stays the sharp frame at t
-            t_a, t_b = float(t) - exposure / 2, float(t) + exposure / 2
-            streak = blur_lengths_px(cam_rgb, hits, rig.pose(t_a), rig.pose(t_b))
-            blur_px.append(streak)
-            p95 = float(np.percentile(streak, 95))
-            k = config.blur_subframes or subframe_count(p95, config.blur_step_px, MAX_SUBFRAMES)
-            subframes.append(k if exposure > 0 else 1)
-            rad_cam = exposure_average(lambda tj: render_radiance(scene, cam_rgb, rig.pose(tj), light, s)[0],
-                                       rad, float(t), exposure, subframes[-1])  # fmt: skip
-            write_png(dirs["rgb"] / names[i], noisy_rgb(rad_cam, gain, rng_rgb))
-            write_png(dirs["truth/rgb_clean"] / names[i], clean_rgb(rad, truth_gain))
-            np.save(
-                dirs["truth/depth"] / names[i].replace(".png", ".npy"), hits.zdepth.reshape(H, Wd).astype(np.float32)
-            )
-            ids = fruit_ids(scene, hits).reshape(H, Wd)
-            write_png(dirs["truth/fruit_ids"] / names[i], (ids + 1).astype(np.uint16))
-            boxes = fruit_boxes(ids, config.min_box_pixels)
-            boxes_all.append(boxes)
-            (dirs["truth/boxes_yolo"] / names[i].replace(".png", ".txt")).write_text(W.yolo_lines(boxes, Wd, H))
-            if prog is not None:
-                prog.advance()
+        path = write_path_frames(setup, dirs, tmp, prog)
+        write_heldout_views(setup, dirs, tmp, prog)
 
-            # thermal: same trigger, own pose, supersampled temperatures -> counts
-            T_th = rig.pose(float(t) + THERMAL_DELAY, "thermal")
-            hth = cast(scene.prims, cam_th.scaled(THERMAL_SUPERSAMPLE), T_th)
-            temp = temperature(scene, hth).reshape(cam_th.height * THERMAL_SUPERSAMPLE, -1)
-            write_png(dirs["thermal"] / names[i], thermal.counts(temp, THERMAL_SUPERSAMPLE, rng_th))
-            if prog is not None:
-                prog.advance()
-
-        W.write_timestamps(dirs["rgb"] / "timestamps.txt", names, times)
-        W.write_exposures(dirs["rgb"] / "exposures.txt", names, times - exposure / 2, times + exposure / 2)
-        W.write_timestamps(dirs["thermal"] / "timestamps.txt", names, times + THERMAL_DELAY)
-        W.write_tum(tmp / "truth" / "poses.txt", times, poses)
-        W.write_tum(tmp / "odometry.txt", times, odometry(poses, config.seed))
-        W.write_json(tmp / "truth" / "boxes_coco.json", W.coco(boxes_all, names, Wd, H))
-
-        # held-out truth views off the path
-        ho_times, ho_poses, ho_boxes = [], [], []
-        ho_names = [W.frame_name(k) for k in range(config.num_heldout)]
-        for k, (t, T) in enumerate(heldout_poses(rig, config)):
-            rad, hits = render_radiance(scene, cam_rgb, T, light, s)
-            np.save(
-                dirs["truth/heldout/temperature"] / ho_names[k].replace(".png", ".npy"),
-                truth_temperature(scene, hits, cam_rgb, s),
-            )
-            if s > 1:
-                hits = cast(scene.prims, cam_rgb, T)
-            write_png(tmp / "truth" / "heldout" / ho_names[k], clean_rgb(rad, truth_gain))
-            boxes = fruit_boxes(fruit_ids(scene, hits).reshape(H, Wd), config.min_box_pixels)
-            ho_boxes.append(boxes)
-            (dirs["truth/heldout/boxes_yolo"] / ho_names[k].replace(".png", ".txt")).write_text(
-                W.yolo_lines(boxes, Wd, H)
-            )
-            ho_times.append(t)
-            ho_poses.append(T)
-            if prog is not None:
-                prog.advance()
-        W.write_tum(tmp / "truth" / "heldout" / "poses.txt", ho_times, ho_poses)
-        W.write_json(tmp / "truth" / "heldout" / "boxes_coco.json", W.coco(ho_boxes, ho_names, Wd, H))
-
-        ex, ey, et, ep = simulate_events(config, scene, rig, light, ev_substeps, prog)
-        ecam = rig.cams["event"]
+        ex, ey, et, ep = simulate_events(config, setup.scene, setup.rig, setup.light, setup.ev_substeps, prog)
+        ecam = setup.rig.cams["event"]
         W.write_events(dirs["events"] / "events.h5", ex, ey, et, ep, ecam.width, ecam.height)
 
-        W.write_yaml(tmp / "calib.yaml", W.camchain(rig.cams, rig.T_c_c0, RADIOMETRIC_CALIBRATION))
-        W.write_json(tmp / "truth" / "fruits.json", scene.fruits)
-        W.write_json(
-            tmp / "truth" / "scene.json",
-            {
-                "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()},
-                "temperatures_c": {k: round(v, 4) for k, v in scene.temps.items()},
-                "thermal_counts": {
-                    "offset_at_0c": RADIOMETRIC_CALIBRATION["counts_at_0c"],
-                    "per_kelvin": RADIOMETRIC_CALIBRATION["counts_per_kelvin"],
-                },
-                "rgb_gain": gain,
-                "truth_gain": truth_gain,
-                "num_events": int(et.size),
-                "event_sampling": {"substeps_per_frame": ev_substeps, "step_px_p95": round(ev_step_px, 4)},
-                "rgb_motion_blur": blur_summary(config.motion_blur, exposure, subframes, blur_px),
-                "pixel_convention": "OpenCV: the centre of pixel column i is at u = i",
-                "world": "x along the row, y across it away from the rig, z up; metres",
-            },
-        )
+        W.write_yaml(tmp / "calib.yaml", W.camchain(setup.rig.cams, setup.rig.T_c_c0, RADIOMETRIC_CALIBRATION))
+        W.write_json(tmp / "truth" / "fruits.json", setup.scene.fruits)
+        W.write_json(tmp / "truth" / "scene.json", scene_record(setup, path, int(et.size)))
     return out

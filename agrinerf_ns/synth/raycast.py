@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Tuple
+from typing import List, Tuple
 
 import numpy as np
 from jaxtyping import Bool, Float, Int
@@ -217,68 +217,71 @@ def _tighten_ellipsoids(
         bhi[:ne, axis] = np.where(ok, np.minimum(bhi[:ne, axis], hi + 1e-9), bhi[:ne, axis])
 
 
-def cast(prims: Primitives, cam: PinholeRadtan, T_wc: Float[np.ndarray, "4 4"]) -> Hits:
-    """Render the nearest hit of every pixel of ``cam`` at camera-to-world pose ``T_wc`` (OpenCV axes)."""
-    R_wc, origin = T_wc[:3, :3], T_wc[:3, 3]
-    dirs = cam.ray_dirs @ R_wc.T
-    pix, prim = _pairs(prims, cam, R_wc.T, origin)
+Candidates = Tuple[Int[np.ndarray, " k"], Float[np.ndarray, " k"], Int[np.ndarray, " k"]]
+"""(pixel, ray distance, primitive) of each ray-primitive intersection in front of the camera."""
+
+
+def _ellipsoid_hits(
+    prims: Primitives, origin: np.ndarray, dirs: np.ndarray, pix: np.ndarray, prim: np.ndarray
+) -> Candidates:
+    """Intersections of the (pixel, ellipsoid) pairs ``pix``, ``prim``: the entry, or the exit from inside."""
+    inv_r = 1.0 / prims.ell_radii
+    oc = (origin - prims.ell_center) * inv_r  # (e, 3)
+    d = dirs[pix] * inv_r[prim]
+    o = oc[prim]
+    a = np.einsum("ij,ij->i", d, d)
+    b = np.einsum("ij,ij->i", o, d)
+    c = np.einsum("ij,ij->i", o, o) - 1.0
+    disc = b * b - a * c
+    ok = disc > 0
+    sq = np.sqrt(np.where(ok, disc, 0.0))
+    t = (-b - sq) / a
+    t = np.where(t > NEAR, t, (-b + sq) / a)  # camera inside the ellipsoid: take the exit
+    ok &= t > NEAR
+    return pix[ok], t[ok], prim[ok]
+
+
+def _cylinder_hits(
+    prims: Primitives, origin: np.ndarray, dirs: np.ndarray, pix: np.ndarray, cyl: np.ndarray
+) -> Candidates:
+    """Intersections of the (pixel, cylinder) pairs ``pix``, ``cyl`` (cylinder indices, from 0) with the finite
+    cylinders' sides; the primitives returned are numbered after the ellipsoids."""
     ne = prims.num_ellipsoids
-    cand_pix, cand_t, cand_prim = [], [], []
+    axis = prims.cyl_p1 - prims.cyl_p0
+    length = np.linalg.norm(axis, axis=1)
+    axis = axis / length[:, None]
+    w0 = origin - prims.cyl_p0  # (c, 3)
+    a_ = axis[cyl]
+    d = dirs[pix]
+    w = w0[cyl]
+    dd = np.einsum("ij,ij->i", d, a_)
+    wa = np.einsum("ij,ij->i", w, a_)
+    dp = d - dd[:, None] * a_
+    wp = w - wa[:, None] * a_
+    A = np.einsum("ij,ij->i", dp, dp)
+    B = np.einsum("ij,ij->i", wp, dp)
+    C = np.einsum("ij,ij->i", wp, wp) - prims.cyl_radius[cyl] ** 2
+    disc = B * B - A * C
+    ok = (disc > 0) & (A > 1e-12)
+    t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(A > 1e-12, A, 1.0)
+    s = wa + t * dd
+    ok &= (t > NEAR) & (s >= 0) & (s <= length[cyl])
+    return pix[ok], t[ok], cyl[ok] + ne
 
-    is_e = prim < ne
-    pe, ie = pix[is_e], prim[is_e]
-    if pe.size:
-        inv_r = 1.0 / prims.ell_radii
-        oc = (origin - prims.ell_center) * inv_r  # (e, 3)
-        d = dirs[pe] * inv_r[ie]
-        o = oc[ie]
-        a = np.einsum("ij,ij->i", d, d)
-        b = np.einsum("ij,ij->i", o, d)
-        c = np.einsum("ij,ij->i", o, o) - 1.0
-        disc = b * b - a * c
-        ok = disc > 0
-        sq = np.sqrt(np.where(ok, disc, 0.0))
-        t = (-b - sq) / a
-        t = np.where(t > NEAR, t, (-b + sq) / a)  # camera inside the ellipsoid: take the exit
-        ok &= t > NEAR
-        cand_pix.append(pe[ok])
-        cand_t.append(t[ok])
-        cand_prim.append(ie[ok])
 
-    pc, ic = pix[~is_e], prim[~is_e] - ne
-    if pc.size:
-        axis = prims.cyl_p1 - prims.cyl_p0
-        length = np.linalg.norm(axis, axis=1)
-        axis = axis / length[:, None]
-        w0 = origin - prims.cyl_p0  # (c, 3)
-        a_ = axis[ic]
-        d = dirs[pc]
-        w = w0[ic]
-        dd = np.einsum("ij,ij->i", d, a_)
-        wa = np.einsum("ij,ij->i", w, a_)
-        dp = d - dd[:, None] * a_
-        wp = w - wa[:, None] * a_
-        A = np.einsum("ij,ij->i", dp, dp)
-        B = np.einsum("ij,ij->i", wp, dp)
-        C = np.einsum("ij,ij->i", wp, wp) - prims.cyl_radius[ic] ** 2
-        disc = B * B - A * C
-        ok = (disc > 0) & (A > 1e-12)
-        t = (-B - np.sqrt(np.where(ok, disc, 0.0))) / np.where(A > 1e-12, A, 1.0)
-        s = wa + t * dd
-        ok &= (t > NEAR) & (s >= 0) & (s <= length[ic])
-        cand_pix.append(pc[ok])
-        cand_t.append(t[ok])
-        cand_prim.append(ic[ok] + ne)
-
-    # ground plane z = 0 (the camera is above it)
+def _nearest_hits(
+    origin: np.ndarray, dirs: np.ndarray, candidates: List[Tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> Tuple[Float[np.ndarray, " n"], Int[np.ndarray, " n"]]:
+    """Per pixel, the distance and primitive of the nearest of the ground plane z = 0 (the camera is above it) and
+    ``candidates`` (ties: the lower primitive); the sky where nothing is hit."""
     dz = dirs[:, 2]
     tg = np.where(dz < -1e-9, -origin[2] / np.where(dz < -1e-9, dz, -1.0), np.inf)
     t_best = tg.copy()
     prim_best = np.where(np.isfinite(tg), GROUND, SKY).astype(np.int64)
-    if cand_pix:
-        cp = np.concatenate(cand_pix)
-        ct = np.concatenate(cand_t)
-        cq = np.concatenate(cand_prim)
+    if candidates:
+        cp = np.concatenate([c[0] for c in candidates])
+        ct = np.concatenate([c[1] for c in candidates])
+        cq = np.concatenate([c[2] for c in candidates])
         order = np.lexsort((cq, ct, cp))
         cp, ct, cq = cp[order], ct[order], cq[order]
         first = np.ones(cp.size, bool)
@@ -287,9 +290,14 @@ def cast(prims: Primitives, cam: PinholeRadtan, T_wc: Float[np.ndarray, "4 4"]) 
         closer = ct < t_best[cp]
         t_best[cp[closer]] = ct[closer]
         prim_best[cp[closer]] = cq[closer]
+    return t_best, prim_best
 
-    hit = np.isfinite(t_best)
-    points = origin + np.where(hit, t_best, 0.0)[:, None] * dirs
+
+def _surface_normals(
+    prims: Primitives, points: Float[np.ndarray, "n 3"], prim_best: Int[np.ndarray, " n"]
+) -> Float[np.ndarray, "n 3"]:
+    """Unit surface normals at ``points`` on the primitives ``prim_best`` (zero on the sky)."""
+    ne = prims.num_ellipsoids
     normals = np.zeros_like(points)
     normals[prim_best == GROUND] = (0.0, 0.0, 1.0)
     m = (prim_best >= 0) & (prim_best < ne)
@@ -305,5 +313,27 @@ def cast(prims: Primitives, cam: PinholeRadtan, T_wc: Float[np.ndarray, "4 4"]) 
         rel = points[m] - prims.cyl_p0[q]
         nrm = rel - np.einsum("ij,ij->i", rel, axis)[:, None] * axis
         normals[m] = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+    return normals
+
+
+def cast(prims: Primitives, cam: PinholeRadtan, T_wc: Float[np.ndarray, "4 4"]) -> Hits:
+    """Render the nearest hit of every pixel of ``cam`` at camera-to-world pose ``T_wc`` (OpenCV axes)."""
+    R_wc, origin = T_wc[:3, :3], T_wc[:3, 3]
+    dirs = cam.ray_dirs @ R_wc.T
+    pix, prim = _pairs(prims, cam, R_wc.T, origin)
+    ne = prims.num_ellipsoids
+    candidates: List[Tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    is_e = prim < ne
+    pe, ie = pix[is_e], prim[is_e]
+    if pe.size:
+        candidates.append(_ellipsoid_hits(prims, origin, dirs, pe, ie))
+    pc, ic = pix[~is_e], prim[~is_e] - ne
+    if pc.size:
+        candidates.append(_cylinder_hits(prims, origin, dirs, pc, ic))
+    t_best, prim_best = _nearest_hits(origin, dirs, candidates)
+
+    hit = np.isfinite(t_best)
+    points = origin + np.where(hit, t_best, 0.0)[:, None] * dirs
+    normals = _surface_normals(prims, points, prim_best)
     zdepth = np.where(hit, t_best * cam.ray_dirs[:, 2], np.inf)
     return Hits(t_best, prim_best, points, normals, dirs, zdepth, cam.width, cam.height)

@@ -11,8 +11,8 @@ import numpy as np
 import yaml
 
 from agrinerf_ns.atomic import atomic_output_dir
+from agrinerf_ns.synth.camera_rig import quat_from_R
 from agrinerf_ns.synth.raycast import PinholeRadtan
-from agrinerf_ns.synth.rig import quat_from_R
 
 
 def frame_name(i: int) -> str:

@@ -1,6 +1,6 @@
 """Raw capture folder -> tri-modal dataset folder (:func:`process_capture`).
 
-The capture is checked first (:mod:`~agrinerf_ns.process.capture`), then each modality has its step: RGB
+The capture is checked first (:mod:`~agrinerf_ns.process.raw_capture`), then each modality has its step: RGB
 (:mod:`~agrinerf_ns.process.step_rgb`), thermal (:mod:`~agrinerf_ns.process.step_thermal`), events
 (:mod:`~agrinerf_ns.process.step_events`) and poses (:mod:`~agrinerf_ns.process.step_poses`); this module runs them
 into a temporary folder and writes the frames that keep a pose and the metadata as ``transforms.json``.
@@ -18,7 +18,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from agrinerf_ns.dataset_format import BLOCK, EXPOSURE_END, EXPOSURE_START, FRAME_FILES, IMAGE, TIMESTAMP, TRANSFORMS
 from agrinerf_ns.process import exposure
 from agrinerf_ns.process import poses as pose_utils
-from agrinerf_ns.process.capture import Capture, inspect_capture
 from agrinerf_ns.process.config import ProcessConfig
 from agrinerf_ns.process.console import CONSOLE
 from agrinerf_ns.process.dataset_writer import (
@@ -30,6 +29,7 @@ from agrinerf_ns.process.dataset_writer import (
 )
 from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks, thermal_views
+from agrinerf_ns.process.raw_capture import Capture, inspect_capture
 from agrinerf_ns.process.readers import read_triggers
 from agrinerf_ns.process.step_events import write_event_frames
 from agrinerf_ns.process.step_fruit_masks import check_fruit_masks, find_fruit_masks, write_fruit_masks
