@@ -1,7 +1,7 @@
-"""``agrinerf-bench --profile count`` end to end at the tiny scale: a capture synthesised at the profile's fields of
-view, processed with the product's own fruit masks, trained through Nerfstudio's Trainer, counted from its fruit
-channel on the whole capture and on the row, beside the truth-mask oracle, and the seeds-by-lightings table written
-from those counts: every figure in it read back against the runs' own count.json."""
+"""``agrinerf-bench --profile count`` end to end, shrunk (12 views of 96x72, 300 steps): a capture synthesised at the
+profile's fields of view, processed with the product's own fruit masks, trained through Nerfstudio's Trainer, counted
+from its fruit channel on the whole capture and on the row, beside the truth-mask oracle, and the seeds-by-lightings
+table written from those counts: every figure in it read back against the runs' own count.json."""
 
 from __future__ import annotations
 
@@ -38,8 +38,9 @@ def _cell(value: float, measure: str) -> str:
 @pytest.mark.slow
 def test_the_count_profile_writes_its_table_from_the_runs_count_json(tmp_path: Path, monkeypatch) -> None:
     count = PROFILES["count"]
-    small = replace(count, views=10, width=64, height=48, steps={**count.steps, "agrinerf-lite": 40}, eval_views=1,
-                    rays_per_batch=256)  # fmt: skip
+    # shrunk to 12 views of 96x72 and 300 steps: the smallest at which the trained run counts fruit of its own
+    small = replace(count, views=12, width=96, height=72, steps={**count.steps, "agrinerf-lite": 300}, eval_views=1,
+                    rays_per_batch=512)  # fmt: skip
     monkeypatch.setitem(PROFILES, "count", small)  # the profile's own fields of view, masks, counting and ranges
     out = tmp_path / "bench"
     main(BenchConfig(out=out, profile="count", seeds=(100,), scenes=("garden-bright",)))
@@ -77,10 +78,53 @@ def test_the_count_profile_writes_its_table_from_the_runs_count_json(tmp_path: P
         expected = [_cell(_measure(report, measure), measure) for _, measure in SEED_COLUMNS]
         assert cells == expected, (label, cells, expected)  # one seed: the mean is the run's own, no spread
     oracle = reports[ORACLE]["score"]
-    assert oracle["precision"] == 1.0 or oracle["counted"] == 0  # true fruit pixels count nothing but fruit
+    assert oracle["precision"] == 1.0 and oracle["f1_countable"] > 0  # true fruit pixels count fruit and nothing else
 
     summary = {r["label"]: r for r in csv.DictReader((out / "summary.csv").open())}
     assert float(summary["agrinerf-lite"]["f1_countable"]) == pytest.approx(
         reports["agrinerf-lite"]["score"]["f1_countable"], abs=5e-4
     )
     assert summary["agrinerf-lite"]["f1_countable_sd"] == "nan" and summary["agrinerf-lite"]["runs"] == "1"
+
+
+def _row_count(out: Path, seed: int, key: str, f1: float, count_error: float) -> None:
+    """A row count as the bench lays it out: OUT/seed-<S>/count-row/garden-bright/<key>/row/count.json beside the
+    capture's truth/scene.json."""
+    raw = out / f"seed-{seed}" / "scenes" / "garden-bright" / "raw"
+    (raw / "truth").mkdir(parents=True, exist_ok=True)
+    (raw / "truth" / "scene.json").write_text(json.dumps({"config": {"scene": "garden", "lighting": "bright",
+                                                                      "seed": seed}}))  # fmt: skip
+    folder = out / f"seed-{seed}" / "count-row" / "garden-bright" / key / "row"
+    folder.mkdir(parents=True)
+    score = {"counted": 10, "visible": 20, "countable": 16, "well_seen": 12, "f1": f1 - 0.1, "precision": 0.9,
+             "recall": 0.5, "count_error": -0.5, "f1_countable": f1, "recall_countable": 0.5,
+             "count_error_countable": count_error, "f1_well_seen": f1 + 0.1, "recall_well_seen": 0.6,
+             "count_error_well_seen": -0.2, "mean_temperature_error": 0.5}  # fmt: skip
+    tiers = {
+        t: {d: {"f1": f1 + float(d)} for d in ("0.05", "0.1", "0.15")} for t in ("visible", "countable", "well_seen")
+    }
+    report = {"truth": "/moved/away", "score": score, "tiers": tiers, "max_range": 2.4}
+    (folder / "count.json").write_text(json.dumps(report))
+
+
+def test_the_table_pools_seeds_of_a_role_and_keeps_tuning_seeds_apart(tmp_path: Path) -> None:
+    from agrinerf_ns.lab.count_row_bench import write_bench_tables
+
+    out = tmp_path / "bench"
+    _row_count(out, 100, "agrinerf-lite", 0.6, -0.2)
+    _row_count(out, 101, "agrinerf-lite", 0.8, 0.0)
+    _row_count(out, 100, "oracle", 0.9, -0.1)
+    _row_count(out, 0, "agrinerf-lite", 0.1, -0.9)
+    rows = write_bench_tables(out, "header")
+    assert [(r["seed"], r["label"]) for r in rows] == [(0, "agrinerf-lite"), (100, "agrinerf-lite"), (100, ORACLE),
+                                                        (101, "agrinerf-lite")]  # fmt: skip
+    text = (out / "counts.md").read_text()
+    # mean and sample standard deviation over the two reporting seeds; the tier at 0.10 and 0.15 m from count.json
+    reporting = "| garden | bright | reporting 100 101 | agrinerf-lite | 2 | 0.70 ± 0.14 | 0.80 ± 0.14 | 0.85 ± 0.14 "
+    assert reporting + "| -10% ± 14 | 0.60 ± 0.14 |" in text
+    assert "| garden | bright | tuning 0 | agrinerf-lite | 1 | 0.10 | 0.20 | 0.25 | -90% | 0.00 |" in text
+    assert text.index("| reporting 100 | " + ORACLE) < text.index("| tuning 0 |")  # the oracle beside its seeds
+    assert "Tuning seeds (below 100; the project chooses its settings on 0-2): 0." in text
+    assert "garden 2.4 m" in text
+    with pytest.raises(FileNotFoundError, match="no row counts"):
+        write_bench_tables(tmp_path / "empty", "header")

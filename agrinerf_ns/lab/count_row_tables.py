@@ -91,6 +91,11 @@ SEED_COLUMNS: Tuple[Tuple[str, str], ...] = (
 """The seeds table's columns (header, measure): the countable tier (the targets') first."""
 
 
+def seed_of(row: Row) -> int:
+    """A row's scene seed."""
+    return int(str(row["seed"]))
+
+
 def seed_groups(rows: Sequence[Row]) -> Dict[Tuple[str, str, str, str], List[Row]]:
     """Rows per (scene, lighting, role, label), in the order of the table: scene, lighting, reporting seeds before
     tuning seeds, the trained rows before the oracle's."""
@@ -102,7 +107,7 @@ def seed_groups(rows: Sequence[Row]) -> Dict[Tuple[str, str, str, str], List[Row
         scene, lighting, role, label = key
         return scene, LIGHTING_ORDER.get(lighting, 9), lighting, role != "reporting", label.startswith("oracle"), label
 
-    return {key: sorted(groups[key], key=lambda r: int(r["seed"])) for key in sorted(groups, key=order)}  # type: ignore[arg-type]
+    return {key: sorted(groups[key], key=seed_of) for key in sorted(groups, key=order)}
 
 
 def spread(values: Sequence[float]) -> Dict[str, float]:
@@ -143,7 +148,7 @@ def seed_table(rows: Sequence[Row], header: str, reporting_from: int) -> str:
     """The seeds-by-lightings table (markdown): per scene, lighting and seed role the trained runs' row counts and
     the oracle's beside them, each measure's mean ± standard deviation over the seeds; the anchors under it; then
     every run."""
-    seeds = {role: sorted({int(r["seed"]) for r in rows if r["role"] == role}) for role in ("tuning", "reporting")}  # type: ignore[call-overload]
+    seeds = {role: sorted({seed_of(r) for r in rows if r["role"] == role}) for role in ("tuning", "reporting")}
     named = {role: ", ".join(map(str, s)) or "none" for role, s in seeds.items()}
     ranges = sorted({(str(r["scene"]), f"{r['max_range']:g}") for r in rows if isinstance(r["max_range"], float)})
     lines = [
