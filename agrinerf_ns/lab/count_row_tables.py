@@ -31,9 +31,9 @@ ANCHORS = (
     "Published anchors, each at its own match rule and on trees seen from all sides (this rig sees one side of a "
     "row): FruitNeRF (Meyer et al. 2024) F1 0.95 on synthetic trees with true masks and 0.88 with SAM masks, a "
     "counted fruit matched within 0.15 of Nerfstudio's normalised units (tens of centimetres on its trees); "
-    "FruitNeRF++ (Meyer et al. 2025) 0.93 on synthetic trees and 0.77 on a real apple row (Fuji-SfM's annotated "
-    "fruit), by the FruitNeRF protocol it extends (its distance not restated in its paper's abstract; not checked "
-    "here); Fuji-SfM 0.88. Compare them with the 0.15 m columns."
+    "FruitNeRF++ (Meyer et al. 2025) 0.93 on synthetic trees and 0.77 on a real apple row (the Fuji-SfM row and its "
+    "annotated fruit), by its paper's own match rule, not restated here (not yet checked against the paper); "
+    "Fuji-SfM 0.88. Compare them with the 0.15 m columns."
 )
 """The field's published counts, beside every table (their figures as their papers give them)."""
 
