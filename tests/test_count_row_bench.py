@@ -128,3 +128,20 @@ def test_the_table_pools_seeds_of_a_role_and_keeps_tuning_seeds_apart(tmp_path: 
     assert "garden 2.4 m" in text
     with pytest.raises(FileNotFoundError, match="no row counts"):
         write_bench_tables(tmp_path / "empty", "header")
+
+
+def test_a_cached_dataset_without_the_profiles_fruit_masks_is_processed_again(tmp_path: Path) -> None:
+    from agrinerf_ns.lab.scenes import prepare_scene
+
+    tiny = replace(PROFILES["tiny"], views=6)
+    raw, data = prepare_scene("garden-bright", tiny, 0, tmp_path)
+    transforms = data / "transforms.json"
+    assert "fruit_masks" not in json.loads(transforms.read_text())["agrinerf"]
+    stamp = (raw / "calib.yaml").stat().st_mtime_ns
+    prepare_scene("garden-bright", replace(tiny, process={"fruit_mask_maker": "auto"}), 0, tmp_path)
+    meta = json.loads(transforms.read_text())
+    assert meta["agrinerf"]["fruit_masks"]["source"] == "maker:auto"  # the same capture, processed with masks
+    assert (
+        all("fruit_mask_file_path" in frame for frame in meta["frames"])
+        and (raw / "calib.yaml").stat().st_mtime_ns == stamp
+    )
