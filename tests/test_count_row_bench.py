@@ -87,14 +87,14 @@ def test_the_count_profile_writes_its_table_from_the_runs_count_json(tmp_path: P
     assert summary["agrinerf-lite"]["f1_countable_sd"] == "nan" and summary["agrinerf-lite"]["runs"] == "1"
 
 
-def _row_count(out: Path, seed: int, key: str, f1: float, count_error: float) -> None:
-    """A row count as the bench lays it out: OUT/seed-<S>/count-row/garden-bright/<key>/row/count.json beside the
+def _row_count(out: Path, seed: int, key: str, f1: float, count_error: float, scene: str = "garden") -> None:
+    """A row count as the bench lays it out: OUT/seed-<S>/count-row/<scene>-bright/<key>/row/count.json beside the
     capture's truth/scene.json."""
-    raw = out / f"seed-{seed}" / "scenes" / "garden-bright" / "raw"
+    raw = out / f"seed-{seed}" / "scenes" / f"{scene}-bright" / "raw"
     (raw / "truth").mkdir(parents=True, exist_ok=True)
-    (raw / "truth" / "scene.json").write_text(json.dumps({"config": {"scene": "garden", "lighting": "bright",
+    (raw / "truth" / "scene.json").write_text(json.dumps({"config": {"scene": scene, "lighting": "bright",
                                                                       "seed": seed}}))  # fmt: skip
-    folder = out / f"seed-{seed}" / "count-row" / "garden-bright" / key / "row"
+    folder = out / f"seed-{seed}" / "count-row" / f"{scene}-bright" / key / "row"
     folder.mkdir(parents=True)
     score = {"counted": 10, "visible": 20, "countable": 16, "well_seen": 12, "f1": f1 - 0.1, "precision": 0.9,
              "recall": 0.5, "count_error": -0.5, "f1_countable": f1, "recall_countable": 0.5,
@@ -125,7 +125,14 @@ def test_the_table_pools_seeds_of_a_role_and_keeps_tuning_seeds_apart(tmp_path: 
     assert "| garden | bright | tuning 0 | agrinerf-lite | 1 | 0.10 | 0.20 | 0.25 | -90% | 0.00 |" in text
     assert text.index("| reporting 100 | " + ORACLE) < text.index("| tuning 0 |")  # the oracle beside its seeds
     assert "Tuning seeds (below 100; the project chooses its settings on 0-2): 0." in text
-    assert "garden 2.4 m" in text
+    assert "garden 2.4 m" in text and "Per lighting, the scenes pooled" not in text  # one scene: nothing to pool
+    _row_count(out, 100, "agrinerf-lite", 0.4, -0.4, scene="orchard")
+    write_bench_tables(out, "header")
+    text = (out / "counts.md").read_text()
+    pooled = "| all | bright | reporting 100 101 | agrinerf-lite | 3 | 0.60 ± 0.20 |"  # garden 100, 101 and orchard 100
+    assert pooled in text.split("Per lighting, the scenes pooled")[1]
+    summary = {(r["scene"], r["role"], r["label"]) for r in csv.DictReader((out / "summary.csv").open())}
+    assert ("all", "reporting", "agrinerf-lite") in summary and ("orchard", "reporting", "agrinerf-lite") in summary
     with pytest.raises(FileNotFoundError, match="no row counts"):
         write_bench_tables(tmp_path / "empty", "header")
 

@@ -143,6 +143,8 @@ def write_bench_tables(out: Path, header: str, reporting_from: int = 100) -> Lis
     rows.sort(key=lambda r: (r["scene"], LIGHTING_ORDER.get(str(r["lighting"]), 9), r["seed"], r["label"]))
     write_rows(out / "counts.csv", rows, COLUMNS)
     summary = seed_summary(rows)
+    if len({r["scene"] for r in rows}) > 1:  # and per lighting over every scene (scene "all")
+        summary += seed_summary(rows, pool_scenes=True)
     extra = [f"{m}_{k}" for m in MEASURES for k in ("sd", "min", "max")]
     write_rows(out / "summary.csv", summary, ["scene", "lighting", "role", "label", "runs", "seeds", *MEASURES, *extra])
     (out / "counts.md").write_text(seed_table(rows, header, reporting_from))

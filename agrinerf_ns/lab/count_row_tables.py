@@ -96,18 +96,20 @@ def seed_of(row: Row) -> int:
     return int(str(row["seed"]))
 
 
-def seed_groups(rows: Sequence[Row]) -> Dict[Tuple[str, str, str, str], List[Row]]:
+def seed_groups(rows: Sequence[Row], pool_scenes: bool = False) -> Dict[Tuple[str, str, str, str], List[Row]]:
     """Rows per (scene, lighting, role, label), in the order of the table: scene, lighting, reporting seeds before
-    tuning seeds, the trained rows before the oracle's."""
+    tuning seeds, the trained rows before the oracle's; ``pool_scenes``: every scene of a lighting together (the
+    scene named ``all``)."""
     groups: Dict[Tuple[str, str, str, str], List[Row]] = defaultdict(list)
     for row in rows:
-        groups[(str(row["scene"]), str(row["lighting"]), str(row["role"]), str(row["label"]))].append(row)
+        scene = "all" if pool_scenes else str(row["scene"])
+        groups[(scene, str(row["lighting"]), str(row["role"]), str(row["label"]))].append(row)
 
     def order(key: Tuple[str, str, str, str]) -> tuple:
         scene, lighting, role, label = key
         return scene, LIGHTING_ORDER.get(lighting, 9), lighting, role != "reporting", label.startswith("oracle"), label
 
-    return {key: sorted(groups[key], key=seed_of) for key in sorted(groups, key=order)}
+    return {key: sorted(groups[key], key=lambda r: (seed_of(r), str(r["scene"]))) for key in sorted(groups, key=order)}
 
 
 def spread(values: Sequence[float]) -> Dict[str, float]:
@@ -119,13 +121,14 @@ def spread(values: Sequence[float]) -> Dict[str, float]:
     return {"mean": float(finite.mean()), "sd": sd, "min": float(finite.min()), "max": float(finite.max())}
 
 
-def seed_summary(rows: Sequence[Row]) -> List[Row]:
-    """Per scene, lighting, role and label: the seeds, and each measure's mean, standard deviation, least and most
-    over them."""
+def seed_summary(rows: Sequence[Row], pool_scenes: bool = False) -> List[Row]:
+    """Per scene (``pool_scenes``: all of them), lighting, role and label: the seeds, and each measure's mean,
+    standard deviation, least and most over the runs."""
     out: List[Row] = []
-    for (scene, lighting, role, label), members in seed_groups(rows).items():
+    for (scene, lighting, role, label), members in seed_groups(rows, pool_scenes).items():
+        seeds = " ".join(dict.fromkeys(str(m["seed"]) for m in members))
         row: Row = {"scene": scene, "lighting": lighting, "role": role, "label": label, "runs": len(members),
-                    "seeds": " ".join(str(m["seed"]) for m in members)}  # fmt: skip
+                    "seeds": seeds}  # fmt: skip
         for measure in MEASURES:
             stats = spread([float(m[measure]) for m in members])  # type: ignore[arg-type]
             row |= {measure: stats["mean"], **{f"{measure}_{k}": v for k, v in stats.items() if k != "mean"}}
@@ -142,6 +145,16 @@ def _cell(stats: Row, measure: str) -> str:
     if math.isfinite(sd):
         text += f" ± {100 * sd:.0f}" if percent else f" ± {sd:.2f}"
     return text
+
+
+def _summary_lines(summary: Sequence[Row]) -> List[str]:
+    lines = ["| scene | lighting | seeds | row | runs | " + " | ".join(h for h, _ in SEED_COLUMNS) + " |",
+             "|---|---|---|---|---|" + "---|" * len(SEED_COLUMNS)]  # fmt: skip
+    for stats in summary:
+        cells = [_cell(stats, measure) for _, measure in SEED_COLUMNS]
+        lines.append(f"| {stats['scene']} | {stats['lighting']} | {stats['role']} {stats['seeds']} | {stats['label']} "
+                     f"| {stats['runs']} | " + " | ".join(cells) + " |")  # fmt: skip
+    return lines
 
 
 def seed_table(rows: Sequence[Row], header: str, reporting_from: int) -> str:
@@ -169,13 +182,11 @@ def seed_table(rows: Sequence[Row], header: str, reporting_from: int) -> str:
         "Rows: the trained runs (`agrinerf-count --path views --source fruit`, then `--max-range`), and beside them "
         "`oracle`: the capture's true fruit pixels and true depth counted the same way (the counter's ceiling).",
         "",
-        "| scene | lighting | seeds | row | runs | " + " | ".join(h for h, _ in SEED_COLUMNS) + " |",
-        "|---|---|---|---|---|" + "---|" * len(SEED_COLUMNS),
     ]
-    for stats in seed_summary(rows):
-        cells = [_cell(stats, measure) for _, measure in SEED_COLUMNS]
-        lines.append(f"| {stats['scene']} | {stats['lighting']} | {stats['role']} {stats['seeds']} | {stats['label']} "
-                     f"| {stats['runs']} | " + " | ".join(cells) + " |")  # fmt: skip
+    lines += _summary_lines(seed_summary(rows))
+    if len({r["scene"] for r in rows}) > 1:  # the targets are per lighting over both scenes
+        lines += ["", "Per lighting, the scenes pooled (each cell over every run of the lighting: scenes x seeds):", "",
+                  *_summary_lines(seed_summary(rows, pool_scenes=True))]  # fmt: skip
     lines += ["", ANCHORS, "", "## Every run", "", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     lines += ["| " + " | ".join(fmt(row[c]) for c in COLUMNS) + " |" for row in rows]
     return "\n".join(lines) + "\n"
