@@ -152,3 +152,10 @@ def test_a_cached_dataset_without_the_profiles_fruit_masks_is_processed_again(tm
         all("fruit_mask_file_path" in frame for frame in meta["frames"])
         and (raw / "calib.yaml").stat().st_mtime_ns == stamp
     )
+
+
+def test_a_scene_without_a_row_range_is_refused_before_anything_is_trained(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setitem(PROFILES, "count", replace(PROFILES["count"], row_range={"garden": 2.4}))
+    with pytest.raises(ValueError, match="no row range for 'orchard' scenes"):
+        main(BenchConfig(out=tmp_path / "bench", profile="count", scenes=("orchard-bright",)))
+    assert not (tmp_path / "bench").exists()

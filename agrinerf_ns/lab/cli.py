@@ -157,6 +157,12 @@ def main(config: BenchConfig) -> List[results.Row]:
     if config.evaluations is not None:
         profile = replace(profile, evaluations=max(1, config.evaluations))
     scenes = config.scenes or profile.scenes
+    count = profile.count if config.count is None else config.count
+    if count and profile.count_rule == "row":  # every scene's row range known before anything is trained
+        from agrinerf_ns.lab.count_row_bench import row_range
+
+        for scene in scenes:
+            row_range(profile, scene)
     layout = BenchLayout(config.out)
     csv_path = config.results_csv or layout.results_csv
     done = results.done_runs(results.read_rows(csv_path))
@@ -173,7 +179,6 @@ def main(config: BenchConfig) -> List[results.Row]:
     if rows:  # none when every run failed: failures.md says why (RunsFailed below)
         write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
         CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
-    count = profile.count if config.count is None else config.count
     if count:  # fruit counted in every finished run
         _count(config, profile, layout, scenes, {results.seed_key(m, s): METHODS[m].ns_method for m in methods
                                                  for s in config.run_seeds})  # fmt: skip
