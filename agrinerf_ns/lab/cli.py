@@ -19,7 +19,7 @@ from rich.console import Console
 from agrinerf_ns.lab import bench_grid, margins, results
 from agrinerf_ns.lab.layout import BenchLayout
 from agrinerf_ns.lab.methods import METHODS, SAMPLE_BUDGETS, unknown_reason
-from agrinerf_ns.lab.profiles import PROFILES
+from agrinerf_ns.lab.profiles import PROFILES, BenchProfile
 from agrinerf_ns.machine import machine_note
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import FolderInUse
@@ -35,12 +35,14 @@ class BenchConfig:
     """Folder for scenes, runs, results.csv, results.md and tradeoff.png."""
     profile: str = "quick"
     """quick (CPU), full (GPU, paper settings: 30k steps), detect (CPU: the dark garden at 320x240 for
-    ``agrinerf-detect evaluate --bench``), count (CPU: fruit counted in every run, OUT/count.csv and count.md) or tiny
-    (tests)."""
-    methods: Tuple[str, ...] = tuple(m for m in METHODS if m not in SAMPLE_BUDGETS)
+    ``agrinerf-detect evaluate --bench``), count (CPU, realistic sizes: agrinerf-lite's fruit counted on the row the
+    rig drove beside the truth-mask oracle, the seeds-by-lightings table in OUT/counts.md), count-small (the earlier
+    count profile, 200x150: every path and source counted, OUT/count.csv and count.md) or tiny (tests)."""
+    methods: Optional[Tuple[str, ...]] = None
     """Methods to run (agrinerf-lite, agrinerf, nerfacto, nerfacto-thermal, tensorf; sample-budget variants such as
     agrinerf-paper-samples, trained for about the preset's wall time, only when named; BASE%FIELD=VALUE: BASE with a
-    model config field set, e.g. agrinerf-lite%thermal_rays_per_batch=128, JSON values)."""
+    model config field set, e.g. agrinerf-lite%thermal_rays_per_batch=128, JSON values); None: the profile's (count:
+    agrinerf-lite), else every method but the sample-budget variants."""
     scenes: Optional[Tuple[str, ...]] = None
     """``<orchard|garden>-<bright|shadowed|dusk|dark>`` scenes; None: the profile's."""
     steps: Tuple[str, ...] = ()
@@ -51,6 +53,9 @@ class BenchConfig:
     wall times."""
     seed: int = 0
     """Seed of the synthetic scenes."""
+    seeds: Tuple[int, ...] = ()
+    """Several scene seeds instead of --seed, each its own benchmark folder OUT/seed-<S> (seeds 0-2 tune, 100 and up
+    report: docs/bench_profiles.md); with the count profile, OUT/counts.md tabulates every seed's row counts."""
     count: Optional[bool] = None
     """Count the fruit of every finished run (OUT/count.csv, count.md); None: the profile's (count: yes). False trains
     only, e.g. runs that only the detection tables read (``agrinerf-count`` counts one run later)."""
@@ -135,24 +140,33 @@ def step_budgets(pairs: Sequence[str]) -> Dict[str, int]:
 
 
 def main(config: BenchConfig) -> List[results.Row]:
+    if config.seeds:
+        return _main_seeds(config)
     if config.profile not in PROFILES:
         raise ValueError(f"unknown profile {config.profile!r}: choose one of {', '.join(PROFILES)}")
-    unknown = {m: why for m in config.methods if (why := unknown_reason(m)) is not None}
+    unknown = {m: why for m in config.methods or () if (why := unknown_reason(m)) is not None}
     if unknown:
         raise ValueError(
             f"unknown methods {list(unknown)} ({'; '.join(unknown.values())}): choose from {', '.join(METHODS)}, or "
             "a variant BASE%FIELD=VALUE that sets a model config field (e.g. agrinerf-lite%thermal_rays_per_batch=128)"
         )
     profile = PROFILES[config.profile]
+    methods = config.methods or profile.methods or tuple(m for m in METHODS if m not in SAMPLE_BUDGETS)
     if config.steps:
         profile = replace(profile, steps={**profile.steps, **step_budgets(config.steps)})
     if config.evaluations is not None:
         profile = replace(profile, evaluations=max(1, config.evaluations))
     scenes = config.scenes or profile.scenes
+    count = profile.count if config.count is None else config.count
+    if count and profile.count_rule == "row":  # every scene's row range known before anything is trained
+        from agrinerf_ns.lab.count_row_bench import row_range
+
+        for scene in scenes:
+            row_range(profile, scene)
     layout = BenchLayout(config.out)
     csv_path = config.results_csv or layout.results_csv
     done = results.done_runs(results.read_rows(csv_path))
-    todo = [] if config.report_only else bench_grid.plan(scenes, config.methods, config.run_seeds, done)
+    todo = [] if config.report_only else bench_grid.plan(scenes, methods, config.run_seeds, done)
     report = None
     if todo:
         cpus = config.cpus_per_run if config.cpus_per_run is not None or config.ray is None else 1
@@ -160,19 +174,57 @@ def main(config: BenchConfig) -> List[results.Row]:
         with executor_for(config.ray, **({"num_cpus": config.ray_cpus} if config.ray else {})) as executor:
             report = bench_grid.run_grid(todo, profile, layout, csv_path, config.seed, executor, resources,
                                          config.retries, CONSOLE)  # fmt: skip
-    keys = {results.seed_key(m, s) for m in config.methods for s in config.run_seeds}
+    keys = {results.seed_key(m, s) for m in methods for s in config.run_seeds}
     rows = [r for r in results.read_rows(csv_path) if r["scene"] in scenes and r["method"] in keys]
     if rows:  # none when every run failed: failures.md says why (RunsFailed below)
         write_reports(rows, config.out, config.target_psnr, "agrinerf-bench " + " ".join(sys.argv[1:]))
         CONSOLE.print(f"results: {csv_path}, {layout.results_md}, {layout.tradeoff_png}")
-    count = profile.count if config.count is None else config.count
-    if count:  # fruit counted in every finished run: OUT/count.csv, OUT/count.md
-        from agrinerf_ns.lab.count_bench import count_bench, run_note
-
-        methods = {results.seed_key(m, s): METHODS[m].ns_method for m in config.methods for s in config.run_seeds}
-        count_bench(layout, scenes, methods, config.seed, run_note("agrinerf-bench " + " ".join(sys.argv[1:])))
+    if count:  # fruit counted in every finished run
+        _count(config, profile, layout, scenes, {results.seed_key(m, s): METHODS[m].ns_method for m in methods
+                                                 for s in config.run_seeds})  # fmt: skip
     if report is not None and (report.failed or report.skipped):
         raise bench_grid.RunsFailed(report, config.out / bench_grid.FAILURES_MD)
+    return rows
+
+
+def _count(
+    config: BenchConfig, profile: BenchProfile, layout: BenchLayout, scenes: Sequence[str], methods: Dict[str, str]
+) -> None:
+    """The profile's counting of every finished run (bench key -> ns-train method in ``methods``): every path and
+    source (OUT/count.csv, count.md) or the row and its table (OUT/count-row/, OUT/counts.md)."""
+    from agrinerf_ns.lab.count_bench import count_bench, run_note
+
+    note = run_note("agrinerf-bench " + " ".join(sys.argv[1:]))
+    if profile.count_rule == "paths":
+        count_bench(layout, scenes, methods, config.seed, note)
+        return
+    from agrinerf_ns.lab.count_row_bench import count_row_bench, write_bench_tables
+
+    count_row_bench(layout, scenes, methods, profile)
+    if not config.seeds:  # with --seeds, the table of every seed is written once all have run
+        write_bench_tables(layout.out, note)
+
+
+def _main_seeds(config: BenchConfig) -> List[results.Row]:
+    """``--seeds``: the benchmark of each scene seed in OUT/seed-<S>, then (count profile) the table of them all."""
+    from agrinerf_ns.lab.count_row_bench import seed_out
+
+    rows: List[results.Row] = []
+    failed: List[bench_grid.RunsFailed] = []
+    for seed in config.seeds:
+        try:
+            rows += main(replace(config, seed=seed, seeds=(), out=seed_out(config.out, seed)))
+        except bench_grid.RunsFailed as err:  # the other seeds still run; the failure is raised at the end
+            failed.append(err)
+    profile = PROFILES[config.profile]
+    if (profile.count if config.count is None else config.count) and profile.count_rule == "row":
+        from agrinerf_ns.lab.count_bench import run_note
+        from agrinerf_ns.lab.count_row_bench import write_bench_tables
+
+        write_bench_tables(config.out, run_note("agrinerf-bench " + " ".join(sys.argv[1:])))
+        CONSOLE.print(f"the seeds-by-lightings table: {config.out / 'counts.md'}")
+    if failed:
+        raise failed[0]
     return rows
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Dict, Literal, Optional, Tuple
 
 
 @dataclass(frozen=True)
@@ -34,8 +34,21 @@ class BenchProfile:
     baseline."""
     synth: Dict[str, Any] = field(default_factory=dict)
     """Further ``SynthConfig`` fields of the scenes (e.g. ``speed``)."""
+    process: Dict[str, Any] = field(default_factory=dict)
+    """Further ``ProcessConfig`` fields of the scenes' datasets (e.g. ``fruit_mask_maker``)."""
     count: bool = False
-    """Also count the fruit of every finished run (``OUT/count.csv``, ``OUT/count.md``: ``agrinerf_ns.lab.count_bench``)."""
+    """Also count the fruit of every finished run (``count_rule`` says how)."""
+    count_rule: Literal["paths", "row"] = "paths"
+    """``paths``: every path and source of every run, beside the oracle's ceilings (``OUT/count.csv``,
+    ``OUT/count.md``: ``agrinerf_ns.lab.count_bench``); ``row``: the fruit channel in the views, on the whole capture
+    and on the row the rig drove (``row_range``), beside the truth-mask oracle of each capture, tabulated over seeds
+    and lightings (``OUT/count-row/``, ``OUT/counts.md``: ``agrinerf_ns.lab.count_row_bench``)."""
+    row_range: Dict[str, float] = field(default_factory=dict)
+    """Per scene kind (``orchard``, ``garden``): the ``agrinerf-count --max-range`` of the row the rig drove (metres):
+    the rig's standoff from the row plus half the spacing to the next row, figures a grower knows of their own block
+    (the synthetic scenes' from ``agrinerf_ns/synth/rig.py`` and ``scene.py``), never read from the truth."""
+    methods: Optional[Tuple[str, ...]] = None
+    """The methods run when ``--methods`` is not given (None: every method but the sample-budget variants)."""
 
 
 PROFILES: Dict[str, BenchProfile] = {
@@ -98,10 +111,26 @@ PROFILES: Dict[str, BenchProfile] = {
         extra_args={"agrinerf-lite": ("--pipeline.model.upsampling-iters", "100", "200", "300",
                                       "--pipeline.model.final-resolution", "128")},
     ),
-    # Fruit counted from trained runs on a CPU (OUT/count.csv, count.md): frames large enough that a fruit covers a
-    # median 12 visible pixels in RGB and 4 in the half-width thermal camera (measured from the truth boxes,
-    # docs/count.md), and more views so that more fruit are seen twice; one run (train and count) in 30 minutes.
+    # Fruit counted at realistic sizes (#60; docs/bench_profiles.md): the cameras' fields of view narrowed to 22 and
+    # 20 degrees so that a fruit is 15-18 px across at 320x240 (docs/count.md), fruit masks made by the product
+    # (colour in light, thermal bodies in the dark), agrinerf-lite 3000 steps x 1024 rays, every run counted from its
+    # fruit channel on the whole capture and on the row the rig drove, beside the truth-mask oracle, and tabulated
+    # over seeds and lightings (OUT/counts.md). About 25 CPU-minutes per run on a 2-core AMD EPYC.
     "count": BenchProfile(
+        views=48, width=320, height=240,
+        steps={"agrinerf-lite": 3000, "evdeblurnerf-lite": 3000, "agrinerf": 900, "nerfacto": 250, "nerfacto-thermal": 250, "tensorf": 1000},
+        evaluations=1, eval_views=3, count=True, count_rule="row", methods=("agrinerf-lite",),
+        scenes=tuple(f"{s}-{light}" for s in ("garden", "orchard") for light in ("bright", "shadowed", "dusk", "dark")),
+        synth={"rgb_hfov_deg": 22.0, "thermal_hfov_deg": 20.0, "event_substeps": 1},
+        process={"fruit_mask_maker": "auto"},
+        row_range={"garden": 2.4, "orchard": 4.7},  # standoffs 1.55 and 2.8 m, next row 1.7 and 3.8 m behind
+    ),
+    # The earlier count profile (``count`` until #60; the tables of results/count-3d, count-seeds, count-detect and
+    # others name it): fruit counted from trained runs on a CPU by every path and source (OUT/count.csv, count.md),
+    # frames large enough that a fruit covers a median 12 visible pixels in RGB and 4 in the half-width thermal camera
+    # (measured from the truth boxes, docs/count.md), and more views so that more fruit are seen twice; one run (train
+    # and count) in 30 minutes.
+    "count-small": BenchProfile(
         views=48, width=200, height=150,
         steps={"agrinerf-lite": 3000, "evdeblurnerf-lite": 3000, "agrinerf": 900, "nerfacto": 250, "nerfacto-thermal": 250, "tensorf": 1000},
         evaluations=1, eval_views=3, count=True,

@@ -7,9 +7,9 @@ import json
 import shutil
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Tuple
+from typing import TYPE_CHECKING, Optional, Tuple
 
-from agrinerf_ns.dataset_format import TRANSFORMS
+from agrinerf_ns.dataset_format import BLOCK, TRANSFORMS
 from agrinerf_ns.lab.layout import scene_folders
 from agrinerf_ns.lab.profiles import BenchProfile
 
@@ -37,12 +37,24 @@ def prepare_scene(name: str, profile: BenchProfile, seed: int, root: Path) -> Tu
         not (data / TRANSFORMS).exists()
         or recorded_plane_depth(data) != profile.plane_depth
         or not _same_split(data, profile.eval_every)
+        or _mask_source(data) != _mask_source_wanted(profile)
     ):
         # Poses from the capture's odometry: the benchmark compares reconstructions, not SfM.
         process = ProcessConfig(poses="given", overwrite=True, show_progress=False, plane_depth=profile.plane_depth,
-                                eval_every=profile.eval_every)  # fmt: skip
+                                eval_every=profile.eval_every, **profile.process)  # fmt: skip
         process_capture(raw, data, process)
     return raw, data
+
+
+def _mask_source(data: Path) -> Optional[str]:
+    """The maker of a dataset's fruit masks as it records it (``maker:auto``; None: no masks made)."""
+    meta = json.loads((data / TRANSFORMS).read_text()).get(BLOCK, {})
+    return meta.get("fruit_masks", {}).get("source")
+
+
+def _mask_source_wanted(profile: BenchProfile) -> Optional[str]:
+    maker = profile.process.get("fruit_mask_maker", "none")
+    return None if maker == "none" else f"maker:{maker}"
 
 
 def _same_split(data: Path, eval_every: int) -> bool:
