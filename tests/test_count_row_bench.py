@@ -159,3 +159,23 @@ def test_a_scene_without_a_row_range_is_refused_before_anything_is_trained(tmp_p
     with pytest.raises(ValueError, match="no row range for 'orchard' scenes"):
         main(BenchConfig(out=tmp_path / "bench", profile="count", scenes=("orchard-bright",)))
     assert not (tmp_path / "bench").exists()
+
+
+def test_a_dark_capture_gets_its_thermal_bodies_row_beside_the_runs(tmp_path: Path) -> None:
+    """Where the dataset holds thermal bodies (dark frames, the product's own masks), the bench counts them on the
+    row with no run, and the table gives that count as it is in its count.json."""
+    from agrinerf_ns.dataset_format import FRUIT_BODIES
+    from agrinerf_ns.lab.count_row_bench import LABELS, count_row_bench, write_bench_tables
+    from agrinerf_ns.lab.layout import BenchLayout
+    from agrinerf_ns.lab.scenes import prepare_scene
+
+    profile = replace(PROFILES["count"], views=8, width=96, height=72)
+    layout = BenchLayout(tmp_path / "bench")
+    raw, data = prepare_scene("garden-dark", profile, 100, layout.scenes)
+    assert (data / FRUIT_BODIES).is_file()  # the dark frames' masks came from the thermal bodies
+    count_row_bench(layout, ["garden-dark"], {}, profile)  # no run: the oracle and the bodies only
+    report = json.loads((layout.out / "count-row" / "garden-dark" / "bodies" / "row" / "count.json").read_text())
+    assert report["path"] == "bodies" and report["max_range"] == 2.4 and report["truth"] == str(raw.resolve())
+    rows = {r["label"]: r for r in write_bench_tables(layout.out, "header")}
+    assert set(rows) == {LABELS["bodies"], LABELS["oracle"]}
+    assert rows[LABELS["bodies"]]["f1_countable"] == pytest.approx(report["score"]["f1_countable"], nan_ok=True)

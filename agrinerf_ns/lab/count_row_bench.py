@@ -7,6 +7,8 @@ truth-mask oracle of each capture beside it::
                                                   --no-save-renders --max-range R --truth RAW
     OUT/count-row/<scene>/oracle/row/             python -m agrinerf_ns.lab.count_oracle --raw RAW --data DS --out O
                                                   --fruit true, then counted as the row (O removed after)
+    OUT/count-row/<scene>/bodies/row/             agrinerf-count --path bodies --data DS --max-range R --truth RAW
+                                                  (where the dataset holds thermal bodies: the dark path, no field)
 
 ``R`` is the profile's ``row_range`` of the scene kind. A count already written is kept (the bench resumes). The
 seeds-by-lightings table of every row count under ``OUT`` (and ``OUT/seed-<S>/``) is ``OUT/counts.md``
@@ -18,6 +20,7 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING, List, Mapping, Optional, Sequence, Tuple
 
+from agrinerf_ns.dataset_format import FRUIT_BODIES
 from agrinerf_ns.lab.count_row_tables import (
     COLUMNS,
     LIGHTING_ORDER,
@@ -36,6 +39,9 @@ if TYPE_CHECKING:
 
 ROW_DIR = "count-row"
 ORACLE = "oracle"
+BODIES = "bodies"
+LABELS = {ORACLE: "oracle (truth masks, true depth)", BODIES: "thermal bodies (no field)"}
+"""Row labels of the counts that are not a bench method's."""
 CAPTURE, ROW = "capture", "row"
 SEED_PREFIX = "seed-"
 """``agrinerf-bench --seeds``: each scene seed's benchmark folder is ``OUT/seed-<S>``."""
@@ -69,6 +75,11 @@ def count_row_bench(
         if not (root / ORACLE / ROW / "count.json").is_file() and (raw / "truth" / "depth").is_dir():
             CONSOLE.print(f"counting the truth-mask oracle: {scene}")
             _count_oracle(raw, data, root / ORACLE, max_range)
+        if not (root / BODIES / ROW / "count.json").is_file() and (data / FRUIT_BODIES).is_file():
+            CONSOLE.print(f"counting the thermal bodies: {scene}")
+            from agrinerf_ns.count.body_count import run_body_count
+
+            run_body_count(data, root / BODIES / ROW, _fruit_config(max_range), raw, overwrite=True)
         for key, config in layout.finished_runs(scene, methods).items():
             if (root / key / ROW / "count.json").is_file():
                 continue
@@ -117,14 +128,14 @@ def _count_oracle(raw: Path, data: Path, folder: Path, max_range: float) -> None
 
 def bench_row_folders(out: Path) -> List[Tuple[str, Path, Path]]:
     """(label, row count folder, raw capture) of every row count in the benchmark folder ``out`` and its
-    ``seed-<S>`` folders: the label is the bench method key, or ``oracle (truth masks, true depth)``."""
+    ``seed-<S>`` folders: the label is the bench method key, or the oracle's or the bodies' (:data:`LABELS`)."""
     found = []
     roots = [Path(out), *sorted(p for p in Path(out).glob(f"{SEED_PREFIX}*") if p.is_dir())]
     for root in roots:
         for count_json in sorted((root / ROW_DIR).glob(f"*/*/{ROW}/count.json")):
             folder = count_json.parent
             scene, key = folder.parent.parent.name, folder.parent.name
-            label = "oracle (truth masks, true depth)" if key == ORACLE else key
+            label = LABELS.get(key, key)
             found.append((label, folder, scene_folders(root / "scenes", scene).raw))
     return found
 
