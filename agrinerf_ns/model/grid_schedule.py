@@ -15,6 +15,7 @@ from nerfstudio.engine.optimizers import Optimizers
 from torch import Tensor
 from torch.nn import Parameter
 
+from agrinerf_ns.dataset_format import FRUIT_MASK
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.grid_mapping import box_voxel
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
@@ -172,7 +173,7 @@ def rgb_fruit_masks(dataset: Any) -> Optional[List[Optional[Any]]]:
     """Per training camera of `dataset` its fruit-mask file where the mask is the RGB camera's (None where it is the
     thermal camera's); None when the dataset has no fruit masks."""
     metadata = getattr(dataset, "metadata", None) or {}
-    files = metadata.get("fruit_mask_filenames")
+    files = metadata.get(FRUIT_MASK.metadata)
     if not files:
         return None
     thermal = metadata.get("fruit_mask_thermal") or [False] * len(files)

@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, FrozenSet, Literal, Mapping, Tuple
 
+from agrinerf_ns.dataset_format import FRUIT_MASK
 from agrinerf_ns.modalities import normalise_modalities
 
 if TYPE_CHECKING:
@@ -172,7 +173,7 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
     edi_prior = config.edi_prior and use_rgb and use_events and timed and has_exposure and native
 
     has_fruit_head = (
-        metadata.get("fruit_mask_filenames") is not None
+        metadata.get(FRUIT_MASK.metadata) is not None
         and config.fruit_output
         and coefficients.get("fruit_loss", 0.0) > 0
     )
