@@ -4,12 +4,13 @@ optimizers re-pointed at the Parameters these replace."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
 from jaxtyping import Float
-from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.cameras.rays import RayBundle, RaySamples
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
 from torch import Tensor
@@ -19,7 +20,6 @@ from agrinerf_ns.dataset_format import FRUIT_MASK
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.grid_mapping import box_voxel
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
-from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.rig import SIDE_STREAM_SEED
 
 SurfaceRender = Callable[[RayBundle], Tuple[Tensor, Tensor, Tensor]]
@@ -33,11 +33,54 @@ def upsampling_resolutions(init: int, final: int, iters: Sequence[int]) -> List[
     return np.round(levels).astype(int).tolist()[1:]
 
 
+@dataclass(frozen=True)
+class GridSettings:
+    """The grid schedule's own settings, built from the flat model settings (`model_config.part_settings`); each
+    field is documented on `model_config.AgriNeRFSettings`, whose field of the same name sets it."""
+
+    init_resolution: int
+    final_resolution: int
+    upsampling_iters: Tuple[int, ...]
+    box_fit_iters: Tuple[int, ...]
+    box_fit_rays: int
+    box_grid_fraction: float
+    box_fit_growth: float
+    box_refit_growth: float
+    box_depth_cut: float
+    box_surface_share: float
+    box_voxel_target_m: float
+    box_min_share: float
+    box_fruit_share: float
+    occupancy_resolution: int
+    occupancy_update_iters: Tuple[int, ...]
+    occupancy_density_threshold: float
+
+
+def grid_diagnostics(
+    field: AgriNeRFField,
+    final_resolution: int,
+    bundle: RayBundle,
+    samples: RaySamples,
+    weights: Float[Tensor, "rays samples 1"],
+    depth: Float[Tensor, "rays 1"],
+) -> Dict[str, Tensor]:
+    """Where a render's weight falls and how fine the grid is there (evaluation outputs): the weight within the
+    full-resolution box, and the voxel size at the surface now and at `final_resolution`."""
+    inside = field.full_resolution(samples.frustums.get_positions()).to(weights.dtype)[..., None]
+    surface = bundle.origins + bundle.directions * depth
+    final = field.axis_resolution(final_resolution)
+    return {
+        "full_resolution_weight": (weights * inside).sum(dim=-2),
+        "voxel_size": field.voxel_size(surface).amax(dim=-1, keepdim=True),
+        "voxel_size_final": field.voxel_size(surface, final).amax(dim=-1, keepdim=True),
+    }
+
+
 class GridSchedule:
     """The volumes' schedule of one model: its settings, the field whose volumes it resamples, and the dataset's
     metres per scene unit (None: unknown scale)."""
 
-    def __init__(self, config: AgriNeRFSettings, field: AgriNeRFField, metres_per_unit: Optional[float]) -> None:
+    def __init__(self, config: GridSettings, field: AgriNeRFField, metres_per_unit: Optional[float]) -> None:
         self.config, self.field, self.metres_per_unit = config, field, metres_per_unit
         self.resolutions = upsampling_resolutions(
             config.init_resolution, config.final_resolution, config.upsampling_iters

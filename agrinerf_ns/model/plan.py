@@ -25,6 +25,8 @@ BlurModel = Literal["off", "trajectory", "learnt"]
 """The RGB blur model: off; sub-poses of the rig's trajectory across each exposure; a learnt rigid kernel."""
 
 REGULARISERS = ("l1_reg", "tv_reg_density", "tv_reg_appearance")
+MEASURED_UNWEIGHTED = ("rgb_loss", "edi_prior_loss", "thermal_loss", "thermal_camera_loss", "temperature_loss")
+"""Data terms computed where the plan switches them on even at weight 0: the frames' fit, a metric (and a PSNR)."""
 
 
 @dataclass(frozen=True)
@@ -69,7 +71,11 @@ class ModelPlan:
     density_gradient_scales: Mapping[str, float]
     """Per term, the scale of its gradient into the density (low light raises the thermal camera's to 1)."""
     terms: FrozenSet[str]
-    """The loss terms with a weight: data terms the plan switches on, regularisers with a coefficient."""
+    """The loss terms with a weight: data terms the plan switches on, regularisers with a coefficient, and any other
+    term with a coefficient (a part's own, `loss_routing.TERMS`)."""
+    measured: FrozenSet[str]
+    """The terms the model computes each step: `terms`, and those of `MEASURED_UNWEIGHTED` switched on at weight 0
+    (raw values in the metrics only)."""
     notes: Tuple[str, ...]
     """What the model says about its decisions when it is built (low light, a supervision the data cannot give)."""
 
@@ -197,7 +203,7 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
         "reg_event_loss": use_events and has_thermal_head,
         **{name: True for name in REGULARISERS},
     }
-    terms = frozenset(name for name, wanted_on in on.items() if wanted_on and coefficients.get(name, 0.0) > 0)
+    terms = frozenset(name for name, weight in coefficients.items() if weight > 0 and on.get(name, True))
     return ModelPlan(
         modalities=modalities,
         use_rgb=use_rgb,
@@ -219,5 +225,6 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
         fruit_thermal_view=fruit_thermal_view,
         density_gradient_scales=scales,
         terms=terms,
+        measured=terms | {name for name in MEASURED_UNWEIGHTED if on[name]},
         notes=tuple(notes),
     )
