@@ -1,6 +1,7 @@
-"""The model's parts in one table (`PARTS`: each part's name and how it is built from the plan), and what they
-share: the field, the ray samplers and the collider. A part is a `model_part.ModelPart`; the model sets each as its attribute of the same name (None where the plan
-leaves it off) and loops over them for their renders, loss terms, parameter groups and metrics, in this order."""
+"""The model's parts in one table (`PARTS`: each part's name and how it is built from the plan), and what the
+model builds beside them: the field, the ray samplers and the collider. A part is a `model_part.ModelPart`; the
+model sets each as its attribute of the same name (None where the plan leaves it off) and loops over them for their
+renders, loss terms, parameter groups and metrics, in the table's order."""
 
 from __future__ import annotations
 
