@@ -78,9 +78,9 @@ def routed_outputs(
     routed: Dict[str, Tensor] = {}
     scaled: Dict[float, Tuple[Tensor, Tensor]] = {}  # scale -> (weights, their accumulation)
     composites: Dict[Tuple[str, float], Tensor] = {}
-    for term, name in TERM_OUTPUTS.items():
-        scale = scales.get(term, 1.0)
-        if name not in dense or scale == 1.0:
+    for term, row in TERMS.items():  # the table itself: a term added to it is routed too
+        name, scale = row.output, scales.get(term, 1.0)
+        if name is None or name not in dense or scale == 1.0:
             continue
         if scale not in scaled:
             w = losses.scale_gradient(weights, scale)

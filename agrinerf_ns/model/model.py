@@ -34,7 +34,7 @@ from agrinerf_ns.model.event_term import EventTerm
 from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
 from agrinerf_ns.model.fruit_head import FruitHead
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
-from agrinerf_ns.model.grid_schedule import GridSchedule, GridSettings, grid_diagnostics
+from agrinerf_ns.model.grid_schedule import GridSchedule, GridSettings, grid_diagnostics, rgb_fruit_masks
 from agrinerf_ns.model.loss_routing import TERMS, FieldTerms, routed_outputs
 from agrinerf_ns.model.model_config import AgriNeRFSettings, part_settings
 from agrinerf_ns.model.model_part import ModelPart, TermInputs
@@ -67,8 +67,7 @@ class AgriNeRFModel(Model):
 
     config: AgriNeRFSettings
     collider: SceneCollider
-    # the parts (`parts.PARTS`), each None where the plan leaves it off
-    field_terms: FieldTerms
+    field_terms: FieldTerms  # the parts (`parts.PARTS`), each None where the plan leaves it off
     blur: Optional[BlurTerm]
     thermal_view: Optional[ThermalView]
     events: Optional[EventTerm]
@@ -108,12 +107,14 @@ class AgriNeRFModel(Model):
                 self.parts[name] = part
 
         # the first full-resolution box: around the dataset's SfM points where it has them (refitted in training)
-        points = (self.kwargs.get("metadata") or {}).get("points3D_xyz")
+        metadata = self.kwargs.get("metadata") or {}
+        points = metadata.get("points3D_xyz")
         if self.field.mapping is not None and points is not None:
             box = fit_box_to_points(torch.as_tensor(points, dtype=torch.float32))  # cpu: before model.to(device)
             if box is not None:
                 self.field.refit_box(box, cfg.box_grid_fraction, cfg.init_resolution)
-        self.grid = GridSchedule(part_settings(GridSettings, cfg), self.field, self.metres_per_unit)
+        masks = rgb_fruit_masks(metadata)  # the box fits' fruit, from the dataparser's metadata
+        self.grid = GridSchedule(part_settings(GridSettings, cfg), self.field, self.metres_per_unit, masks)
 
         self.sampler_coarse, self.sampler_pdf = parts.ray_samplers(cfg, self.field.full_resolution_box)
         self.collider = parts.collider(cfg, self.scene_box)
