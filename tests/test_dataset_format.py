@@ -60,18 +60,8 @@ def _table_names() -> Dict[str, str]:
     return names
 
 
-NOT_YET = {"agrinerf_ns/model/plan.py", "agrinerf_ns/model/grid_schedule.py"}
-"""Model files that still spell ``fruit_mask_filenames`` while issue 65's model work rewrites them (their owners take
-the key from the table then); each must still spell one, so that an entry cannot outlive its reason."""
-
-
 def test_the_table_is_the_only_place_its_keys_are_spelled():
-    repo = Path(__file__).resolve().parents[1]
-    spelled = _spelled(_table_names())
-    pending = {name for name in NOT_YET if any(line.startswith(f"{repo / name}:") for line in spelled)}
-    assert pending == NOT_YET, f"no longer spelled there: drop {sorted(NOT_YET - pending)} from NOT_YET"
-    rest = [line for line in spelled if not any(line.startswith(f"{repo / name}:") for name in NOT_YET)]
-    assert not rest, "\n".join(rest)
+    assert not (spelled := _spelled(_table_names())), "\n".join(spelled)
 
 
 def test_the_check_finds_a_spelled_key():

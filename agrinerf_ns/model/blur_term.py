@@ -3,14 +3,16 @@ trajectory) or along the learnt rigid blur kernel's rays, blended in linear radi
 
 from __future__ import annotations
 
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import torch
 from jaxtyping import Float
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
+from torch.nn import Parameter
 
 from agrinerf_ns import colour
+from agrinerf_ns.model.model_part import ModelPart
 from agrinerf_ns.model.rig import RenderRays, Rig
 from agrinerf_ns.model.rigid_blur import RigidBlurKernel, blend, warp_rays
 from agrinerf_ns.model.timed_rays import exposure_times, frame_rows, reposed_rays
@@ -32,7 +34,7 @@ def render_at(
     return render(moved, ("rgb",), term)["rgb"].reshape(n, k, 3)
 
 
-class BlurTerm:
+class BlurTerm(ModelPart):
     """The blurred render of a training pixel that the RGB loss compares with the blurred frame, from
     `start_step`: the trajectory's sub-poses across the exposure, or the learnt kernel's rays (`kernel`, a module
     the model owns and optimises)."""
@@ -48,15 +50,19 @@ class BlurTerm:
         self.every_at_frame = self.at_frame is not None and bool(self.at_frame.all())
         self.some_at_frame = self.at_frame is not None and bool(self.at_frame.any())
 
-    def outputs(
-        self, render: RenderRays, bundle: RayBundle, sharp_rgb: Float[Tensor, "n 3"], step: int
-    ) -> Dict[str, Tensor]:
-        """`rgb_blurred` of the training rays `bundle` (`sharp_rgb`: their frame rays' render), from `start_step`."""
+    def outputs(self, render: RenderRays, bundle: RayBundle, frame: Dict[str, Tensor], step: int) -> Dict[str, Tensor]:
+        """`rgb_blurred` of the training rays `bundle` (`frame`: their outputs, whose render for the RGB loss is
+        the frame pose's), from `start_step`."""
         if step < self.start_step:
             return {}
+        sharp_rgb = frame.get("rgb/rgb_loss", frame["rgb"])
         if self.kernel is not None:
             return {"rgb_blurred": self.kernel_rgb(render, bundle, sharp_rgb)}
         return {"rgb_blurred": self.blurred_rgb(render, bundle, sharp_rgb)}
+
+    def param_groups(self) -> Dict[str, List[Parameter]]:
+        """The learnt kernel's own group "blur_kernel"."""
+        return {} if self.kernel is None else {"blur_kernel": list(self.kernel.parameters())}
 
     def blurred_rgb(
         self, render: RenderRays, bundle: RayBundle, sharp_rgb: Optional[Float[Tensor, "n 3"]] = None

@@ -23,7 +23,10 @@ import io
 import math
 from typing import Any, Callable, Dict, Mapping, Optional, Sequence, Tuple
 
-from torch import nn
+import torch
+from jaxtyping import Float
+from nerfstudio.utils import colormaps
+from torch import Tensor, nn
 
 from agrinerf_ns.modalities import DARK_RGB_LEVEL
 from agrinerf_ns.render_option import env_ev
@@ -170,3 +173,28 @@ class DisplayOutputs(nn.Module):
     def viewer_elements(self) -> Sequence[Any]:
         """The viewer's controls of these outputs (for tests)."""
         return [e for e in (self.slider, self.legend) if e is not None]
+
+
+def temperature_unit(celsius: Tensor, stats: Optional[Mapping[str, float]]) -> Tensor:
+    """Degrees C -> [0, 1] over the dataset's temperature range `stats` (``min_c``, ``max_c``; None: [0, 1] C)."""
+    stats = stats or {"min_c": 0.0, "max_c": 1.0}
+    low, high = stats["min_c"], max(stats["max_c"], stats["min_c"] + 1e-3)
+    return ((celsius - low) / (high - low)).clamp(0.0, 1.0)
+
+
+def rgba_image(
+    outputs: Dict[str, Tensor], output_name: str, temperature_unit: Callable[[Tensor], Tensor]
+) -> Float[Tensor, "*bs 4"]:
+    """RGB plus alpha of an output, for Nerfstudio's exporters (`ns-export pointcloud`, `tsdf`, `poisson`).
+
+    Alpha is the accumulation, so a ray that hits nothing (accumulation below 0.5, where the median depth is not a
+    surface) gives no point. A single-channel output (`thermal`) is coloured by Nerfstudio's colormap for one channel
+    (turbo, unnormalised: colours mean the same value in every export); `temperature` first by `temperature_unit`.
+    """
+    image = outputs[output_name]
+    if output_name == "temperature":
+        image = temperature_unit(image)
+    if image.shape[-1] not in (1, 3):
+        raise ValueError(f"Output '{output_name}' has {image.shape[-1]} channels; an RGBA export needs 1 or 3")
+    colours = colormaps.apply_colormap(image.clamp(0.0, 1.0))
+    return torch.cat([colours, outputs["accumulation"].to(colours.dtype)], dim=-1)

@@ -22,7 +22,7 @@ from torch import Tensor, nn
 from agrinerf_ns.dataparsers import event_stream
 from agrinerf_ns.dataparsers.event_stream import EventStream, sample_windows
 from agrinerf_ns.model import losses
-from agrinerf_ns.model.model_config import AgriNeRFSettings
+from agrinerf_ns.model.event_settings import EventSettings
 from agrinerf_ns.model.rig import Rig
 
 GATE_SEED = 5050
@@ -47,7 +47,7 @@ class EventGate(nn.Module):
     residual: Tensor
     last_check: Tensor
 
-    def __init__(self, config: AgriNeRFSettings, rig: Rig, stream: EventStream) -> None:
+    def __init__(self, config: EventSettings, rig: Rig, stream: EventStream) -> None:
         super().__init__()
         assert rig.event_windows is not None and rig.trajectory is not None and rig.event_stream is not None
         self.config = config

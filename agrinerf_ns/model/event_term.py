@@ -5,7 +5,7 @@ kept as buffers, and EvDeblurNeRF's EDI prior, which reads the same stream and t
 from __future__ import annotations
 
 import math
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 import torch
 from jaxtyping import Float, Int
@@ -21,14 +21,17 @@ from agrinerf_ns.model.blur_term import render_at
 from agrinerf_ns.model.event_crf import EventCRF, event_log_luma
 from agrinerf_ns.model.event_gate import EventGate
 from agrinerf_ns.model.event_pairs import EventPairs, pair_targets, polarity_features
-from agrinerf_ns.model.model_config import AgriNeRFSettings
+from agrinerf_ns.model.event_settings import EventSettings
+from agrinerf_ns.model.loss_routing import pred
+from agrinerf_ns.model.model_part import ModelPart, TermInputs
 from agrinerf_ns.model.plan import ModelPlan
 from agrinerf_ns.model.rig import RenderRays, Rig
 from agrinerf_ns.model.timed_rays import frame_rows, on_device
 
 
-class EventTerm(nn.Module):
-    """The event loss (`plan.event_supervision`) and the EDI prior (`plan.edi_prior`) of one model.
+class EventTerm(nn.Module, ModelPart):
+    """The event loss (`plan.event_supervision`) and the EDI prior (`plan.edi_prior`) of one model: the part of
+    the terms `event_loss` and `edi_prior_loss`.
 
     Its learnt state is its own: the learnt thresholds (`log_threshold`, config `event_threshold_learnt`), the learnt
     event response (`crf`, built by the model with its other optional weights) and the `noise` weighting's running
@@ -38,7 +41,7 @@ class EventTerm(nn.Module):
     loss_means: Tensor
     weight: Tensor
 
-    def __init__(self, config: AgriNeRFSettings, plan: ModelPlan, rig: Rig, crf: Optional[EventCRF] = None) -> None:
+    def __init__(self, config: EventSettings, plan: ModelPlan, rig: Rig, crf: Optional[EventCRF] = None) -> None:
         super().__init__()
         self.config, self.rig, self.mode = config, rig, plan.event_supervision
         native = rig.event_stream
@@ -67,7 +70,7 @@ class EventTerm(nn.Module):
         self.register_buffer("weight", torch.zeros((), dtype=torch.float64))  # the `noise` weighting's last factor
 
     # ------------------------------------------------------------------ renders
-    def outputs(self, render: RenderRays, bundle: RayBundle, step: int) -> Dict[str, Tensor]:
+    def outputs(self, render: RenderRays, bundle: RayBundle, frame: Dict[str, Tensor], step: int) -> Dict[str, Tensor]:
         """The EDI prior's factors and the event samples' renders at both ends of their windows, with their targets
         (training, in the side stream)."""
         outputs: Dict[str, Tensor] = {}
@@ -216,8 +219,24 @@ class EventTerm(nn.Module):
         c = self.log_threshold.exp()
         return c[0], c[1]
 
-    def loss(self, outputs: Dict[str, Tensor], batch: Dict[str, Any], device: torch.device) -> Dict[str, Tensor]:
-        """The raw event loss of a training step, under its supervision ({} where the step has no event sample)."""
+    def loss(self, term: str, inputs: TermInputs) -> Optional[Tensor]:
+        """The raw event loss of a training step under its supervision, or the EDI prior's (None where the step has
+        no sample of it)."""
+        return self.edi_prior_loss(inputs) if term == "edi_prior_loss" else self.event_loss(inputs)
+
+    @staticmethod
+    def edi_prior_loss(inputs: TermInputs) -> Optional[Tensor]:
+        """EvDeblurNeRF's EDI prior: the frame ray's render against the event-deblurred frame."""
+        outputs, image = inputs.outputs, inputs.batch.get("image")
+        if "edi_factor" not in outputs or image is None:  # no side renders (evaluation)
+            return None
+        image = image[..., :3].to(inputs.device)
+        sharp = colour.linear_to_srgb(colour.srgb_to_linear(image) / outputs["edi_factor"])
+        return losses.masked_mse(pred(inputs, "edi_prior_loss"), sharp, outputs["edi_valid"])
+
+    def event_loss(self, inputs: TermInputs) -> Optional[Tensor]:
+        """The raw event loss under the plan's supervision (None where the step has no event sample)."""
+        outputs, batch, device = inputs.outputs, inputs.batch, inputs.device
         if self.mode == "pairs" and "event_target" in outputs:  # EvDeblurNeRF's event-to-event samples
             loss = losses.event_pair_loss(outputs["event_log_start"], outputs["event_log_end"], outputs["event_target"])
         elif self.mode == "stream" and "event_on" in outputs:  # the stream's event pixels carry their own counts
@@ -242,8 +261,23 @@ class EventTerm(nn.Module):
                 lower_bound=self.config.event_loss_bound,
             )
         else:
-            return {}
-        return {"event_loss": loss}
+            return None
+        return loss
+
+    def weigh(self, term: str, weighted: Tensor, inputs: TermInputs) -> Tensor:
+        """The EDI prior's cosine-decayed weight (EvDeblurNeRF's); the event loss's `noise` weighting and gate."""
+        if term == "edi_prior_loss":
+            return weighted * edi_prior.cosine_weight(inputs.step)
+        return self.weighted_loss(weighted, inputs.raw, inputs.outputs)
+
+    def param_groups(self) -> Dict[str, List[Parameter]]:
+        """The learnt thresholds with the "fields"; the learnt event response's own group "event_crf"."""
+        groups: Dict[str, List[Parameter]] = {}
+        if self.log_threshold is not None:
+            groups["fields"] = [self.log_threshold]
+        if self.crf is not None:
+            groups["event_crf"] = list(self.crf.parameters())
+        return groups
 
     def noise_weight(self, raw: Dict[str, Tensor], outputs: Dict[str, Tensor]) -> Float[Tensor, ""]:
         """The `noise` weighting's factor (config `event_loss_weighting`): the event samples' share of the batch

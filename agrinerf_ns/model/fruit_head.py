@@ -11,14 +11,18 @@ model's plan), so that ``agrinerf-count --path fruit`` can count fruit in the fi
 
 from __future__ import annotations
 
-from typing import Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import torch
 from jaxtyping import Float
 from nerfstudio.field_components.encodings import NeRFEncoding
 from nerfstudio.field_components.mlp import MLP
 from torch import Tensor, nn
+from torch.nn import Parameter
 from torch.nn import functional as F
+
+from agrinerf_ns.model import thermal_view
+from agrinerf_ns.model.model_part import ModelPart, TermInputs
 
 PROBABILITY_EPS = 1e-6
 """Rendered probabilities are clamped to [eps, 1 - eps] in the loss (BCE of an exact 0 or 1 is infinite)."""
@@ -26,8 +30,9 @@ FRUIT_DEPTH_EPS = 1e-4
 """Below this rendered fruit probability a ray has no fruit depth (NaN)."""
 
 
-class FruitHead(nn.Module):
-    """Fruit logit of a sample from its density features and its encoded grid position.
+class FruitHead(nn.Module, ModelPart):
+    """Fruit logit of a sample from its density features and its encoded grid position; the part of the term
+    `fruit_loss`.
 
     The position is there because at the grid sizes a CPU trains (16^3 to 300^3, a few components) the density
     features are smooth and alike across a surface, so alone they can hardly tell a fruit from the leaf beside it.
@@ -72,6 +77,26 @@ class FruitHead(nn.Module):
         fruit_weights = weights * probability
         fruit = fruit_weights.sum(dim=-2)
         return fruit, None if distances is None else fruit_depth(fruit_weights, distances)
+
+    def loss(self, term: str, inputs: TermInputs) -> Optional[Tensor]:
+        """The fruit loss: a mask of the RGB camera's view on the RGB rays; one of the thermal camera's view on the
+        first rays rendered along the thermal camera's rays (`thermal_view`), and not on the RGB rays."""
+        outputs, batch = inputs.outputs, inputs.batch
+        if "fruit" not in batch:
+            return None
+        fruit, known = inputs.target("fruit"), inputs.target("fruit_known")
+        assert fruit is not None and known is not None
+        tv = thermal_view.PREFIX + "fruit"
+        if tv not in outputs or "fruit_thermal" not in batch:
+            return fruit_loss(outputs["fruit"], fruit, known)
+        thermal = batch["fruit_thermal"].to(inputs.device)
+        m = outputs[tv].shape[0]
+        rendered = torch.cat([outputs["fruit"], outputs[tv]])
+        known = torch.cat([known * (1.0 - thermal), known[:m] * thermal[:m]])
+        return fruit_loss(rendered, torch.cat([fruit, fruit[:m]]), known)
+
+    def param_groups(self) -> Dict[str, List[Parameter]]:
+        return {"fields": list(self.parameters())}
 
 
 def fruit_depth(

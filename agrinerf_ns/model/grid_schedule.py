@@ -4,21 +4,22 @@ optimizers re-pointed at the Parameters these replace."""
 
 from __future__ import annotations
 
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
 from jaxtyping import Float
-from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.cameras.rays import RayBundle, RaySamples
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
 from torch import Tensor
 from torch.nn import Parameter
 
+from agrinerf_ns.dataset_format import FRUIT_MASK
 from agrinerf_ns.model.field import AgriNeRFField
 from agrinerf_ns.model.grid_mapping import box_voxel
 from agrinerf_ns.model.grid_mapping import fit_box as fit_box_to_points
-from agrinerf_ns.model.model_config import AgriNeRFSettings
 from agrinerf_ns.model.rig import SIDE_STREAM_SEED
 
 SurfaceRender = Callable[[RayBundle], Tuple[Tensor, Tensor, Tensor]]
@@ -32,12 +33,63 @@ def upsampling_resolutions(init: int, final: int, iters: Sequence[int]) -> List[
     return np.round(levels).astype(int).tolist()[1:]
 
 
+@dataclass(frozen=True)
+class GridSettings:
+    """The grid schedule's own settings, built from the flat model settings (`model_config.part_settings`); each
+    field is documented on `model_config.AgriNeRFSettings`, whose field of the same name sets it."""
+
+    init_resolution: int
+    final_resolution: int
+    upsampling_iters: Tuple[int, ...]
+    box_fit_iters: Tuple[int, ...]
+    box_fit_rays: int
+    box_grid_fraction: float
+    box_fit_growth: float
+    box_refit_growth: float
+    box_depth_cut: float
+    box_surface_share: float
+    box_voxel_target_m: float
+    box_min_share: float
+    box_fruit_share: float
+    occupancy_resolution: int
+    occupancy_update_iters: Tuple[int, ...]
+    occupancy_density_threshold: float
+
+
+def grid_diagnostics(
+    field: AgriNeRFField,
+    final_resolution: int,
+    bundle: RayBundle,
+    samples: RaySamples,
+    weights: Float[Tensor, "rays samples 1"],
+    depth: Float[Tensor, "rays 1"],
+) -> Dict[str, Tensor]:
+    """Where a render's weight falls and how fine the grid is there (evaluation outputs): the weight within the
+    full-resolution box, and the voxel size at the surface now and at `final_resolution`."""
+    inside = field.full_resolution(samples.frustums.get_positions()).to(weights.dtype)[..., None]
+    surface = bundle.origins + bundle.directions * depth
+    final = field.axis_resolution(final_resolution)
+    return {
+        "full_resolution_weight": (weights * inside).sum(dim=-2),
+        "voxel_size": field.voxel_size(surface).amax(dim=-1, keepdim=True),
+        "voxel_size_final": field.voxel_size(surface, final).amax(dim=-1, keepdim=True),
+    }
+
+
 class GridSchedule:
     """The volumes' schedule of one model: its settings, the field whose volumes it resamples, and the dataset's
-    metres per scene unit (None: unknown scale)."""
+    metres per scene unit (None: unknown scale); `fruit_masks`: the training frames' RGB-camera fruit masks, from the
+    dataparser's metadata (`rgb_fruit_masks`), which the box fits hold with `box_fruit_share`."""
 
-    def __init__(self, config: AgriNeRFSettings, field: AgriNeRFField, metres_per_unit: Optional[float]) -> None:
-        self.config, self.field, self.metres_per_unit = config, field, metres_per_unit
+    def __init__(
+        self,
+        config: GridSettings,
+        field: AgriNeRFField,
+        metres_per_unit: Optional[float],
+        fruit_masks: Optional[Sequence[Optional[Any]]] = None,
+    ) -> None:
+        self.config, self.field, self.metres_per_unit, self.fruit_masks = config, field, metres_per_unit, fruit_masks
+        self._fruit_pixels: Dict[Any, Optional[Tensor]] = {}  # the masks' fruit pixels, read once (`fruit_pixels`)
         self.resolutions = upsampling_resolutions(
             config.init_resolution, config.final_resolution, config.upsampling_iters
         )
@@ -77,7 +129,7 @@ class GridSchedule:
         if box is None:
             return None
         if cfg.box_fruit_share > 0 and fruit_masks is not None:
-            fruit = fruit_pixel_rays(cameras, fruit_masks, n, gen)
+            fruit = fruit_pixel_rays(cameras, self.fruit_pixels(cameras, fruit_masks), n, gen)
             if fruit is not None:
                 box = box_with_fruit(box, *surfaces(fruit), cfg.box_depth_cut, cfg.box_fruit_share)
         old = field.full_resolution_box()
@@ -91,6 +143,13 @@ class GridSchedule:
         if self.occupancy_updated(step):
             field.update_occupancy(cfg.occupancy_density_threshold)
         return box
+
+    def fruit_pixels(self, cameras: Any, masks: Sequence[Optional[Any]]) -> Optional[Tensor]:
+        """`fruit_pixels` of `masks` at the sizes of `cameras`, read from their files at the first fit only."""
+        key = (tuple(masks), tuple(cameras.height[:, 0].tolist()), tuple(cameras.width[:, 0].tolist()))
+        if key not in self._fruit_pixels:
+            self._fruit_pixels[key] = fruit_pixels(cameras, masks)
+        return self._fruit_pixels[key]
 
     def box_for_surface(
         self,
@@ -150,9 +209,12 @@ class GridSchedule:
             del step
             field.update_occupancy(cfg.occupancy_density_threshold)
 
+        # the training cameras, taken once here (Nerfstudio's stay on the CPU); the fruit masks came with the metadata
+        dataset = getattr(getattr(attributes.pipeline, "datamanager", None), "train_dataset", None)
+        cameras = None if dataset is None else dataset.cameras
+
         def refit_box(step: int) -> None:
-            dataset = getattr(getattr(attributes.pipeline, "datamanager", None), "train_dataset", None)
-            if dataset is None or self.fit_box(surfaces, dataset.cameras, step, rgb_fruit_masks(dataset)) is None:
+            if cameras is None or self.fit_box(surfaces, cameras, step, self.fruit_masks) is None:
                 return
             if optimizers is not None:
                 sync_optimizers(param_groups(), optimizers, keep_moments=False)
@@ -168,34 +230,39 @@ class GridSchedule:
         return callbacks
 
 
-def rgb_fruit_masks(dataset: Any) -> Optional[List[Optional[Any]]]:
-    """Per training camera of `dataset` its fruit-mask file where the mask is the RGB camera's (None where it is the
-    thermal camera's); None when the dataset has no fruit masks."""
-    metadata = getattr(dataset, "metadata", None) or {}
-    files = metadata.get("fruit_mask_filenames")
+def rgb_fruit_masks(metadata: Mapping[str, Any]) -> Optional[List[Optional[Any]]]:
+    """Per training camera its fruit-mask file (the dataparser's `metadata`) where the mask is the RGB camera's (None
+    where it is the thermal camera's); None when the dataset has no fruit masks."""
+    files = metadata.get(FRUIT_MASK.metadata)
     if not files:
         return None
     thermal = metadata.get("fruit_mask_thermal") or [False] * len(files)
     return [None if on_thermal else path for path, on_thermal in zip(files, thermal, strict=True)]
 
 
-def fruit_pixel_rays(cameras: Any, masks: Sequence[Optional[Any]], n: int, gen: torch.Generator) -> Optional[RayBundle]:
-    """Up to `n` rays through fruit pixels of the cameras' masks (every fruit pixel equally likely, drawn with `gen`);
-    None when no mask holds fruit."""
+def fruit_pixels(cameras: Any, masks: Sequence[Optional[Any]]) -> Optional[Tensor]:
+    """Every fruit pixel of the cameras' masks (files, None: no mask), read at each camera's size as the dataset reads
+    them for the fruit loss: [m, 3] (camera index, row, column at the pixel centre); None when no mask holds fruit."""
     from agrinerf_ns.dataparsers.fruit_masks import load_fruit_mask
 
     pixels = []
     for index, path in enumerate(masks):
         if path is None:
             continue
-        # at the camera's size, as the dataset reads it for the fruit loss
         fruit, _ = load_fruit_mask(path, int(cameras.height[index, 0]), int(cameras.width[index, 0]))
         ys, xs = np.nonzero(fruit[..., 0].numpy() > 0.5)
         if ys.size:
             pixels.append(np.stack([np.full(ys.size, index), ys + 0.5, xs + 0.5], -1))
     if not pixels:
         return None
-    every = torch.from_numpy(np.concatenate(pixels)).float()  # cpu: the training cameras stay on the CPU
+    return torch.from_numpy(np.concatenate(pixels)).float()  # cpu: the training cameras stay on the CPU
+
+
+def fruit_pixel_rays(cameras: Any, every: Optional[Tensor], n: int, gen: torch.Generator) -> Optional[RayBundle]:
+    """Up to `n` rays through the fruit pixels `every` (`fruit_pixels`; every one equally likely, drawn with `gen`);
+    None when there are none."""
+    if every is None:
+        return None
     pick = torch.randint(0, every.shape[0], (min(n, every.shape[0]),), generator=gen)  # cpu: as the scene's rays
     chosen = every[pick]
     return cameras.generate_rays(camera_indices=chosen[:, :1].long(), coords=chosen[:, 1:])

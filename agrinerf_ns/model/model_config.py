@@ -4,7 +4,7 @@ them without building one."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import Any, Dict, Literal, Tuple, Type
+from typing import Any, Dict, Literal, Tuple, Type, TypeVar
 
 from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.config_utils import to_immutable_dict
@@ -304,3 +304,13 @@ def __getattr__(name: str) -> Any:
     if name == "AgriNeRFModelConfig":
         return AgriNeRFSettings
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+PartSettings = TypeVar("PartSettings")
+
+
+def part_settings(cls: Type[PartSettings], config: AgriNeRFSettings) -> PartSettings:
+    """A part's own settings dataclass `cls` (`grid_schedule.GridSettings`, `event_settings.EventSettings`), each
+    field taken from the flat settings' field of the same name, as Splatfacto builds gsplat's `DefaultStrategy` from
+    its flat config: the flat fields stay the ones that command-line flags and older runs' ``config.yml`` set."""
+    return cls(**{f.name: getattr(config, f.name) for f in fields(cls)})  # type: ignore[arg-type]

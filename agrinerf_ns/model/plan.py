@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, FrozenSet, Literal, Mapping, Tuple
+from typing import TYPE_CHECKING, Any, FrozenSet, List, Literal, Mapping, Tuple
 
+from agrinerf_ns.dataset_format import FRUIT_MASK
 from agrinerf_ns.modalities import normalise_modalities
 
 if TYPE_CHECKING:
@@ -24,6 +25,8 @@ BlurModel = Literal["off", "trajectory", "learnt"]
 """The RGB blur model: off; sub-poses of the rig's trajectory across each exposure; a learnt rigid kernel."""
 
 REGULARISERS = ("l1_reg", "tv_reg_density", "tv_reg_appearance")
+MEASURED_UNWEIGHTED = ("rgb_loss", "edi_prior_loss", "thermal_loss", "thermal_camera_loss", "temperature_loss")
+"""Data terms computed where the plan switches them on even at weight 0: the frames' fit, a metric (and a PSNR)."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,11 @@ class ModelPlan:
     density_gradient_scales: Mapping[str, float]
     """Per term, the scale of its gradient into the density (low light raises the thermal camera's to 1)."""
     terms: FrozenSet[str]
-    """The loss terms with a weight: data terms the plan switches on, regularisers with a coefficient."""
+    """The loss terms with a weight: data terms the plan switches on, regularisers with a coefficient, and any other
+    term with a coefficient (a part's own, `loss_routing.TERMS`)."""
+    measured: FrozenSet[str]
+    """The terms the model computes each step: `terms`, and those of `MEASURED_UNWEIGHTED` switched on at weight 0
+    (raw values in the metrics only)."""
     notes: Tuple[str, ...]
     """What the model says about its decisions when it is built (low light, a supervision the data cannot give)."""
 
@@ -116,20 +123,77 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
     thermal_camera_rays = use_thermal and config.thermal_rays_per_batch > 0 and "camera_centre" in thermal_camera
     thermal_view = thermal_camera_rays and timed
 
-    blur: BlurModel = "off"
-    if use_rgb and config.blur_samples > 1 and (config.blur_kernel == "learnt" or (timed and has_exposure)):
-        blur = config.blur_kernel
+    blur_data = config.blur_kernel == "learnt" or (timed and has_exposure)
+    blur: BlurModel = config.blur_kernel if use_rgb and config.blur_samples > 1 and blur_data else "off"
+    native = metadata.get("event_stream") is not None
+    event_data = use_rgb and use_events and timed and metadata.get("event_windows") is not None
+    supervision, gate = _event_supervision(config, event_data, native, dark, rgb_level, modalities, timed, notes)
+    edi_prior = config.edi_prior and use_rgb and use_events and timed and has_exposure and native
+    has_fruit_head, fruit_thermal_view = _fruit_head(config, metadata, thermal_view, notes)
+    on = {
+        "fruit_loss": has_fruit_head,
+        "rgb_loss": use_rgb,
+        "edi_prior_loss": edi_prior,
+        "event_loss": supervision != "off",
+        "thermal_loss": use_thermal,
+        "thermal_camera_loss": has_thermal_camera,
+        "temperature_loss": has_temperature,
+        "reg_rgb_loss": use_rgb and has_thermal_head,
+        "reg_event_loss": use_events and has_thermal_head,
+        **{name: True for name in REGULARISERS},
+    }
+    terms = frozenset(name for name, weight in config.loss_coefficients.items() if weight > 0 and on.get(name, True))
+    return ModelPlan(
+        modalities=modalities,
+        use_rgb=use_rgb,
+        use_thermal=use_thermal,
+        use_events=use_events,
+        has_thermal_head=has_thermal_head,
+        has_thermal_camera=has_thermal_camera,
+        has_temperature=has_temperature,
+        dark=dark,
+        low_light=low_light,
+        thermal_camera_rays=thermal_camera_rays,
+        thermal_view=thermal_view,
+        timed=timed,
+        blur=blur,
+        event_supervision=supervision,
+        event_gate=gate,
+        edi_prior=edi_prior,
+        has_fruit_head=has_fruit_head,
+        fruit_thermal_view=fruit_thermal_view,
+        density_gradient_scales=scales,
+        terms=terms,
+        measured=terms | {name for name in MEASURED_UNWEIGHTED if on[name]},
+        notes=tuple(notes),
+    )
 
-    coefficients = config.loss_coefficients
+
+def _event_supervision(
+    config: AgriNeRFSettings,
+    event_data: bool,
+    native: bool,
+    dark: bool,
+    rgb_level: float,
+    modalities: Tuple[str, ...],
+    timed: bool,
+    notes: List[str],
+) -> Tuple[EventSupervision, bool]:
+    """The event loss's supervision and gate (`event_data`: the dataset gives RGB frames, events with their windows
+    and the frames' times; `native`: its event stream), with notes on what the data or low light turn off.
+
+    Raises:
+        ValueError: when the config turns the event loss on without event rays or a weight.
+    """
     event_loss = config.event_supervision != "off"  # the event loss's one switch, checked here alone
-    if event_loss and (config.event_rays_per_batch <= 0 or coefficients.get("event_loss", 0.0) <= 0):
+    if event_loss and (config.event_rays_per_batch <= 0 or config.loss_coefficients.get("event_loss", 0.0) <= 0):
         raise ValueError(
             f"event_supervision {config.event_supervision!r} turns the event loss on, but event_rays_per_batch is "
             f"{config.event_rays_per_batch} and loss_coefficients['event_loss'] is "
-            f"{coefficients.get('event_loss', 0.0)}: give both a positive value, or switch the loss off with "
+            f"{config.loss_coefficients.get('event_loss', 0.0)}: give both a positive value, or switch the loss off with "
             "--pipeline.model.event-supervision off."
         )
-    if event_loss and not (use_rgb and use_events and timed and metadata.get("event_windows") is not None):
+    if event_loss and not event_data:
         event_loss = False
         notes.append(
             "Events: the event loss needs RGB frames, events with their windows and the frames' times and trajectory; "
@@ -142,7 +206,6 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
             f"{config.low_light_level}), so the event loss is off (--pipeline.model.low-light-event-loss True "
             "keeps it)."
         )
-    native = metadata.get("event_stream") is not None
     supervision: EventSupervision = "off"
     gate = False
     if event_loss:
@@ -169,12 +232,18 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
                 f"Events: event_supervision {config.event_supervision!r} needs the dataset's event stream "
                 "(events/stream.h5), which it lacks: the frames' event windows supervise the event loss."
             )
-    edi_prior = config.edi_prior and use_rgb and use_events and timed and has_exposure and native
+    return supervision, gate
 
+
+def _fruit_head(
+    config: AgriNeRFSettings, metadata: Mapping[str, Any], thermal_view: bool, notes: List[str]
+) -> Tuple[bool, bool]:
+    """Whether the model has the fruit head (the frames have fruit masks, a weight), and whether the thermal camera's
+    masks are supervised along its rays (`thermal_view`)."""
     has_fruit_head = (
-        metadata.get("fruit_mask_filenames") is not None
+        metadata.get(FRUIT_MASK.metadata) is not None
         and config.fruit_output
-        and coefficients.get("fruit_loss", 0.0) > 0
+        and config.loss_coefficients.get("fruit_loss", 0.0) > 0
     )
     thermal_masks = has_fruit_head and any(metadata.get("fruit_mask_thermal") or ())
     fruit_thermal_view = thermal_masks and thermal_view
@@ -184,39 +253,4 @@ def resolve_plan(config: AgriNeRFSettings, metadata: Mapping[str, Any]) -> Model
             "needs the thermal camera's place, the frames' times and trajectory, and thermal rays per batch > 0): "
             "they are supervised on the RGB rays, a baseline away from what the thermal camera saw."
         )
-    on = {
-        "fruit_loss": has_fruit_head,
-        "rgb_loss": use_rgb,
-        "edi_prior_loss": edi_prior,
-        "event_loss": supervision != "off",
-        "thermal_loss": use_thermal,
-        "thermal_camera_loss": has_thermal_camera,
-        "temperature_loss": has_temperature,
-        "reg_rgb_loss": use_rgb and has_thermal_head,
-        "reg_event_loss": use_events and has_thermal_head,
-        **{name: True for name in REGULARISERS},
-    }
-    terms = frozenset(name for name, wanted_on in on.items() if wanted_on and coefficients.get(name, 0.0) > 0)
-    return ModelPlan(
-        modalities=modalities,
-        use_rgb=use_rgb,
-        use_thermal=use_thermal,
-        use_events=use_events,
-        has_thermal_head=has_thermal_head,
-        has_thermal_camera=has_thermal_camera,
-        has_temperature=has_temperature,
-        dark=dark,
-        low_light=low_light,
-        thermal_camera_rays=thermal_camera_rays,
-        thermal_view=thermal_view,
-        timed=timed,
-        blur=blur,
-        event_supervision=supervision,
-        event_gate=gate,
-        edi_prior=edi_prior,
-        has_fruit_head=has_fruit_head,
-        fruit_thermal_view=fruit_thermal_view,
-        density_gradient_scales=scales,
-        terms=terms,
-        notes=tuple(notes),
-    )
+    return has_fruit_head, fruit_thermal_view

@@ -16,6 +16,7 @@ from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.cameras.rays import RayBundle
 from torch import Tensor
 
+from agrinerf_ns.model.model_part import ModelPart
 from agrinerf_ns.model.rig import RenderRays, Rig
 from agrinerf_ns.model.timed_rays import frame_rows, reposed_rays
 from agrinerf_ns.trajectory import CameraTrajectory
@@ -29,15 +30,22 @@ OUTPUTS = ("thermal", "thermal_camera", "temperature")
 L_reg terms stay on the RGB ray: their targets are RGB luma and event frames)."""
 
 
-class ThermalView:
+class ThermalView(ModelPart):
     """The thermal camera's view of a model whose plan has `thermal_camera_rays` (thermal frames, the camera's place
     known, `rays_per_batch` > 0): in training along its rays (`outputs`, where the plan's `thermal_view` says the
-    trajectory gives each frame's pose), and in held-out metrics (`eval_outputs`)."""
+    trajectory gives each frame's pose), and in held-out metrics (`eval_outputs`).
 
-    def __init__(self, rig: Rig, rays_per_batch: int) -> None:
-        self.rig, self.rays_per_batch = rig, rays_per_batch
+    `train_along`: the plan's `thermal_view` (training renders along its rays); `fruit`: the plan's
+    `fruit_thermal_view` (the thermal camera's fruit masks are supervised on them)."""
 
-    def outputs(self, render: RenderRays, bundle: RayBundle, fruit: bool = False) -> Dict[str, Tensor]:
+    def __init__(self, rig: Rig, rays_per_batch: int, train_along: bool = True, fruit: bool = False) -> None:
+        self.rig, self.rays_per_batch, self.train_along, self.fruit = rig, rays_per_batch, train_along, fruit
+
+    def outputs(self, render: RenderRays, bundle: RayBundle, frame: Dict[str, Tensor], step: int) -> Dict[str, Tensor]:
+        """In training along its rays (`train_along`): `along`'s outputs."""
+        return self.along(render, bundle, self.fruit) if self.train_along else {}
+
+    def along(self, render: RenderRays, bundle: RayBundle, fruit: bool = False) -> Dict[str, Tensor]:
         """The thermal outputs of the first `rays_per_batch` rays of `bundle` rendered from the thermal camera's
         centre, where the rig was when it took its frame (the rig's `thermal_times`; an unsynchronised thermal camera
         takes it up to half a frame interval from the RGB frame, 5 cm at 1 m/s and 9 Hz), through their points on the
