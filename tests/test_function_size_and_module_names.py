@@ -23,13 +23,9 @@ REASON_MARKER = "Long because"
 SHARED_BASENAMES = {"__init__", "cli", "config", "errors"}
 """File names several parts may each have: a package's own, its command line, its options and its errors."""
 
-WAITING_TO_BE_SPLIT = {
-    "agrinerf_ns/model/model.py::AgriNeRFModel.populate_modules": "issue 65 item 6: the model's parts are being split",
-    "agrinerf_ns/model/model.py::AgriNeRFModel.render": "issue 65 item 6: the model's parts are being split",
-    "agrinerf_ns/model/plan.py::resolve_plan": "issue 65 item 6: the plan is being split by term",
-}
-"""Functions over the limit, without a reason, that are being split now (by the work named beside each). The test
-fails when an entry is no longer over the limit, states its reason, or is gone: remove it then, so that the list
+WAITING_TO_BE_SPLIT: Dict[str, str] = {}
+"""Functions over the limit, without a reason, that are being split now (path::name -> the work splitting it). The
+test fails when an entry is no longer over the limit, states its reason, or is gone: remove it then, so that the list
 cannot outlive its reason. Nothing is added here: split a new long function, or state why it is long."""
 
 
