@@ -27,7 +27,8 @@ def faults():  # five rounds of two 48 MiB tensors and their sum, as a training 
 default = faults()
 kept = keep_freed_memory(torch.device("cpu"))
 faults()  # the first round after the setting maps the heap once
-print(json.dumps({"default": default, "kept": kept, "after": faults()}))
+# the least of three rounds: a busy machine's reclaim can add faults to one round (a fault never goes missing)
+print(json.dumps({"default": default, "kept": kept, "after": min(faults() for _ in range(3))}))
 """
 
 
