@@ -51,7 +51,8 @@ class DemoConfig:
     """orchard or garden."""
     lighting: str = "dusk"
     """bright, shadowed, dusk or dark. Dusk by default: poor light in which the fruit head counts (docs/count.md);
-    in the dark the RGB twin is shown at a display exposure (rgb_display) and the count is weak (results/demo)."""
+    in the dark the RGB twin is shown at a display exposure (rgb_display) and the fruit are counted from the thermal
+    bodies (--path bodies: docs/count.md)."""
     views: int = 24
     """Frames along the row."""
     width: int = 96

@@ -73,7 +73,7 @@ def count_caption(count: FruitCount, lighting: str) -> str:
         parts.append(f"fruit temperatures {low:.1f} / {mid:.1f} / {high:.1f} C (min / median / max)")
     text = ", ".join(parts) + "."
     if lighting == "dark":
-        text += " In the dark the fruit masks come from thermal blobs alone and the count is weak (docs/count.md)."
+        text += " In the dark the count comes from the thermal fruit bodies, placed with the poses (--path bodies)."
     return text
 
 
