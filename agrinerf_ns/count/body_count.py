@@ -21,7 +21,7 @@ from jaxtyping import Float
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.cluster import cluster_fruit, merge_distance
 from agrinerf_ns.count.errors import CountInputError
-from agrinerf_ns.count.fruit_score import dataset_frames, read_split, read_truth_fruit
+from agrinerf_ns.count.fruit_score import dataset_frames, read_truth_fruit
 from agrinerf_ns.count.lift import LiftedDetection
 from agrinerf_ns.count.render import WorldFrame, dataset_pose_source
 from agrinerf_ns.count.row_range import fruit_in_range
@@ -55,12 +55,6 @@ def read_sightings(dataset: Path) -> List[dict]:
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise CountInputError(f"{path}: not a fruit bodies file ({err})") from err
     return rows
-
-
-def training_images(dataset: Path) -> List[str]:
-    """The dataset's training frames (``file_path``): its ``train_filenames``, else every frame."""
-    listed = read_split(dataset, "train_filenames")
-    return listed if listed else list(dataset_frames(dataset))
 
 
 def body_detections(sightings: Sequence[dict], frames: Sequence[str]) -> List[LiftedDetection]:
