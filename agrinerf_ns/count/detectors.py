@@ -13,7 +13,7 @@ import tyro
 
 from agrinerf_ns.count.render import RenderedView
 from agrinerf_ns.count.source_table import rgb_eight_bit, source_row
-from agrinerf_ns.count.sources import CountSource, resolve_source
+from agrinerf_ns.count.sources import SourceChoice, resolve_source
 from agrinerf_ns.fruit.blobs import BlobConfig, Detection
 from agrinerf_ns.fruit.ellipse import inscribed_ellipse
 from agrinerf_ns.fruit.view import MIN_ACCUMULATION
@@ -28,7 +28,7 @@ class DetectorConfig:
     detector: DetectorName = "blobs"
     """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
     e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
-    source: CountSource = "auto"
+    source: SourceChoice = "auto"
     """The output fruit are found in: ``fruit`` (the fruit head's probability, a run trained with fruit masks; its
     regions), ``temperature`` (degrees C, where the run has one: fruit differ from leaves in temperature), the
     cross-spectral ``thermal`` or ``rgb``; ``auto``: rgb on a run whose RGB frames are lit, else the
@@ -56,12 +56,12 @@ def make_detector(config: DetectorConfig) -> Detector:
         return yolo_detector(config)
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
-        return find_fruit(view, view_source(config, view), scale, config.blobs)
+        return fruit_in_view(view, view_source(config, view), scale, config.blobs)
 
     return detect
 
 
-def find_fruit(view: RenderedView, source: str, scale: float, blobs: BlobConfig = BlobConfig()) -> List[Detection]:
+def fruit_in_view(view: RenderedView, source: str, scale: float, blobs: BlobConfig = BlobConfig()) -> List[Detection]:
     """The fruit of ``view`` found as ``source``'s row finds them (contrast blobs of its image, or the fruit head's
     regions); ``scale``: the dataparser scale (Nerfstudio units per dataset unit)."""
     return source_row(source).find(view, scale, blobs)

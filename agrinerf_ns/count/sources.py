@@ -20,7 +20,9 @@ The field path takes ``fruit`` only when asked for (``--path fruit``): sampled i
 
 from __future__ import annotations
 
-from typing import Any, FrozenSet, Literal, Optional, Tuple
+from typing import Annotated, Any, FrozenSet, Literal, Optional, Tuple
+
+import tyro
 
 from agrinerf_ns.count.errors import CountInputError
 from agrinerf_ns.count.source_table import SOURCE_TABLE, auto_order
@@ -31,6 +33,9 @@ CountSource = Literal["auto", "fruit", "temperature", "thermal_camera", "thermal
 radiometric thermal camera); ``thermal_camera``: the thermal camera's channel (field only); ``thermal``: the
 cross-spectral channel; ``rgb``: fruit colour; ``auto``: :func:`resolve_source` picks. The command line's choices; a
 source added to :data:`agrinerf_ns.count.source_table.SOURCE_TABLE` is counted by name from Python."""
+SourceChoice = Annotated[str, tyro.conf.arg(constructor=CountSource, help_behavior_hint="(default: auto)")]
+"""A settings field naming a source: the command line offers :data:`CountSource`; in Python any source of the table
+(one added too)."""
 CountPath = Literal["views", "field"]
 
 VIEW_ORDER: Tuple[CountSource, ...] = auto_order("views")  # type: ignore[assignment]
@@ -68,9 +73,9 @@ class RunOutputs:
     def has(self, source: str) -> bool:
         return source in self.sources
 
-    def available(self) -> Tuple[CountSource, ...]:
+    def available(self) -> Tuple[str, ...]:
         """The sources it has, in the table's order (fruit, temperature, thermal_camera, thermal, rgb, then added)."""
-        return tuple(name for name in SOURCE_TABLE if name in self.sources)  # type: ignore[misc]
+        return tuple(name for name in SOURCE_TABLE if name in self.sources)
 
     @property
     def thermal_any(self) -> bool:
@@ -101,9 +106,7 @@ def field_outputs(model: Any) -> RunOutputs:
     )
 
 
-def resolve_source(
-    wanted: str, path: CountPath, outputs: RunOutputs, detector: str = "blobs"
-) -> Tuple[CountSource, str]:
+def resolve_source(wanted: str, path: CountPath, outputs: RunOutputs, detector: str = "blobs") -> Tuple[str, str]:
     """(source, why) for ``path``: ``wanted`` when the run has it, else a :class:`CountInputError` naming what it has;
     ``auto``: the first the run has in the order the module docstring gives (RGB views first on a lit run), as the
     sources' rows rank them (:mod:`agrinerf_ns.count.source_table`)."""
@@ -111,15 +114,15 @@ def resolve_source(
         if not outputs.has(wanted):
             have = ", ".join(outputs.available()) or "none"
             raise CountInputError(f"the run's model has no '{wanted}' output to count fruit from (it has: {have})")
-        return wanted, "asked for"  # type: ignore[return-value]
+        return wanted, "asked for"
     if path == "views":
         for lead in ("present", "lit"):
             for name, row in SOURCE_TABLE.items():
                 if row.lead == lead and outputs.has(name) and (lead == "present" or outputs.dark is False):
-                    return name, row.lead_why  # type: ignore[return-value]
+                    return name, row.lead_why
     order = auto_order("field" if path == "field" else "yolo" if detector == "yolo" else "views")
     thermal = ", ".join(name for name in order if SOURCE_TABLE[name].thermal)
     for source in order:
         if outputs.has(source):
-            return source, SOURCE_TABLE[source].fallback_why or f"the run's first thermal output ({thermal})"  # type: ignore[return-value]
+            return source, SOURCE_TABLE[source].fallback_why or f"the run's first thermal output ({thermal})"
     raise CountInputError("the run's model has none of the outputs fruit are counted from")
