@@ -88,7 +88,7 @@ def test_a_toy_source_added_as_one_row_counts_in_views_and_in_the_field(kelvin: 
         settings = CountConfig(detect=DetectorConfig(source=source), cluster=ClusterConfig(min_views=1))
         result = run_count(tmp_path / source, settings, renders_dir=tmp_path / "renders")
         report = json.loads((tmp_path / source / "count.json").read_text())
-        assert len(result.fruit) == 4 and report["fruit"] == 4 and report["source"] == "kelvin", report
+        assert len(result.fruit) == 4 and report["fruit"] == 4 and report["detector"]["source"] == "kelvin", report
     assert resolve_source("auto", "views", loaded.outputs()) == (
         "kelvin",
         "the run's first thermal output (temperature, thermal, kelvin)",

@@ -119,7 +119,7 @@ class RenderedView:
         return self.origins + self.directions * self.depth[..., None]
 
     def save(self, path: Path) -> None:
-        arrays = {
+        arrays: Dict[str, np.ndarray] = {
             "depth": self.depth.astype(np.float32),
             "accumulation": self.accumulation.astype(np.float16),
             "origins": self.origins.astype(np.float32),
