@@ -66,6 +66,8 @@ class SourceRow:
     (not those that stand out)."""
     voxel_value: Optional[Callable[[np.ndarray], Float[np.ndarray, " n"]]] = None
     """The field path: one value per voxel from its (n, channels) samples (None: the first channel)."""
+    lift_depth: Optional[str] = None
+    """The rendered output its view regions are lifted by with ``--fruit-depth`` (None: the rendered depth)."""
     eight_bit: Optional[Callable[[View], np.ndarray]] = None
     """The 8-bit BGR image YOLO reads (None: the RGB render)."""
     sample: Optional[FieldSampler] = None
@@ -168,7 +170,7 @@ SOURCE_TABLE: Dict[str, SourceRow] = {
             "fruit", lambda plan: plan.has_fruit_head,
             renders=(RenderedOutput("fruit", np.float16, missing=" (trained without fruit masks)"),
                      RenderedOutput("fruit_depth")),
-            regions=fruit_regions, sample=sample_fruit, probability=True, lead="present",
+            regions=fruit_regions, lift_depth="fruit_depth", sample=sample_fruit, probability=True, lead="present",
             lead_why="the run has a fruit head: its rendered fruit regions counted best (tuning seed 0)",
         ),
         SourceRow(
