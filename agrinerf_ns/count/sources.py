@@ -1,5 +1,7 @@
 """Which output of a run ``agrinerf-count`` tells fruit apart by: one type (:data:`CountSource`), one description of what
-a run has (:class:`RunOutputs`) and one resolver (:func:`resolve_source`) that both paths use.
+a run has (:class:`RunOutputs`) and one resolver (:func:`resolve_source`) that both paths use. What each source is (its
+outputs, how its fruit are found, its ranks in the orders below) is its row in
+:mod:`agrinerf_ns.count.source_table`.
 
 ``auto`` is resolved in these orders, from the counts of results/count-seeds (F1 at 0.05 m):
 
