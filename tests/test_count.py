@@ -15,7 +15,7 @@ from helpers.tiny_scene import cast_sphere_view
 
 from agrinerf_ns.count.cli import CountArgs, main
 from agrinerf_ns.count.cluster import ClusterConfig, Fruit, cluster_fruit
-from agrinerf_ns.count.detectors import DetectorConfig, view_source
+from agrinerf_ns.count.detectors import DetectorConfig, fruit_in_view, view_source
 from agrinerf_ns.count.fruit_score import (
     TruthFruit,
     align_to_capture,
@@ -35,7 +35,7 @@ from agrinerf_ns.count.render import (
     save_renders,
 )
 from agrinerf_ns.count.support import keep_supported, views_showing
-from agrinerf_ns.fruit.blobs import BlobConfig, detect_blobs, surround_sides
+from agrinerf_ns.fruit.blobs import BlobConfig, surround_sides
 from agrinerf_ns.lab.count_diagnose import diagnose
 from agrinerf_ns.lab.count_oracle import oracle_renders, reproject_thermal, undistort_maps, with_true_depth
 from agrinerf_ns.process.readers import CameraCalib, read_calibration
@@ -158,32 +158,32 @@ def test_blobs_find_warm_cool_and_coloured_fruit() -> None:
         cv2.circle(rgb, (x, y), 4, (0.7, 0.08, 0.05), -1)
     cv2.rectangle(thermal, (60, 45), (110, 95), 0.6, -1)  # 40 cm wide at 1.5 m: not a fruit
     view = _plane_view(thermal.astype(np.float32), np.clip(rgb, 0, 1).astype(np.float32), 1.5, focal)
-    both = detect_blobs(view, "thermal", 1.0, BlobConfig())
-    warm = detect_blobs(view, "thermal", 1.0, BlobConfig(polarity="warm"))
-    red = detect_blobs(view, "rgb", 1.0, BlobConfig())
+    both = fruit_in_view(view, "thermal", 1.0, BlobConfig())
+    warm = fruit_in_view(view, "thermal", 1.0, BlobConfig(polarity="warm"))
+    red = fruit_in_view(view, "rgb", 1.0, BlobConfig())
     assert (len(both), len(warm), len(red)) == (4, 3, 2)
     # the same scene as a temperature render in degrees C (leaves 20 C, fruit +-3 C): the same fruit
     view.temperature = (20.0 + 30.0 * (thermal - 0.4)).astype(np.float32)
-    assert len(detect_blobs(view, "temperature", 1.0, BlobConfig())) == 4
+    assert len(fruit_in_view(view, "temperature", 1.0, BlobConfig())) == 4
     assert view_source(DetectorConfig(), view) == "temperature"  # auto: what the run renders
     assert view_source(DetectorConfig(detector="yolo"), view) == "thermal"
     assert view_source(DetectorConfig(source="rgb"), view) == "rgb"
     view.temperature = None
     assert view_source(DetectorConfig(), view) == "thermal"
     with pytest.raises(ValueError, match="no 'temperature' output"):
-        detect_blobs(view, "temperature", 1.0, BlobConfig())
+        fruit_in_view(view, "temperature", 1.0, BlobConfig())
     view.thermal = None
     assert view_source(DetectorConfig(), view) == "rgb"
     with pytest.raises(ValueError, match="no cross-spectral 'thermal' output"):
-        detect_blobs(view, "thermal", 1.0, BlobConfig())
+        fruit_in_view(view, "thermal", 1.0, BlobConfig())
     view.thermal = thermal.astype(np.float32)
     frame_points = [lift_detection(view, d.mask, IDENTITY) for d in warm]
     assert all(p is not None and p.diameter == pytest.approx(0.06, rel=0.3) for p in frame_points)
     view.rgb = None  # a run trained without RGB frames (Table IV "Thermal"): its thermal fruit, no colour ones
-    assert len(detect_blobs(view, "thermal", 1.0, BlobConfig())) == 4
+    assert len(fruit_in_view(view, "thermal", 1.0, BlobConfig())) == 4
     assert view_source(DetectorConfig(), view) == "thermal"
     with pytest.raises(ValueError, match="view 000000: the run renders no 'rgb' output"):
-        detect_blobs(view, "rgb", 1.0, BlobConfig())
+        fruit_in_view(view, "rgb", 1.0, BlobConfig())
 
 
 def test_renders_of_a_run_without_rgb_round_trip(tmp_path: Path) -> None:

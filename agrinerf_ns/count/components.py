@@ -25,6 +25,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.count.cluster import Fruit
+from agrinerf_ns.count.source_table import source_row
 from agrinerf_ns.count.volume import SampledField, mask_of, views_showing_pixels
 from agrinerf_ns.fruit.contrast import Polarity
 from agrinerf_ns.robust import robust_spread
@@ -85,23 +86,19 @@ def standing_out(sampled: SampledField, config: ComponentConfig) -> Float[np.nda
 
 
 def _feature(sampled: SampledField) -> Float[np.ndarray, " n"]:
-    """One value per voxel: the source output, or the fruit-colour score of the RGB output."""
-    if sampled.source != "rgb" or len(sampled.feature) == 0:
-        return sampled.feature[:, 0].astype(np.float32)
-    from agrinerf_ns.fruit.colour_score import fruit_colour
-
-    rgb = sampled.feature.astype(np.float32).reshape(-1, 1, 3)
-    return fruit_colour(rgb, np.ones(rgb.shape[:2], bool))[:, 0]
+    """One value per voxel, as the source's row makes it (the output itself, or the fruit-colour score of RGB)."""
+    return source_row(sampled.source).value(sampled.feature)
 
 
 def find_fruit(sampled: SampledField, config: ComponentConfig = ComponentConfig()) -> Tuple[List[Fruit], dict]:
     """Fruit (dataset frame and units) of a sampled field, and a summary of what was found and dropped."""
-    if sampled.source == "fruit":  # the fruit head says it directly: its probability against a threshold
+    row = source_row(sampled.source)
+    if row.probability:  # e.g. the fruit head says it directly: its probability against a threshold
         probability = sampled.feature[:, 0].astype(np.float32)
         selections = [(probability >= config.fruit_probability, probability)]
     else:
         z = standing_out(sampled, config)
-        polarities = ["warm"] if sampled.source == "rgb" else (
+        polarities = ["warm"] if row.one_sided else (
             ["warm", "cool"] if config.polarity == "both" else [config.polarity])  # fmt: skip
         selections = [(z >= config.threshold if p == "warm" else z <= -config.threshold, np.abs(z)) for p in polarities]
     fruit: List[Fruit] = []

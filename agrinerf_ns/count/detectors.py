@@ -12,12 +12,11 @@ import numpy as np
 import tyro
 
 from agrinerf_ns.count.render import RenderedView
-from agrinerf_ns.count.sources import CountSource, resolve_source
-from agrinerf_ns.fruit.blobs import BlobConfig, Detection, detect_blobs
+from agrinerf_ns.count.source_table import rgb_eight_bit, source_row
+from agrinerf_ns.count.sources import SourceChoice, resolve_source
+from agrinerf_ns.fruit.blobs import BlobConfig, Detection
 from agrinerf_ns.fruit.ellipse import inscribed_ellipse
-from agrinerf_ns.fruit.regions import fruit_regions
 from agrinerf_ns.fruit.view import MIN_ACCUMULATION
-from agrinerf_ns.images import to_uint8
 
 DetectorName = Literal["blobs", "yolo"]
 
@@ -29,7 +28,7 @@ class DetectorConfig:
     detector: DetectorName = "blobs"
     """``blobs``: fruit-sized blobs found with OpenCV (no weights); ``yolo``: a YOLOv8 detector (``--weights``,
     e.g. trained by ``agrinerf-detect``; needs the optional AGPL-3.0 Ultralytics extra)."""
-    source: CountSource = "auto"
+    source: SourceChoice = "auto"
     """The output fruit are found in: ``fruit`` (the fruit head's probability, a run trained with fruit masks; its
     regions), ``temperature`` (degrees C, where the run has one: fruit differ from leaves in temperature), the
     cross-spectral ``thermal`` or ``rgb``; ``auto``: rgb on a run whose RGB frames are lit, else the
@@ -57,12 +56,15 @@ def make_detector(config: DetectorConfig) -> Detector:
         return yolo_detector(config)
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
-        source = view_source(config, view)
-        if source == "fruit":  # the fruit head's probability: its regions, not contrast blobs
-            return fruit_regions(view, scale, config.blobs)
-        return detect_blobs(view, source, scale, config.blobs)
+        return fruit_in_view(view, view_source(config, view), scale, config.blobs)
 
     return detect
+
+
+def fruit_in_view(view: RenderedView, source: str, scale: float, blobs: BlobConfig = BlobConfig()) -> List[Detection]:
+    """The fruit of ``view`` found as ``source``'s row finds them (contrast blobs of its image, or the fruit head's
+    regions); ``scale``: the dataparser scale (Nerfstudio units per dataset unit)."""
+    return source_row(source).find(view, scale, blobs)
 
 
 def view_source(config: DetectorConfig, view: RenderedView) -> str:
@@ -77,7 +79,7 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     predict = box_predictor(config.weights, config.confidence, hint="--detector yolo needs --weights PATH")
 
     def detect(view: RenderedView, scale: float) -> List[Detection]:
-        boxes, scores = predict(_detector_image(view, view_source(config, view)))
+        boxes, scores = predict(eight_bit_image(view, view_source(config, view)))
         rendered = view.accumulation >= MIN_ACCUMULATION
         height, width = rendered.shape
         return [Detection(inscribed_ellipse(height, width, box) & rendered, float(s))
@@ -86,11 +88,7 @@ def yolo_detector(config: DetectorConfig) -> Detector:
     return detect
 
 
-def _detector_image(view: RenderedView, source: str) -> np.ndarray:
-    """The 8-bit BGR image a YOLO detector trained by agrinerf-detect sees (its renders are 8-bit PNGs)."""
-    if source == "temperature":
-        raise ValueError("the YOLO detector reads 8-bit rgb or thermal renders; use --detector blobs on temperature")
-    if source == "thermal":
-        gray = to_uint8(view.optional_output("thermal"))
-        return np.repeat(gray[..., None], 3, axis=-1)
-    return np.ascontiguousarray(to_uint8(view.optional_output("rgb"))[..., ::-1])
+def eight_bit_image(view: RenderedView, source: str) -> np.ndarray:
+    """The 8-bit BGR image a YOLO detector trained by agrinerf-detect sees on ``source`` (its renders are 8-bit PNGs):
+    as the source's row makes it, else the RGB render."""
+    return (source_row(source).eight_bit or rgb_eight_bit)(view)

@@ -18,7 +18,7 @@ from agrinerf_ns.count.fruit_score import read_truth_fruit
 from agrinerf_ns.count.pipeline import CONSOLE, CountConfig, CountResult, raw_training_frames, score_result, write_count
 from agrinerf_ns.count.render import CountInputError, WorldFrame, relative_path
 from agrinerf_ns.count.row_range import fruit_in_range
-from agrinerf_ns.count.sources import CountSource, field_outputs, resolve_source
+from agrinerf_ns.count.sources import SourceChoice, field_outputs, resolve_source
 from agrinerf_ns.count.volume import SampledField, VolumeConfig, render_depth_views, sample_field
 
 if TYPE_CHECKING:
@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 class FieldCountConfig:
     """How fruit are found in the field."""
 
-    source: CountSource = "auto"
+    source: SourceChoice = "auto"
     """The output fruit are told apart by: fruit (the fruit head), temperature, thermal_camera, thermal
     (cross-spectral), rgb; auto: the first of the last four the run has (RGB only when it has no thermal output, and
     the count says so; :mod:`agrinerf_ns.count.sources`)."""

@@ -45,6 +45,7 @@ from agrinerf_ns.count.render import (
     render_run,
 )
 from agrinerf_ns.count.row_range import fruit_in_range, in_range
+from agrinerf_ns.count.source_table import source_row
 from agrinerf_ns.count.sources import resolve_source
 from agrinerf_ns.count.support import keep_supported
 from agrinerf_ns.count.write import draw_map, score_markdown, write_csv, write_ply
@@ -124,7 +125,8 @@ def detect_and_lift(
     for index, view in enumerate(renders.views):
         found = detector(view, renders.frame.scale)
         per_view.append(len(found))
-        depth = view.fruit_depth if config.fruit_depth and view_source(config, view) == "fruit" else None
+        lift_by = source_row(view_source(config, view)).lift_depth if config.fruit_depth else None
+        depth = view.output(lift_by) if lift_by is not None else None
         for detection in found:
             point = lift_detection(view, detection.mask, renders.frame, index, detection.score, depth)
             if point is not None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import copy
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Dict, List, Optional, Sequence
 
@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Float
 
 from agrinerf_ns.count.errors import CountInputError
+from agrinerf_ns.count.source_table import SOURCE_TABLE, rendered_outputs
 from agrinerf_ns.count.sources import RunOutputs, rgb_frames_dark
 from agrinerf_ns.dataset_format import BLOCK, TRANSFORMS
 
@@ -29,9 +30,6 @@ if TYPE_CHECKING:
     from agrinerf_ns.run_loading import LoadedRun
 
 RENDERS_JSON = "renders.json"
-OPTIONAL_OUTPUTS = ("thermal", "temperature", "fruit", "fruit_depth")
-"""Outputs kept when the run renders them (the cross-spectral channel, degrees C, the fruit head's probability and
-its depth)."""
 
 
 @dataclass(frozen=True)
@@ -91,46 +89,57 @@ class RenderedView:
     """The fruit head's rendered probability (a run trained with fruit masks)."""
     fruit_depth: Optional[Float[np.ndarray, "h w"]] = None
     """Where along each ray the fruit head puts the fruit (the rendered depth where it puts none)."""
+    extra: Dict[str, np.ndarray] = field(default_factory=dict)
+    """The outputs of counting sources added to the table that are none of the above, by name."""
+
+    def output(self, name: str) -> Optional[np.ndarray]:
+        """The rendered output ``name`` (an attribute above or an ``extra``); None where the run renders none."""
+        return getattr(self, name) if name in VIEW_ATTRIBUTES else self.extra.get(name)
 
     def optional_output(self, name: str) -> Float[np.ndarray, "h w *channels"]:
-        """The ``rgb``, ``thermal``, ``temperature`` or ``fruit`` image; ValueError naming the view where the run
-        renders none."""
-        image = getattr(self, name)
+        """A counting source's rendered image (``rgb``, ``thermal``, ``temperature``, ``fruit``, ...); ValueError
+        naming the view where the run renders none."""
+        image = self.output(name)
         if image is None:
-            what = {"rgb": "'rgb'", "thermal": "cross-spectral 'thermal'", "temperature": "'temperature'",
-                    "fruit": "'fruit'"}[name]  # fmt: skip
-            whys = {"temperature": " (no radiometric thermal camera)", "rgb": " (trained without RGB frames)",
-                    "fruit": " (trained without fruit masks)"}  # fmt: skip
-            why = whys.get(name, "")
+            kept = rendered_outputs().get(name)
+            what = (kept.what if kept is not None else "") or f"'{name}'"
+            why = kept.missing if kept is not None else ""
             raise ValueError(f"view {self.name}: the run renders no {what} output{why}")
         return image
 
     def outputs(self, dark: Optional[bool] = None) -> RunOutputs:
-        """The sources this view holds (:func:`agrinerf_ns.count.sources.resolve_source`); ``dark``: whether the
-        run's RGB frames are dark (None: not known)."""
-        return RunOutputs(fruit=self.fruit is not None, temperature=self.temperature is not None,
-                          thermal=self.thermal is not None, rgb=self.rgb is not None, dark=dark)  # fmt: skip
+        """The sources this view holds (:func:`agrinerf_ns.count.sources.resolve_source`): those found in views whose
+        first rendered output it holds; ``dark``: whether the run's RGB frames are dark (None: not known)."""
+        held = {name: bool(row.finds_in_views() and row.renders and self.output(row.renders[0].name) is not None)
+                for name, row in SOURCE_TABLE.items()}  # fmt: skip
+        return RunOutputs(dark=dark, **held)
 
     def points(self) -> Float[np.ndarray, "h w 3"]:
         """The surface point of every pixel: origin + direction x depth."""
         return self.origins + self.directions * self.depth[..., None]
 
     def save(self, path: Path) -> None:
-        arrays = {k: v for k, v in self._arrays().items() if v is not None}
-        np.savez_compressed(path, focal=np.float64(self.focal), **arrays)
-
-    def _arrays(self) -> Dict[str, Optional[np.ndarray]]:
-        return {
-            "rgb": None if self.rgb is None else self.rgb.astype(np.float16),
+        arrays: Dict[str, np.ndarray] = {
             "depth": self.depth.astype(np.float32),
             "accumulation": self.accumulation.astype(np.float16),
             "origins": self.origins.astype(np.float32),
             "directions": self.directions.astype(np.float32),
-            "thermal": None if self.thermal is None else self.thermal.astype(np.float16),
-            "temperature": None if self.temperature is None else self.temperature.astype(np.float32),
-            "fruit": None if self.fruit is None else self.fruit.astype(np.float16),
-            "fruit_depth": None if self.fruit_depth is None else self.fruit_depth.astype(np.float32),
         }
+        for name, kept in rendered_outputs().items():  # the counting sources' outputs, as their rows store them
+            image = self.output(name)
+            if image is not None:
+                arrays[name] = image.astype(kept.dtype)
+        np.savez_compressed(path, focal=np.float64(self.focal), **arrays)
+
+
+VIEW_ATTRIBUTES = frozenset(f.name for f in fields(RenderedView)) - {"extra"}
+"""The outputs a :class:`RenderedView` holds as attributes (any other output of a source: in its ``extra``)."""
+
+
+def view_outputs(arrays: Dict[str, np.ndarray]) -> Dict[str, Any]:
+    """The :class:`RenderedView` arguments that hold ``arrays`` (the sources' rendered outputs, by name)."""
+    named = {name: image for name, image in arrays.items() if name in VIEW_ATTRIBUTES}
+    return {"rgb": None, **named, "extra": {name: image for name, image in arrays.items() if name not in named}}
 
 
 @dataclass
@@ -282,17 +291,14 @@ def _view_from_outputs(
         name=path.stem,
         split=split,
         file_path=path.name,
-        rgb=array("rgb") if "rgb" in outputs else None,
         depth=array("depth")[..., 0],
         accumulation=array("accumulation")[..., 0] if "accumulation" in outputs else np.ones(array("depth").shape[:2]),
         origins=rays.origins.detach().float().cpu().numpy(),
         directions=rays.directions.detach().float().cpu().numpy(),
         focal=float((camera.fx[0, 0] + camera.fy[0, 0]).item() / 2),
-        thermal=array("thermal")[..., 0] if "thermal" in outputs else None,
-        temperature=array("temperature")[..., 0] if "temperature" in outputs else None,
-        fruit=array("fruit")[..., 0] if "fruit" in outputs else None,
-        fruit_depth=array("fruit_depth")[..., 0] if "fruit_depth" in outputs else None,
-    )
+        **view_outputs({name: array(name)[..., 0] if kept.channels == 1 else array(name)
+                        for name, kept in rendered_outputs().items() if name in outputs}),
+    )  # fmt: skip
 
 
 def save_renders(renders: RenderSet, out_dir: Path) -> None:
@@ -344,16 +350,14 @@ def load_renders(folder: Path) -> RenderSet:
                     name=entry["name"],
                     split=entry["split"],
                     file_path=entry["file_path"],
-                    rgb=data["rgb"].astype(np.float32) if "rgb" in data else None,
                     depth=data["depth"].astype(np.float32),
                     accumulation=data["accumulation"].astype(np.float32),
                     origins=data["origins"].astype(np.float32),
                     directions=data["directions"].astype(np.float32),
                     focal=float(data["focal"]),
-                    thermal=data["thermal"].astype(np.float32) if "thermal" in data else None,
-                    temperature=data["temperature"].astype(np.float32) if "temperature" in data else None,
-                    fruit=data["fruit"].astype(np.float32) if "fruit" in data else None,
-                    fruit_depth=data["fruit_depth"].astype(np.float32) if "fruit_depth" in data else None,
+                    **view_outputs(
+                        {name: data[name].astype(np.float32) for name in rendered_outputs() if name in data}
+                    ),
                 )
             )
     dataset = Path(meta["dataset"]) if meta.get("dataset") else None

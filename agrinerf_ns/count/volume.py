@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Bool, Float, Int
 
 from agrinerf_ns.count.render import CountInputError, WorldFrame
+from agrinerf_ns.count.source_table import sample_temperature, source_row
 from agrinerf_ns.fruit.view import MIN_ACCUMULATION
 
 CHUNK = 1 << 18
@@ -322,13 +323,14 @@ def pixels_on_object(
 def field_features(
     model: Any, points: Float[np.ndarray, "n 3"], source: str, eye: Float[np.ndarray, "3"], device: Any = "cpu"
 ) -> Tuple[Float[np.ndarray, "n c"], Optional[Float[np.ndarray, " n"]]]:
-    """The ``source`` output of the model's heads at ``points`` (``appearance_at``; RGB viewed from ``eye``), and the
-    temperature in degrees C where the model has a temperature head (else None)."""
+    """The ``source`` output of the model's heads at ``points`` (``appearance_at``; RGB viewed from ``eye``), sampled
+    as the source's row says (:mod:`agrinerf_ns.count.source_table`), and the temperature in degrees C where the model
+    has a temperature head (else None)."""
     import torch
-    from nerfstudio.field_components.field_heads import FieldHeadNames
 
-    from agrinerf_ns.model.field_heads import AgriNeRFFieldHeadNames
-
+    row = source_row(source)
+    if row.sample is None:
+        raise ValueError(f"the '{source}' source is counted in rendered views only (--path views)")
     field = model.field
     values: List[np.ndarray] = []
     temperatures: List[np.ndarray] = []
@@ -340,22 +342,10 @@ def field_features(
             directions = part - torch.as_tensor(eye, dtype=torch.float32, device=device)
             directions = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-9)
             heads = field.appearance_at(coords, directions)
-            if source == "fruit":
-                features = field.density_encoding.features(field.corners(coords))
-                value = model.fruit_head.probability(features, coords)
-            elif source == "rgb":
-                value = heads[FieldHeadNames.RGB]
-            elif source == "temperature":
-                value = field.temperature_head.to_celsius(heads[AgriNeRFFieldHeadNames.TEMPERATURE])
-            else:
-                thermal = heads[AgriNeRFFieldHeadNames.THERMAL]
-                value = thermal[..., 1:2] if source == "thermal_camera" else thermal[..., :1]
-            values.append(value.float().cpu().numpy())
+            values.append(row.sample(model, coords, heads).float().cpu().numpy())
             if has_temperature:
-                celsius = field.temperature_head.to_celsius(heads[AgriNeRFFieldHeadNames.TEMPERATURE])
-                temperatures.append(celsius[..., 0].float().cpu().numpy())
-    channels = 3 if source == "rgb" else 1
-    feature = np.concatenate(values) if values else np.zeros((0, channels), np.float32)
+                temperatures.append(sample_temperature(model, coords, heads)[..., 0].float().cpu().numpy())
+    feature = np.concatenate(values) if values else np.zeros((0, row.channels), np.float32)
     temperature = (
         (np.concatenate(temperatures) if temperatures else np.zeros(0, np.float32)) if has_temperature else None
     )

@@ -1,9 +1,9 @@
 """The default fruit detector of a rendered view: fruit-sized blobs of local contrast, found with OpenCV (no learnt
 weights, no AGPL).
 
-A view is reduced to one feature image: the cross-spectral ``thermal`` output itself (fruit differ from the leaves
-around them in temperature, warmer or cooler) or, for ``rgb``, a fruit-colour score
-(:func:`agrinerf_ns.fruit.colour_score.fruit_colour`). Local contrast (:func:`agrinerf_ns.fruit.contrast.contrast`) is
+A view is reduced to one feature image, as its counting source's row makes it (:mod:`agrinerf_ns.count.source_table`):
+a thermal output itself (fruit differ from the leaves around them in temperature, warmer or cooler) or, for ``rgb``, a
+fruit-colour score (:func:`agrinerf_ns.fruit.colour_score.fruit_colour`). Local contrast (:func:`agrinerf_ns.fruit.contrast.contrast`) is
 a difference of Gaussians in units of its robust spread over the view; connected components beyond ``threshold``
 whose metric size, from the rendered depth, is that of a fruit are the detections.
 """
@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from jaxtyping import Bool, Float
 
-from agrinerf_ns.fruit.colour_score import MAX_HUE_DEG, MIN_HUE_DEG, fruit_colour
+from agrinerf_ns.fruit.colour_score import MAX_HUE_DEG, MIN_HUE_DEG
 from agrinerf_ns.fruit.contrast import Polarity, contrast
 from agrinerf_ns.fruit.view import MIN_ACCUMULATION, View
 
@@ -59,31 +59,26 @@ class BlobConfig:
     max_hue_deg: float = MAX_HUE_DEG
 
 
-def feature_image(view: View, source: str) -> Float[np.ndarray, "h w"]:
-    """The image a view's fruit stand out in: ``temperature`` (degrees C), ``thermal`` (cross-spectral output) or
-    ``rgb`` (fruit-colour score)."""
-    if source in ("temperature", "thermal"):
-        return view.optional_output(source).astype(np.float32)
-    if source != "rgb":
-        raise ValueError(f"unknown detection source {source!r} (temperature, thermal or rgb)")
-    return fruit_colour(view.optional_output("rgb"), view.accumulation >= MIN_ACCUMULATION)
-
-
 def valid_pixels(view: View, feature: Float[np.ndarray, "h w"]) -> Bool[np.ndarray, "h w"]:
     """The pixels of ``view`` a detection may use: rendered surface (accumulation), a finite positive depth to lift
     it with, and a finite ``feature``."""
     return (view.accumulation >= MIN_ACCUMULATION) & np.isfinite(view.depth) & (view.depth > 0) & np.isfinite(feature)
 
 
-def detect_blobs(view: View, source: str, scale: float, config: BlobConfig = BlobConfig()) -> List[Detection]:
-    """Fruit-sized blobs of ``source`` in ``view``; ``scale`` is the dataparser scale (Nerfstudio units per dataset
-    unit), so that sizes are compared in the dataset's units."""
-    feature = feature_image(view, source)
+def find_blobs(
+    view: View,
+    feature: Float[np.ndarray, "h w"],
+    scale: float,
+    config: BlobConfig = BlobConfig(),
+    one_sided: bool = False,
+) -> List[Detection]:
+    """Fruit-sized blobs of ``feature`` (an image of ``view``, e.g. its temperature or fruit-colour score); ``scale``
+    is the dataparser scale (Nerfstudio units per dataset unit), so that sizes are compared in the dataset's units;
+    ``one_sided``: blobs above their surroundings only, whatever ``config.polarity`` says (a score, not a
+    temperature)."""
     valid = valid_pixels(view, feature)
     z = contrast(feature, valid, config.background_sigma)
-    signs = (
-        [1.0] if source == "rgb" or config.polarity == "warm" else [-1.0] if config.polarity == "cool" else [1.0, -1.0]
-    )
+    signs = [1.0] if one_sided or config.polarity == "warm" else [-1.0] if config.polarity == "cool" else [1.0, -1.0]
     detections: List[Detection] = []
     for sign in signs:
         above = (sign * z > config.threshold) & valid
