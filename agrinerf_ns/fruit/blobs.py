@@ -17,7 +17,6 @@ import cv2
 import numpy as np
 from jaxtyping import Bool, Float
 
-from agrinerf_ns.fruit.colour_score import MAX_HUE_DEG, MIN_HUE_DEG
 from agrinerf_ns.fruit.contrast import Polarity, contrast
 from agrinerf_ns.fruit.view import MIN_ACCUMULATION, View
 
@@ -54,9 +53,6 @@ class BlobConfig:
     0: no test)."""
     fruit_probability: float = 0.5
     """``fruit``: a pixel whose rendered fruit probability reaches this is fruit (0.5: the head's BCE boundary)."""
-    min_hue_deg: float = MIN_HUE_DEG
-    """``rgb``: fruit hues span ``min_hue_deg`` .. ``max_hue_deg`` (0 = red, 60 = yellow, 120 = green)."""
-    max_hue_deg: float = MAX_HUE_DEG
 
 
 def valid_pixels(view: View, feature: Float[np.ndarray, "h w"]) -> Bool[np.ndarray, "h w"]:
