@@ -225,7 +225,7 @@ restores the paper's."""
 
 PAPER_THERMAL_RAYS = 1024
 """The paper preset renders its thermal terms from the thermal camera on all 1024 rays of a batch (the lite preset
-and the model's default: 256): on the count profile's garden 1024 rays held the fruit's temperature better (per
+and the model's default: 256): on the count-small profile's garden 1024 rays held the fruit's temperature better (per
 fruit 1.96 against 2.20 C bright) and at the paper preset's final grids, with its blur renders and events, they cost
 about what 256 do (1.09x against 1.08x of none; results/thermal-rays)."""
 

@@ -1,7 +1,7 @@
 """``agrinerf-count --path auto`` (the default): count a trained run the way that counted best on runs of its kind.
 
-Measured on the count profile (``agrinerf-lite``, garden and orchard, four lightings, three seeds each:
-results/count-seeds), F1 at 0.05 m pooled per lighting:
+Measured on the ``count-small`` profile (the count profile before the realistic one; ``agrinerf-lite``, garden and
+orchard, four lightings, three seeds each: results/count-seeds), F1 at 0.05 m pooled per lighting:
 
 - lit RGB frames (bright, shadowed, dusk): fruit colour in the rendered RGB views, placed by their rays, 0.18-0.29;
   every thermal path 0.05 or less;
