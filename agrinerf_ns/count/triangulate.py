@@ -16,6 +16,8 @@ from typing import Optional, Sequence, Tuple
 import numpy as np
 from jaxtyping import Bool, Float
 
+from agrinerf_ns.rays import nearest_point
+
 MIN_RAY_ANGLE_DEG = 2.0
 """Rays closer in direction than this (all pairs) meet too far from their true crossing to place a fruit: a group
 seen from one place keeps its depth-lifted centre."""
@@ -34,8 +36,7 @@ def closest_point(
     cosines = np.clip(rays @ rays.T, -1.0, 1.0)
     if float(np.degrees(np.arccos(cosines.min()))) < MIN_RAY_ANGLE_DEG:
         return None
-    projectors = np.eye(3)[None] - rays[:, :, None] * rays[:, None, :]  # [n, 3, 3]: onto each ray's normal plane
-    point = np.linalg.solve(projectors.sum(0), (projectors @ origins[:, :, None]).sum(0)[:, 0])
+    point = nearest_point(origins, rays)
     if bool((((point - origins) * rays).sum(-1) <= 0).any()):
         return None
     return point

@@ -33,7 +33,8 @@ from typing import Dict, List, Literal, Optional, Sequence, Tuple
 import numpy as np
 from jaxtyping import Bool, Float
 
-from agrinerf_ns.fruit.thermal_blobs import Blob
+from agrinerf_ns.fruit.thermal_blobs import Blob, blob_discs
+from agrinerf_ns.rays import nearest_point
 
 Side = Literal["warm", "cool"]
 
@@ -159,15 +160,8 @@ def place_blobs(
                     o, d = geometry[f].rays(np.array([blobs[j].row]), np.array([blobs[j].col]))
                     origins.append(o[0])
                     directions.append(d[0])
-            points[k] = closest_point(np.stack(origins), np.stack(directions))
+            points[k] = nearest_point(np.stack(origins), np.stack(directions))
     return points
-
-
-def closest_point(origins: Float[np.ndarray, "m 3"], directions: Float[np.ndarray, "m 3"]) -> Float[np.ndarray, "3"]:
-    """The point nearest to every ray (least squares; unit ``directions``)."""
-    eye = np.eye(3)
-    projectors = eye[None] - directions[:, :, None] * directions[:, None, :]
-    return np.linalg.lstsq(projectors.sum(0), np.einsum("mij,mj->i", projectors, origins), rcond=None)[0]
 
 
 def camera_step(geometry: Sequence[FrameGeometry]) -> float:
@@ -264,9 +258,7 @@ def fruit_sightings(
         temperature = None
         if celsius is not None:
             image = celsius[b.frame]
-            rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]]
-            disc = (rows - b.row) ** 2 + (cols - b.col) ** 2 <= 2.0 * b.sigma**2
-            values = image[disc & np.isfinite(image)]
+            values = image[blob_discs(image.shape, np.isfinite(image), [b])]
             temperature = float(np.median(values)) if values.size else None
         found.append(Sighting(b.frame, np.asarray(centre, np.float64), float(diameter), temperature, origin, ray))
     return found
