@@ -54,8 +54,25 @@ class LoadedRun:
     @property
     def dataset_dir(self) -> Optional[Path]:
         """The dataset folder the run was trained on (None where its datamanager does not say)."""
-        data = getattr(self.pipeline.datamanager.config, "data", None)
-        return dataset_folder(Path(data)) if data else None
+        return datamanager_dataset(self.pipeline.datamanager.config)
+
+
+def datamanager_dataset(datamanager_config: Any) -> Optional[Path]:
+    """The dataset folder a run's datamanager settings name (None where they do not)."""
+    data = getattr(datamanager_config, "data", None)
+    return dataset_folder(Path(data)) if data else None
+
+
+def run_dataset(config_path: Path) -> Optional[Path]:
+    """The dataset folder of the run at ``config_path`` (its config.yml), read from the config alone: no checkpoint or
+    dataset is loaded (None where the config does not name one)."""
+    import yaml
+
+    from agrinerf_ns import compat
+
+    compat.activate()
+    config = yaml.load(Path(config_path).read_text(), Loader=yaml.Loader)
+    return datamanager_dataset(config.pipeline.datamanager)
 
 
 def dataset_folder(data: Path) -> Path:

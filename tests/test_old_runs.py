@@ -106,3 +106,12 @@ def test_ns_eval_and_agrinerf_count_run_on_an_old_run(dataset: Path, tmp_path: P
     subprocess.run(["agrinerf-count", "--config", str(config_yml), "--out", str(count)],
                    check=True, env=env, timeout=600)  # fmt: skip
     assert (count / "count.json").exists() and (count / "fruits.csv").exists()
+
+
+def test_a_runs_dataset_is_read_from_its_config_alone(dataset: Path, tmp_path: Path) -> None:
+    """`agrinerf-count --path bodies --config RUN` finds the run's dataset from config.yml without loading the run;
+    it is the folder the loaded run names."""
+    from agrinerf_ns.run_loading import load_run, run_dataset
+
+    config_yml = _moved_run("agrinerf-lite", dataset, tmp_path)
+    assert run_dataset(config_yml) == dataset == load_run(config_yml).dataset_dir

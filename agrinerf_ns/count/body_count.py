@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, List, Optional, Sequence
+from typing import TYPE_CHECKING, Dict, List, Optional, Sequence
 
 import numpy as np
 from jaxtyping import Float
@@ -76,10 +76,9 @@ def body_detections(sightings: Sequence[dict], frames: Sequence[str]) -> List[Li
     ]
 
 
-def camera_centres(dataset: Path, frames: Sequence[str]) -> Float[np.ndarray, "n 3"]:
-    """The centres of the dataset's cameras ``frames``, in its frame."""
-    by_path = dataset_frames(dataset)
-    return np.array([np.asarray(by_path[name]["transform_matrix"], np.float64)[:3, 3] for name in frames])
+def camera_centres(frames: Dict[str, dict]) -> Float[np.ndarray, "n 3"]:
+    """The centres of a dataset's cameras (``file_path`` -> frame of its ``transforms.json``), in its frame."""
+    return np.array([np.asarray(frame["transform_matrix"], np.float64)[:3, 3] for frame in frames.values()])
 
 
 def run_body_count(
@@ -99,13 +98,14 @@ def run_body_count(
     sightings = read_sightings(dataset)  # fail before any work
     if truth is not None:
         read_truth_fruit(truth)
-    frames = list(dataset_frames(dataset))
+    by_path = dataset_frames(dataset)
+    frames = list(by_path)
     detections = body_detections(sightings, frames)
     if config.cluster.merge_fraction is None:
         config = replace(config, cluster=replace(config.cluster, merge_fraction=BODIES_MERGE_FRACTION))
-    cameras = camera_centres(dataset, frames)
+    cameras = camera_centres(by_path)
     fruit = fruit_in_range(cluster_fruit(detections, config.cluster), cameras, config.max_range)
-    per_frame = [sum(1 for d in detections if d.view == k) for k in range(len(frames))]
+    per_frame = np.bincount(np.array([d.view for d in detections], np.int64), minlength=len(frames)).tolist()
     result = CountResult(fruit, detections, per_frame, merge_distance(detections, config.cluster))
     with atomic_output_dir(Path(out), overwrite) as tmp:
         if truth is not None:

@@ -100,9 +100,9 @@ def count_bodies(args: CountArgs, config: Optional[Path] = None) -> CountResult:
     if data is None:
         if config is None:
             raise ValueError("--path bodies: give --data DATASET (or the run's --config)")
-        from agrinerf_ns.run_loading import load_run
+        from agrinerf_ns.run_loading import run_dataset  # the config alone: the field is not needed
 
-        data = load_run(config).dataset_dir
+        data = run_dataset(config)
     if data is None:
         raise ValueError(f"{config}: the run does not name its dataset folder; give --data DATASET")
     result = run_body_count(data, args.out, args.count, args.truth, args.overwrite, frame)
