@@ -20,6 +20,9 @@ import numpy as np
 import tyro
 from jaxtyping import Float
 
+from agrinerf_ns.count.fruit_score import read_truth_fruit
+from agrinerf_ns.count.write import CAPTURE_COLUMNS
+
 
 @dataclass
 class PlacementArgs:
@@ -32,18 +35,18 @@ class PlacementArgs:
 
 
 def capture_centres(folder: Path) -> Float[np.ndarray, "n 3"]:
-    """The counted fruit's centres in the capture's frame (``fruits.csv``'s ``*_capture`` columns)."""
+    """The counted fruit's centres in the capture's frame (``fruits.csv``'s capture columns)."""
+    columns = CAPTURE_COLUMNS[:3]
     with open(folder / "fruits.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
-    if rows and "x_capture" not in rows[0]:
+    if rows and columns[0] not in rows[0]:
         raise ValueError(f"{folder / 'fruits.csv'}: no capture-frame columns (count it with --truth)")
-    return np.array([[float(r[k]) for k in ("x_capture", "y_capture", "z_capture")] for r in rows]).reshape(-1, 3)
+    return np.array([[float(r[k]) for k in columns] for r in rows]).reshape(-1, 3)
 
 
 def true_centres(folder: Path) -> Float[np.ndarray, "m 3"]:
     """The centres of the true fruit of the capture the count was scored against."""
-    raw = Path(json.loads((folder / "count.json").read_text())["truth"])
-    return np.array([f["center"] for f in json.loads((raw / "truth" / "fruits.json").read_text())]).reshape(-1, 3)
+    return read_truth_fruit(Path(json.loads((folder / "count.json").read_text())["truth"])).centres
 
 
 def offsets(counted: np.ndarray, truth: np.ndarray, within: float) -> np.ndarray:

@@ -19,9 +19,8 @@ TRUTH = np.array([[0.0, 2.0, 1.0], [0.5, 2.0, 1.0], [1.0, 2.0, 1.0], [3.0, 2.0, 
 
 def _count(folder: Path, raw: Path, counted: np.ndarray) -> None:
     (raw / "truth").mkdir(parents=True)
-    (raw / "truth" / "fruits.json").write_text(
-        json.dumps([{"id": i, "center": c.tolist()} for i, c in enumerate(TRUTH)])
-    )
+    fruits = [{"id": i, "center": c.tolist(), "radii": [0.03] * 3} for i, c in enumerate(TRUTH)]  # as agrinerf-synth
+    (raw / "truth" / "fruits.json").write_text(json.dumps(fruits))
     folder.mkdir()
     (folder / "count.json").write_text(json.dumps({"truth": str(raw)}))
     with open(folder / "fruits.csv", "w", newline="") as handle:
