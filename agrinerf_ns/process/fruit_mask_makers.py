@@ -251,9 +251,8 @@ def make_fruit_masks(
             masks[i] = colour_mask(np.ascontiguousarray(bgr[..., ::-1]), config)
     record: dict = {}
     if thermal_index and config.thermal_rule == "bodies":  # decided across the frames at once
-        bodies, record["bodies"] = thermal_body_masks(tmp, frames, thermal_index, config, geometry)
+        bodies, record["bodies"], sightings = thermal_body_masks(tmp, frames, thermal_index, config, geometry)
         masks.update(bodies)
-        sightings = record["bodies"].pop("sightings")
         write_sightings(tmp / FRUIT_BODIES, sightings, frames)
         record["bodies"]["file"] = FRUIT_BODIES
     for i in thermal_index:
@@ -333,10 +332,11 @@ def thermal_body_masks(
     index: List[int],
     config: MaskMakerConfig,
     geometry: Optional[List[Optional[FrameGeometry]]],
-) -> Tuple[Dict[int, np.ndarray], dict]:
+) -> Tuple[Dict[int, np.ndarray], dict, List[Sighting]]:
     """The ``bodies`` rule's masks of the frames ``index`` (``fruit/thermal_bodies.py``): fruit on the blobs decided
     fruit, unknown on the blobs of the fruit's side that no other frame confirms (a fruit seen once is not taught as
-    background), background on the rest of the thermal camera's view; with the decision's record."""
+    background), background on the rest of the thermal camera's view; with the decision's record and the fruit
+    sightings (frames by their index in ``frames``)."""
     if geometry is None:
         raise ValueError("--mask-maker.thermal-rule bodies needs the frames' poses")
     posed = [i for i in index if geometry[i] is not None]
@@ -344,11 +344,10 @@ def thermal_body_masks(
     radiometric = all(TEMPERATURE.key in frames[i] for i in posed)
     found, record, sightings = body_masks([images[i] for i in posed], [geometry[i] for i in posed], config, radiometric)  # type: ignore[misc]
     masks = dict(zip(posed, found, strict=True))
-    record["sightings"] = [replace(s, frame=posed[s.frame]) for s in sightings]  # frames by their index in ``frames``
     for i in index:
         if i not in masks:  # no pose: the frame is dropped; its mask says nothing
             masks[i] = np.full(images[i][0].shape, UNKNOWN, np.uint8)
-    return masks, record
+    return masks, record, [replace(s, frame=posed[s.frame]) for s in sightings]
 
 
 def body_masks(
