@@ -44,12 +44,38 @@ def demo(tmp_path_factory) -> Dict:
         "--width", str(WIDTH), "--steps", "20", "--sheet-views", "2", "--video-steps", "1",
     ]  # fmt: skip
     env = {**os.environ, "COLUMNS": "200"}
+    blocked = _network_blocked(env, root / "network.log", root / "torch_home")  # a fresh machine, offline
     done = subprocess.run(
-        command, check=False, cwd=root, env=env, capture_output=True, text=True, timeout=900, stdin=subprocess.DEVNULL
-    )
+        command, check=False, cwd=root, env=blocked, capture_output=True, text=True, timeout=900,
+        stdin=subprocess.DEVNULL,
+    )  # fmt: skip
     assert done.returncode == 0, (done.stdout + done.stderr)[-4000:]
     summary = json.loads((out / "summary.json").read_text())
-    return dict(out=out, root=root, env=env, stdout=done.stdout, summary=summary)
+    return dict(out=out, root=root, env=env, stdout=done.stdout, stderr=done.stderr, summary=summary)
+
+
+def _network_blocked(env: Dict[str, str], log: Path, torch_home: Path) -> Dict[str, str]:
+    """``env`` with the network blocked (``helpers/no_network``: each attempt refused and written to ``log``) and an
+    empty torch cache (no weights downloaded before)."""
+    torch_home.mkdir(parents=True, exist_ok=True)
+    guard = str(Path(__file__).parent / "helpers" / "no_network")
+    path = os.pathsep.join(p for p in (guard, env.get("PYTHONPATH", "")) if p)
+    return {**env, "PYTHONPATH": path, "AGRINERF_NETWORK_LOG": str(log), "TORCH_HOME": str(torch_home)}
+
+
+@pytest.mark.slow
+def test_the_demo_tries_no_network(demo: Dict, tmp_path: Path) -> None:
+    """Run with the network blocked and an empty torch cache, the demo tried no host and printed no download; the
+    same guard sees a download a process tries (so an empty log means no attempt)."""
+    log = demo["root"] / "network.log"
+    assert not log.exists(), log.read_text()
+    assert "Downloading" not in demo["stdout"] + demo["stderr"]
+    planted = _network_blocked(dict(os.environ), tmp_path / "planted.log", tmp_path / "torch_home")
+    fetch = (
+        "import urllib.request as u\ntry: u.urlopen('https://download.pytorch.org/', timeout=5)\nexcept OSError: pass"
+    )
+    subprocess.run([sys.executable, "-c", fetch], env=planted, check=True, timeout=120, stdin=subprocess.DEVNULL)
+    assert "getaddrinfo 'download.pytorch.org'" in (tmp_path / "planted.log").read_text()
 
 
 @pytest.mark.slow
