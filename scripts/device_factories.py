@@ -52,6 +52,7 @@ SCOPE = (
     "agrinerf_ns/trajectory.py",
     "agrinerf_ns/colour.py",
     "agrinerf_ns/cpu_memory.py",
+    "agrinerf_ns/run_loading.py",
     "agrinerf_ns/views.py",
     "dataparsers/event_stream.py",
     "dataparsers/fruit_sampler.py",

@@ -153,6 +153,10 @@ def test_first_screens_hold_no_third_party_warning_and_count_reports_progress(tm
                   "--path", "views"], env, tmp_path)  # fmt: skip
     _no_third_party_warning(count, "agrinerf-count")
     assert _tenths(count, "rendering"), count
+    screen = _on_terminal([str(BIN / "agrinerf-count"), "--config", str(config), "--out", str(tmp_path / "count_tty"),
+                           "--path", "views"], tmp_path)  # fmt: skip
+    assert "rendering" in screen and "━" in screen, screen[-2000:]
+    assert not PROGRESS_LINE.search(screen), "a bar, not log lines, on a terminal"
 
     demo = [str(BIN / "agrinerf-demo"), "--out", str(tmp_path / "demo"), "--views", "8", "--width", "64"]
     _no_third_party_warning(_until(demo, env, tmp_path, "agrinerf-process"), "agrinerf-demo")
