@@ -119,7 +119,9 @@ def fruit_stages(folder: Path) -> Dict[str, object]:
 
 def main(args: MissArgs) -> None:
     lines = [
-        "| count | countable | " + " | ".join(STAGES) + " | kept sightings on a fruit | region ratio of the not-compact "
+        "| count | countable | "
+        + " | ".join(STAGES)
+        + " | kept sightings on a fruit | region ratio of the not-compact "
         "fruit's blobs (median) |",
         "|---|---|" + "---|" * len(STAGES) + "---|---|",
     ]
