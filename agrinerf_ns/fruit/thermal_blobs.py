@@ -43,6 +43,9 @@ class Blob:
     """The area of the connected region around its centre that lies at least half its offset from the canopy's
     value, over its disc's area: about 1 for a compact body among leaves, several for a part of a larger warm or cool
     structure (a stake, a stem, ground or sky seen between leaves)."""
+    extreme: float = 0.0
+    """The disc's value farthest from the canopy's on its side, minus the canopy's value, in the frame's units: a
+    blob of leaves around a gap of sky has a median a few degrees off the leaves and sky-cold pixels inside."""
 
 
 def thermal_blobs(
@@ -113,7 +116,9 @@ def thermal_blob_list(
             offset = float(np.median(z[disc])) - canopy
             if sign * offset >= min_canopy_offset:
                 ratio = region_ratio(z, seen, row, col, sigma, canopy + 0.5 * offset, sign)
-                found.append(Blob(frame, float(row), float(col), float(sigma), sign, offset * spread, ratio))
+                extreme = sign * float(np.max(sign * z[disc])) - canopy
+                found.append(Blob(frame, float(row), float(col), float(sigma), sign, offset * spread, ratio,
+                                  extreme * spread))  # fmt: skip
     return found
 
 

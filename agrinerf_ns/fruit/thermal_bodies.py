@@ -8,8 +8,11 @@ poses, they differ:
   temperature) is placed along its thermal ray at the depth where blobs of the same side, of a consistent size, show
   in the most neighbouring frames (a plane sweep over the ray). A blob that no neighbour sees there is noise, a
   glint or a sky gap whose shape changes as the rig moves.
-- **Fruit are not far off the leaves' temperature.** A blob whose median is more than ``max_offset_c`` from the
-  canopy (on a radiometric capture) is the sky or a machine, not a fruit.
+- **Fruit are not far off the leaves' temperature.** A blob whose median, or any pixel of whose disc, is more than
+  ``max_offset_c`` from the canopy (on a radiometric capture) is the sky or a machine, not a fruit: a gap of night sky
+  between the top leaves, blurred by the coarse thermal camera, has a median a few degrees under the leaves and
+  sky-cold pixels at its centre (the dark demo's orchard counted such gaps at 11-13 C before this test,
+  results/demo).
 - **A fruit is compact.** Ground and sky seen between leaves, a stake or a stem, are parts of larger warm or cool
   structures: the region around such a blob at half its offset from the canopy spans many of its discs
   (:attr:`~agrinerf_ns.fruit.thermal_blobs.Blob.region_ratio`), a fruit's about one.
@@ -61,8 +64,8 @@ class BodySettings:
     """A blob whose region (:attr:`Blob.region_ratio`) spans more than this many discs is part of a larger structure
     (a stake, a stem, ground or sky between leaves), not a fruit."""
     max_offset_c: float = 8.0
-    """Radiometric frames: a blob more than this many degrees C off the canopy is not a fruit (night sky, engines;
-    fruit stay within a few degrees of the leaves)."""
+    """Radiometric frames: a blob whose median or most extreme pixel lies more than this many degrees C off the canopy
+    is not a fruit (night sky, engines; fruit stay within a few degrees of the leaves)."""
     polarity_margin: float = 1.5
     """One side is the fruit's when it holds this many times the other side's sightings; else both are kept."""
 
@@ -209,7 +212,10 @@ def decide_bodies(
     signs = np.array([b.sign for b in blobs])
     offsets = np.array([b.offset for b in blobs])
     body = np.isfinite(points[:, 0])
-    plausible = np.abs(offsets) <= settings.max_offset_c if radiometric else np.ones(n, bool)
+    extremes = np.array([b.extreme for b in blobs])
+    plausible = (
+        np.maximum(np.abs(offsets), np.abs(extremes)) <= settings.max_offset_c if radiometric else np.ones(n, bool)
+    )
     compact = np.array([0.0 < b.region_ratio <= settings.max_region_ratio for b in blobs])
     candidate = body & plausible & compact
     polarity, sightings = decide_polarity(signs[candidate], settings.polarity_margin)
