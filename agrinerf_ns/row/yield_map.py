@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import Float, Int, Num
 
 ROW_YIELD_COLUMNS = ("bin", "start_m", "end_m", "fruit", "fruit_per_m", "gap", "truth_fruit", "truth_per_m")
 
@@ -96,7 +96,9 @@ def write_yield_csv(path: Path, bins: YieldBins) -> None:
             writer.writerow(row)
 
 
-def correlation(a: Sequence[float], b: Sequence[float], confidence: float = 0.95) -> Tuple[float, float, float]:
+def correlation(
+    a: Num[np.ndarray, " n"], b: Num[np.ndarray, " n"], confidence: float = 0.95
+) -> Tuple[float, float, float]:
     """Pearson's r of ``a`` and ``b`` with its ``confidence`` interval (Fisher's z); nan where undefined (fewer than
     4 pairs for the interval, or a constant series)."""
     x, y = np.asarray(a, np.float64), np.asarray(b, np.float64)
