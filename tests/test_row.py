@@ -203,7 +203,7 @@ def test_a_tiny_row_from_a_raw_capture_through_the_jobs_and_resumed(tiny_capture
     assert again is not None and again["fruit"] == summary["fruit"]
     assert {p: p.stat().st_mtime_ns for p in records} == records, "finished steps were redone"
     with pytest.raises(RowInputError, match="cut differently"):
-        main(RowArgs(out=out, raw=tiny_capture, segment_frames=12, overlap_frames=4, steps=30))
+        main(RowArgs(out=out, raw=tiny_capture, segment_frames=9, overlap_frames=3, steps=30))
     with pytest.raises(RowInputError, match="inside the input"):
         main(RowArgs(out=tiny_capture / "row", raw=tiny_capture))
     with pytest.raises(RowInputError, match="16 frames are too few"):
