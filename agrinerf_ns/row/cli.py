@@ -188,7 +188,7 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
                                                        segments))  # fmt: skip
         jobs_start = time.perf_counter()
         _run(segment_jobs(args, dataset, truth, segments, settings), ex, f"row: {len(segments)} segments", report)
-        wall["segment_jobs"] = time.perf_counter() - jobs_start
+        wall["segment jobs, this session"] = time.perf_counter() - jobs_start
         write_failures(args.out / "failures.md", failures_markdown(report, "Row steps that failed"))
         if report.failed or report.skipped:
             return None
@@ -198,7 +198,7 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
             wall[f"{stage} (sum)"] = float(sum(t for t in times if t is not None))
         has_truth = (Path(truth) / FRUITS_JSON).is_file()
         row_settings = RowSettings(args.join_distance, args.bin_m, args.count)
-        wall["driver before the join"] = time.perf_counter() - start
+        wall["driver before the join, this session"] = time.perf_counter() - start
         summary = assemble_row(args.out, dataset, segments, row_settings, truth if has_truth else None,
                                _header(args, len(segments)), wall)  # fmt: skip
     CONSOLE.print(f"row: {summary['fruit']} fruit -> {args.out / 'row'}", soft_wrap=True)

@@ -141,14 +141,17 @@ def assemble_row(
             "score": count.get("score"),
             "wall_s": {stage: (rec or {}).get("wall_s") for stage, rec in records.items()},
         })  # fmt: skip
-    borders = [float(path_length(cameras)[s.start]) for s in segments[1:]]
+    driven = path_length(cameras)
+    overlaps = [
+        (float(driven[b.start]), float(driven[a.stop - 1])) for a, b in zip(segments, segments[1:], strict=False)
+    ]
     with atomic_output_dir(Path(out) / ROW_DIR, overwrite=True) as tmp:
         summary["wall_s"] = dict(wall) | {"join and score": time.perf_counter() - start}
         write_row_csv(tmp / "fruits.csv", joined, along, capture, truth_ids)
         write_ply(tmp / "fruits.ply", kept)
         write_yield_csv(tmp / "row_yield.csv", bins)
         temps = np.array([np.nan if f.temperature is None else f.temperature for f in kept], np.float64)
-        draw_row_map(tmp / "row_map.png", centres, temps, cameras, bins, borders,
+        draw_row_map(tmp / "row_map.png", centres, temps, cameras, bins, overlaps,
                      f"{len(kept)} fruit along {length:.1f} m in {len(segments)} segments")  # fmt: skip
         (tmp / "row.md").write_text(row_markdown(summary, header, settings))
         (tmp / "row.json").write_text(json.dumps(summary, indent=1, default=_json) + "\n")

@@ -119,12 +119,12 @@ def draw_row_map(
     temperatures: Float[np.ndarray, " n"],
     cameras: Float[np.ndarray, "c 3"],
     bins: YieldBins,
-    borders: Sequence[float],
+    overlaps: Sequence[Tuple[float, float]],
     title: str,
 ) -> None:
     """Top view of the row (x, y of the dataset's frame): the driven path, each fruit at its place coloured by its
     temperature (red where unknown); under it the fruit per metre of each bin along the path, gaps (no fruit)
-    shaded, the segments' borders dashed."""
+    shaded red, the segments' overlaps (start and end along the path, metres) hatched."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -136,7 +136,7 @@ def draw_row_map(
     lo, hi = pts.min(0) - 0.3, pts.max(0) + 0.3
     aspect = float((hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-6))
     width = 12.0
-    fig, (top, bars) = plt.subplots(2, 1, figsize=(width, max(2.0, width * aspect) + 2.8),
+    fig, (top, bars) = plt.subplots(2, 1, figsize=(width, min(6.0, max(2.0, width * aspect)) + 2.8),
                                     gridspec_kw={"height_ratios": [max(1.0, 4 * aspect), 1.0]})  # fmt: skip
     top.plot(cameras[:, 0], cameras[:, 1], "-", color="tab:blue", linewidth=1.2, label="driven path")
     known = np.isfinite(temperatures)
@@ -149,7 +149,7 @@ def draw_row_map(
                     label="fruit, no temperature")  # fmt: skip
     top.set_xlim(lo[0], hi[0])
     top.set_ylim(lo[1], hi[1])
-    top.set_aspect("equal")
+    top.set_aspect("equal" if aspect <= 0.5 else "auto")  # a short row: not a tall strip
     top.set_xlabel("x (m, capture world frame)")
     top.set_ylabel("y (m)")
     top.set_title(title, fontsize=10)
@@ -163,10 +163,10 @@ def draw_row_map(
     for start, w, count in zip(starts, widths, bins.counts, strict=True):
         if count == 0:
             bars.axvspan(start, start + w, color="red", alpha=0.15, linewidth=0)
-    for border in borders:
-        bars.axvline(border, color="0.4", linestyle="--", linewidth=0.8)
+    for start, end in overlaps:
+        bars.axvspan(start, end, facecolor="none", edgecolor="0.4", hatch="//", linewidth=0)
     bars.set_xlim(bins.edges[0], bins.edges[-1])
-    bars.set_xlabel("along the driven path (m); red: gap (no fruit); dashed: segment overlaps")
+    bars.set_xlabel("along the driven path (m); red: gap (no fruit); hatched: two segments overlap")
     bars.set_ylabel("fruit per m")
     bars.legend(loc="upper right", fontsize=7)
     fig.tight_layout()
