@@ -1,22 +1,30 @@
 """A whole row (issue #64): segments cut with their overlap in one world frame, fruit joined across borders, the yield
-bins, a long synthetic row, and one tiny row from a raw capture through the jobs runner (no Ray), resumed."""
+bins, a long synthetic row, and one tiny row from a raw capture through the jobs runner: in this process (and
+resumed), and on a local Ray with a worker killed mid-training."""
 
 from __future__ import annotations
 
 import csv
 import json
 import os
+import signal
+import threading
+import time
 from pathlib import Path
-from typing import List
+from typing import TYPE_CHECKING, Dict, List, Tuple
 
 import numpy as np
 import pytest
+from test_orchestrate_ray import local_ray  # noqa: F401  (the fixture: a local Ray of 2 CPUs)
 
 from agrinerf_ns.count.cluster import Fruit
 from agrinerf_ns.row.join import join_fruit
 from agrinerf_ns.row.report import double_counts
 from agrinerf_ns.row.segments import RowInputError, Segment, cut_segment, plan_segments
 from agrinerf_ns.row.yield_map import along_row, correlation, yield_bins
+
+if TYPE_CHECKING:
+    from agrinerf_ns.row.cli import RowArgs
 
 
 @pytest.fixture(scope="module")
@@ -172,16 +180,34 @@ def _rows(path: Path) -> List[dict]:
         return list(csv.DictReader(handle))
 
 
-def test_a_tiny_row_from_a_raw_capture_through_the_jobs_and_resumed(tiny_capture: Path, tmp_path: Path) -> None:
-    """Process once, two segments cut, trained (30 steps) and counted in this process, joined; run again, no step is
-    redone and the row is the same."""
-    from agrinerf_ns.row.cli import RowArgs, main
+def _row_args(capture: Path, out: Path, **changes) -> "RowArgs":
+    from agrinerf_ns.row.cli import RowArgs
 
-    args = RowArgs(out=tmp_path / "row", raw=tiny_capture, segment_frames=10, overlap_frames=4, steps=30,
-                   rays_per_batch=256, bin_m=0.5)  # fmt: skip
-    summary = main(args)
+    settings = dict(segment_frames=10, overlap_frames=4, steps=30, rays_per_batch=256, bin_m=0.5) | changes
+    return RowArgs(out=out, raw=capture, **settings)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def tiny_row(tiny_capture: Path) -> Tuple[Path, dict]:
+    """The tiny capture's row in this process: processed once, two segments cut, trained (30 steps) and counted,
+    joined. Its folder and summary."""
+    from agrinerf_ns.row.cli import main
+
+    out = tiny_capture.parent / "row"
+    summary = main(_row_args(tiny_capture, out))
     assert summary is not None
-    out = tmp_path / "row"
+    return out, summary
+
+
+@pytest.mark.slow
+def test_a_tiny_row_from_a_raw_capture_through_the_jobs_and_resumed(
+    tiny_capture: Path, tiny_row: Tuple[Path, dict], tmp_path: Path
+) -> None:
+    """Its plan, files and tables agree; run again, no step is redone and the row is the same; a row cut otherwise,
+    a row folder inside the capture and a capture too short are refused before any work."""
+    from agrinerf_ns.row.cli import main
+
+    out, summary = tiny_row
     plan = json.loads((out / "plan.json").read_text())
     assert plan["segments"] == [[0, 10], [6, 16]] and plan["frames"] == 16
     for name in ("fruits.csv", "fruits.ply", "row_yield.csv", "row_map.png", "row.md", "row.json"):
@@ -193,19 +219,71 @@ def test_a_tiny_row_from_a_raw_capture_through_the_jobs_and_resumed(tiny_capture
     assert sum(int(b["fruit"]) for b in _rows(out / "row" / "row_yield.csv")) == len(fruit)
     truth = summary["truth"]  # the raw capture's truth, scored by the count's scorer
     assert truth["row"]["fruit"] == len(fruit) and truth["alone"]["fruit"] == alone and truth["row"]["visible"] > 0
+    assert truth["segments_own"]["segments"] == 2
     report = (out / "row" / "row.md").read_text()
     assert "the row, joined" in report and "seg01" in report and "train (sum)" in report
     assert {s["segment"] for s in summary["segments"]} == {"seg00", "seg01"}
     steps = [out / "capture" / "process.json", *sorted(out.glob("segments/*/*.json"))]
     assert len(steps) == 1 + 3 * 2  # process, and cut, train, count of each segment
     records = {p: p.stat().st_mtime_ns for p in steps}
-    again = main(args)
+    rows = (out / "row" / "fruits.csv").read_text()
+    again = main(_row_args(tiny_capture, out))
     assert again is not None and again["fruit"] == summary["fruit"]
     assert {p: p.stat().st_mtime_ns for p in records} == records, "finished steps were redone"
+    assert (out / "row" / "fruits.csv").read_text() == rows
     with pytest.raises(RowInputError, match="cut differently"):
-        main(RowArgs(out=out, raw=tiny_capture, segment_frames=9, overlap_frames=3, steps=30))
+        main(_row_args(tiny_capture, out, segment_frames=9, overlap_frames=3))
     with pytest.raises(RowInputError, match="inside the input"):
-        main(RowArgs(out=tiny_capture / "row", raw=tiny_capture))
+        main(_row_args(tiny_capture, tiny_capture / "row"))
     with pytest.raises(RowInputError, match="16 frames are too few"):
-        main(RowArgs(out=tmp_path / "short", raw=tiny_capture, segment_frames=12, overlap_frames=4))
-    assert not (tmp_path / "short").exists() and os.listdir(tiny_capture)
+        main(_row_args(tiny_capture, tmp_path / "short", segment_frames=12))
+    assert not (tmp_path / "short").exists() and not (tiny_capture / "row").exists()
+
+
+def _kill_a_training_worker(folder: Path, killed: Dict[str, int], stop: threading.Event) -> None:
+    """Once a job of ``folder`` runs ``ns-train``, SIGKILL the Ray worker running it (not ns-train)."""
+    from test_orchestrate_ray import _children
+
+    from agrinerf_ns.orchestrate.jobs import attempts
+
+    while not stop.is_set():
+        for attempt in attempts(folder):
+            worker = attempt["pid"]
+            trainers = [k for k in _children(worker) if b"ns-train" in Path(f"/proc/{k}/cmdline").read_bytes()]
+            if trainers:
+                time.sleep(3.0)  # well into ns-train's start-up
+                killed.update(worker=worker, trainer=trainers[0])
+                os.kill(worker, signal.SIGKILL)
+                return
+        time.sleep(0.2)
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("local_ray")
+def test_the_row_on_ray_with_a_worker_killed_mid_training_is_the_same_row(
+    tiny_capture: Path, tiny_row: Tuple[Path, dict], tmp_path: Path
+) -> None:
+    """The same row as Ray tasks on a local Ray of 2 CPUs; the worker training the second segment is killed once
+    ns-train runs: the training is retried, the row finishes, and its fruits.csv is the one made in this process."""
+    import ray
+    from test_orchestrate_ray import _alive
+
+    from agrinerf_ns.orchestrate.jobs import attempts
+    from agrinerf_ns.row.cli import main
+
+    out = tmp_path / "row"
+    victim = out / "segments" / "seg01"
+    killed: Dict[str, int] = {}
+    stop = threading.Event()
+    killer = threading.Thread(target=_kill_a_training_worker, args=(victim, killed, stop), daemon=True)
+    killer.start()
+    try:
+        address = ray.get_runtime_context().gcs_address  # the local Ray of the fixture
+        summary = main(_row_args(tiny_capture, out, ray=address, cpus_per_task=1))
+    finally:
+        stop.set()
+    assert killed, "the worker was not killed: the training finished before ns-train started?"
+    assert summary is not None and not (out / "failures.md").exists()
+    assert len(attempts(victim)) == 4, "cut, train killed, train again, count"
+    assert not _alive(killed["trainer"]), "the killed worker's ns-train is still running"
+    assert (out / "row" / "fruits.csv").read_text() == (tiny_row[0] / "row" / "fruits.csv").read_text()

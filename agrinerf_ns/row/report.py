@@ -31,6 +31,7 @@ from agrinerf_ns.row.join import JoinResult, join_fruit
 from agrinerf_ns.row.segments import Segment, camera_centres, read_transforms, trajectory_order
 from agrinerf_ns.row.stages import segment_folders
 from agrinerf_ns.row.yield_map import along_row, correlation, draw_row_map, path_length, write_yield_csv, yield_bins
+from agrinerf_ns.survey.intervals import mean_interval
 from agrinerf_ns.survey.stages import STAGES, read_record
 
 ROW_DIR = "row"
@@ -114,7 +115,7 @@ def assemble_row(
     summary: Dict[str, Any] = {"fruit": len(kept), "segments_alone": sum(len(f) for f in per_segment),
                                "joined_pairs": {f"{a}-{b}": n for (a, b), n in joined.pairs.items()},
                                "path_m": length, "segments": []}  # fmt: skip
-    truth_along, scored, capture, truth_ids = None, None, None, None
+    truth_along, capture, truth_ids = None, None, None
     if truth is not None:
         train = sorted({stem for f in folders for stem in raw_training_frames(f.data, [])})
         row = _score(kept, dataset, train, truth, settings.count, cameras)
@@ -126,6 +127,11 @@ def assemble_row(
         rows, cols = match_fruit(capture, row.truth.centres, settings.count.match_distance)
         truth_ids = np.full(len(kept), -1, np.int64)
         truth_ids[rows] = row.truth.ids[cols]
+        own = [(f.get("score") or {}) for f in (read_record(x, "count") or {} for x in folders)]
+        f1, f1_half = mean_interval([o.get("f1", math.nan) for o in own])
+        error, error_half = mean_interval([o.get("count_error", math.nan) for o in own])
+        scored["segments_own"] = {"f1": f1, "f1_half": f1_half, "count_error": error,
+                                  "count_error_half": error_half, "segments": len(own)}  # fmt: skip
         summary["truth"] = scored
     bins = yield_bins(along, length, settings.bin_m, truth_along)
     if bins.truth is not None:
@@ -209,9 +215,7 @@ def row_markdown(summary: Dict[str, Any], header: str, settings: RowSettings) ->
                      f"{_n(score.get('count_error'), 2, True)} | {times} |")  # fmt: skip
     truth = summary.get("truth")
     if truth:
-        own = [s["score"] for s in summary["segments"] if s.get("score")]
-        mean_f1 = float(np.mean([s["f1"] for s in own])) if own else math.nan
-        mean_error = float(np.mean([s["count_error"] for s in own])) if own else math.nan
+        own = truth["segments_own"]
         lines += ["", "Against the truth (the visible true fruit of the segments' training frames"
                   + ("" if settings.count.max_range is None else f" within {settings.count.max_range:g} m of a camera")
                   + f"; matched within {settings.count.match_distance:g} m):", "",
@@ -222,7 +226,15 @@ def row_markdown(summary: Dict[str, Any], header: str, settings: RowSettings) ->
             lines.append(f"| {label} | {t['fruit']} | {t['visible']} | {_n(t['precision'])} | {_n(t['recall'])} | "
                          f"{_n(t['f1'])} | {_n(t['count_error'], 2, True)} | {t['double_counts']} "
                          f"({_n(100 * t['double_count_rate'], 1)}%) |")  # fmt: skip
-        lines.append(f"| the segments' own (mean) | | | | | {_n(mean_f1)} | {_n(mean_error, 2, True)} | |")
+        lines.append(f"| the segments' own (mean ± 95% t interval over {own['segments']}) | | | | | "
+                     f"{_n(own['f1'])} ± {_n(own['f1_half'])} | {_n(own['count_error'], 2, True)} ± "
+                     f"{_n(own['count_error_half'])} | |")  # fmt: skip
+        if math.isfinite(own["count_error"]) and own["count_error"] > -1:
+            low, high = (own["count_error"] + own["count_error_half"], own["count_error"] - own["count_error_half"])
+            estimate = [summary["fruit"] / (1 + e) if e > -1 else math.inf for e in (low, high)]
+            lines.append(f"\nThe row's fruit corrected by the segments' count error (its 95% interval): "
+                         f"{_n(summary['fruit'] / (1 + own['count_error']), 0)} ({_n(estimate[0], 0)} to "
+                         f"{_n(estimate[1], 0)}) visible fruit.")  # fmt: skip
         corr = summary.get("per_metre_correlation")
         if corr:
             lines += ["", f"Fruit per bin against the truth's: r = {_n(corr['r'])} (95% interval {_n(corr['low'])} "
