@@ -54,8 +54,8 @@ class RowArgs:
     truth: Optional[Path] = None
     """A synthetic raw capture whose truth scores the row and its segments (default: --raw when it has a truth)."""
     segment_frames: int = 48
-    """Frames per segment: 48 is the capture size every count in docs/count.md was measured at (3.6 m of row at
-    0.75 m/s and 10 frames/s)."""
+    """Frames per segment: 48, the views of the count profiles the count was measured on (docs/bench_profiles.md;
+    3.6 m of row at the synthetic rig's 0.75 m/s and 10 frames/s)."""
     overlap_frames: int = 16
     """Frames neighbouring segments share (at least; the segments are spread evenly): a fruit in the overlap is
     seen by both from a third of a segment, and joined (--join-distance)."""
