@@ -60,8 +60,8 @@ class RowArgs:
     """Frames neighbouring segments share (at least; the segments are spread evenly): a fruit in the overlap is
     seen by both from a third of a segment, and joined (--join-distance)."""
     join_distance: float = JOIN_DISTANCE
-    """Two segments' fruit within this distance in their overlap are one fruit (metres; agrinerf_ns/row/join.py:
-    about 1.4x the placement error measured on the tuning seeds)."""
+    """Two segments' fruit within this distance in their overlap are one fruit (metres; measured against the
+    placement error of the tuning seeds: agrinerf_ns/row/join.py, results/row/README.md)."""
     bin_m: float = 1.0
     """Length of the bins of row_yield.csv (metres along the driven path)."""
     method: str = "agrinerf-lite"

@@ -8,10 +8,11 @@ between segments and two distinct fruit one segment kept apart stay apart. Each 
 segment that saw it best: the most views, then the nearest its segment's middle (a fruit at a segment's end is seen
 from one side only). Fruit outside every overlap pass through.
 
-The default distance, 0.10 m, is the spread of two placements of one fruit: two independent lifts each off the true
-centre by the placement error measured on the tuning seeds of the dark counts
-(results/fruit-count-dark/tuning/placement.md: median 0.022 to 0.051 m, largest standard deviation per axis 0.068 m,
-across the view), so their difference is about 1.4 times that, 0.07 to 0.10 m.
+The default distance, 0.25 m, is measured (``benchmarks/row_join_distance.py``, results/row/README.md): every true
+fruit of a synthetic row (tuning seed 0) placed twice with the placement error measured on the dark counts' tuning
+seeds (results/fruit-count-dark/tuning/placement.md, largest standard deviation per axis: 6.4 to 6.8 cm across the
+view) and joined by this rule. Closer distances leave many copies apart (double counts); from 0.25 m on, the copies
+left apart fall slowly while fruit lost to a neighbour's copy grow.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from jaxtyping import Float, Int
 from agrinerf_ns.count.cluster import Fruit
 from agrinerf_ns.row.segments import Segment
 
-JOIN_DISTANCE = 0.10
+JOIN_DISTANCE = 0.25
 """Metres (dataset units): see the module."""
 
 
