@@ -2,17 +2,17 @@
 
 Every segment counts the fruit it saw, in the capture's world frame (:mod:`agrinerf_ns.row.segments`). Where two
 segments share frames, a fruit near those frames (its nearest camera among the shared frames, give or take the
-join distance) may be in both counts. Such candidates of two segments are paired greedily, nearest first, when
-they lie within ``distance`` of each other; a group never holds two fruit of one segment, so the join is one-to-one
-between segments and two distinct fruit one segment kept apart stay apart. Each group is kept once, the copy of the
+join distance) may be in both counts. Such candidates of two segments are matched one-to-one within ``distance`` by
+the count's own matching (:func:`~agrinerf_ns.count.fruit_score.match_fruit`, Hungarian on the distances), so two
+distinct fruit one segment kept apart stay apart. Where more than two segments share frames, the matched pairs are
+joined into groups nearest first, a group never holding two fruit of one segment. Each group is kept once, the copy of the
 segment that saw it best: the most views, then the nearest its segment's middle (a fruit at a segment's end is seen
 from one side only). Fruit outside every overlap pass through.
 
-The default distance, 0.25 m, is measured (``benchmarks/row_join_distance.py``, results/row/README.md): every true
+The default distance, 0.30 m, is measured (``benchmarks/row_join_distance.py``, results/row/README.md): every true
 fruit of a synthetic row (tuning seed 0) placed twice with the placement error measured on the dark counts' tuning
 seeds (results/fruit-count-dark/tuning/placement.md, largest standard deviation per axis: 6.4 to 6.8 cm across the
-view) and joined by this rule. Closer distances leave many copies apart (double counts); from 0.25 m on, the copies
-left apart fall slowly while fruit lost to a neighbour's copy grow.
+view) and joined by this rule. Closer distances leave many copies apart (double counts).
 """
 
 from __future__ import annotations
@@ -25,9 +25,10 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from agrinerf_ns.count.cluster import Fruit
+from agrinerf_ns.count.fruit_score import match_fruit
 from agrinerf_ns.row.segments import Segment
 
-JOIN_DISTANCE = 0.25
+JOIN_DISTANCE = 0.30
 """Metres (dataset units): see the module."""
 
 
@@ -102,11 +103,10 @@ def join_fruit(
                 continue  # no shared frames
             left = [i for i, r in enumerate(items) if r.segment == first.index and lo <= r.frame < hi]
             right = [j for j, r in enumerate(items) if r.segment == second.index and lo <= r.frame < hi]
-            for i in left:
-                for j in right:
-                    d = float(np.linalg.norm(centres[i] - centres[j]))
-                    if d <= distance:
-                        candidates.append((d, i, j))
+            rows, cols = match_fruit(centres[left], centres[right], distance)  # the count's one-to-one matching
+            for a_row, b_col in zip(rows, cols, strict=True):
+                i, j = left[int(a_row)], right[int(b_col)]
+                candidates.append((float(np.linalg.norm(centres[i] - centres[j])), i, j))
     group = list(range(len(items)))
     members: Dict[int, List[int]] = {i: [i] for i in range(len(items))}
 
