@@ -5,9 +5,9 @@ segments share frames, a fruit near those frames (its nearest camera among the s
 join distance) may be in both counts. Such candidates of two segments are matched one-to-one within ``distance`` by
 the count's own matching (:func:`~agrinerf_ns.count.fruit_score.match_fruit`, Hungarian on the distances), so two
 distinct fruit one segment kept apart stay apart. Where more than two segments share frames, the matched pairs are
-joined into groups nearest first, a group never holding two fruit of one segment. Each group is kept once, the copy of the
-segment that saw it best: the most views, then the nearest its segment's middle (a fruit at a segment's end is seen
-from one side only). Fruit outside every overlap pass through.
+joined into groups nearest first, a group never holding two fruit of one segment. Each group is kept once, the copy
+of the segment that saw it best: the most views, then the nearest its segment's middle (a fruit at a segment's end is
+seen from one side only). Fruit outside every overlap pass through.
 
 The default distance, 0.30 m, is measured (``benchmarks/row_join_distance.py``, results/row/README.md): every true
 fruit of a synthetic row (tuning seed 0) placed twice with the placement error measured on the dark counts' tuning
