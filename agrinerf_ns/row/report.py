@@ -204,7 +204,8 @@ def row_markdown(summary: Dict[str, Any], header: str, settings: RowSettings) ->
              f"({summary['segments_alone']} in the segments' counts before the join; "
              f"{sum(summary['joined_pairs'].values())} pairs joined at borders within {settings.join_distance:g} m). "
              f"Yield per {settings.bin_m:g} m: row_yield.csv, row_map.png.", "",
-             "| segment | frames | fruit (95% jackknife) | kept in the row | F1 | count error | cut / train / count (s) |",
+             "| segment | frames | fruit (95% jackknife) | kept in the row | F1 | count error "
+             "| cut / train / count (s) |",
              "|---|---|---|---|---|---|---|"]  # fmt: skip
     for s in summary["segments"]:
         interval = s.get("fruit_interval") or [None, None]

@@ -179,8 +179,8 @@ def cut_segment(dataset: Path, segment: Segment, out: Path) -> Dict[str, Any]:
                 if entry.key in frame:
                     _link(dataset / frame[entry.key], tmp / frame[entry.key])
                     files += 1
-        record: Dict[str, Any] = {"source": str(dataset.resolve()), "index": segment.index,
-                                  "frames": [segment.start, segment.stop], "of": len(order), "files": files}  # fmt: skip
+        record: Dict[str, Any] = {"source": str(dataset.resolve()), "index": segment.index, "files": files,
+                                  "frames": [segment.start, segment.stop], "of": len(order)}  # fmt: skip
         skip = {TRANSFORMS, THERMAL_TRANSFORMS, EVENT_STREAM, FRUIT_BODIES}
         per_frame = {entry.folder for entry in FRAME_FILES}
         for path in sorted(dataset.rglob("*")):
