@@ -42,6 +42,22 @@ def write_csv(
             writer.writerow(row)
 
 
+def read_csv(path: Path) -> List[Fruit]:
+    """The fruit of a ``fruits.csv`` written by :func:`write_csv` (dataset frame); raises ValueError naming the file
+    when a column is missing or a value is not a number."""
+    fruit = []
+    with open(path, newline="") as handle:
+        for line, row in enumerate(csv.DictReader(handle), start=2):
+            try:
+                temperature = row["temperature_c"]
+                fruit.append(Fruit(np.array([float(row[k]) for k in "xyz"]), float(row["diameter"]), int(row["views"]),
+                                   int(row["detections"]), float(temperature) if temperature else None,
+                                   float(row["score"])))  # fmt: skip
+            except (KeyError, TypeError, ValueError) as err:
+                raise ValueError(f"{path}:{line}: not a fruits.csv row ({err!r})") from err
+    return fruit
+
+
 def _fmt(values: np.ndarray) -> List[str]:
     return [f"{float(v):.4f}" for v in values]
 

@@ -7,7 +7,8 @@ G counts, scaled by the jackknife's (G - 1) / G, is the variance of the count. T
 Student's t (G - 1 degrees of freedom) times its square root (not below 0): how much the count rests on which views happened to
 detect each fruit. It says nothing of fruit no view shows, nor of a detector's systematic misses.
 
-The temperature: the mean of the counted fruit's rendered temperatures with Student's t interval over the fruit.
+The temperature: the mean of the counted fruit's rendered temperatures with Student's t interval over the fruit
+(:func:`mean_interval`, which also gives a row's mean score over its segments).
 """
 
 from __future__ import annotations
@@ -61,17 +62,23 @@ def count_interval(
     return max(0.0, count - half), count + half
 
 
+def mean_interval(values: Sequence[float], confidence: float = 0.95) -> Tuple[float, float]:
+    """Mean of the finite ``values`` and its Student's t interval's half-width (nan: no values; nan half-width: fewer
+    than two)."""
+    kept = [float(v) for v in values if v is not None and math.isfinite(v)]
+    if not kept:
+        return math.nan, math.nan
+    mean = sum(kept) / len(kept)
+    if len(kept) < 2:
+        return mean, math.nan
+    sd = math.sqrt(sum((v - mean) ** 2 for v in kept) / (len(kept) - 1))
+    return mean, _t(confidence, len(kept) - 1) * sd / math.sqrt(len(kept))
+
+
 def mean_temperature(fruit: Sequence[Fruit], confidence: float = 0.95) -> Tuple[float, float]:
     """Mean rendered temperature of the fruit that have one (degrees C) and its interval's half-width (nan when
     fewer than two have one)."""
-    temps = [f.temperature for f in fruit if f.temperature is not None and math.isfinite(f.temperature)]
-    if not temps:
-        return math.nan, math.nan
-    mean = sum(temps) / len(temps)
-    if len(temps) < 2:
-        return mean, math.nan
-    sd = math.sqrt(sum((t - mean) ** 2 for t in temps) / (len(temps) - 1))
-    return mean, _t(confidence, len(temps) - 1) * sd / math.sqrt(len(temps))
+    return mean_interval([f.temperature for f in fruit if f.temperature is not None], confidence)
 
 
 def finite_or_none(value: Optional[float]) -> Optional[float]:

@@ -92,7 +92,8 @@ def read_record(folders: CaptureFolders, stage: str) -> Optional[Dict[str, Any]]
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def _write_record(folders: CaptureFolders, stage: str, record: Dict[str, Any]) -> Dict[str, Any]:
+def write_record(folders: CaptureFolders, stage: str, record: Dict[str, Any]) -> Dict[str, Any]:
+    """Write a finished step's record (atomically, last: its presence marks the step done); returns it."""
     path = folders.record(stage)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(record, indent=1) + "\n")
@@ -107,7 +108,7 @@ def process_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *
     start = time.perf_counter()
     config = dataclasses.replace(settings.process, overwrite=True, show_progress=False)
     process_capture(raw, folders.data, config)
-    return _write_record(folders, "process", {"wall_s": time.perf_counter() - start})
+    return write_record(folders, "process", {"wall_s": time.perf_counter() - start})
 
 
 def train_step(folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Dict[str, Any]:
@@ -119,7 +120,7 @@ def train_step(folders: CaptureFolders, settings: SurveySettings, *_: Any) -> Di
                    max_steps=settings.steps, rays_per_batch=settings.rays_per_batch,
                    extra_args=settings.train_args)  # fmt: skip
     run.save(folders.train_record)
-    return _write_record(folders, "train", {"wall_s": run.wall_s, "config": str(run.config), "steps": settings.steps,
+    return write_record(folders, "train", {"wall_s": run.wall_s, "config": str(run.config), "steps": settings.steps,
                                             "peak_rss_mb": run.peak_rss_mb})  # fmt: skip
 
 
@@ -152,4 +153,4 @@ def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_:
             k: finite_or_none(v) if isinstance(v, float) else v for k, v in result.score.as_dict().items()
         },  # fmt: skip
     }
-    return _write_record(folders, "count", record)
+    return write_record(folders, "count", record)

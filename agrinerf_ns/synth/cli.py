@@ -11,7 +11,7 @@ from typing import Optional
 import tyro
 from typing_extensions import Annotated
 
-from agrinerf_ns.synth.config import SynthConfig, SynthConfigError
+from agrinerf_ns.synth.config import SynthConfig, SynthConfigError, views_for_row
 
 
 @dataclass
@@ -24,6 +24,9 @@ class SynthCommand:
     out: Path
     """Output folder (must be absent or empty); written atomically."""
     config: Annotated[SynthConfig, tyro.conf.OmitArgPrefixes] = field(default_factory=SynthConfig)
+    row_length_m: Optional[float] = None
+    """Drive this many metres of row instead of ``--views`` frames: the frames it takes at ``--speed`` and ``--fps``
+    (the same plants, seeded by their place along the row, and the same truth files; docs/synth.md, Long rows)."""
     preview: bool = False
     """Also write a contact sheet PNG (RGB / RGB truth / thermal / events for a few frames)."""
     preview_path: Optional[Path] = None
@@ -41,7 +44,10 @@ def run(cmd: SynthCommand) -> Path:
 
     console = Console(stderr=True)
     start = time.perf_counter()
-    out = generate_capture(cmd.config, cmd.out, progress=True)
+    config = cmd.config
+    if cmd.row_length_m is not None:
+        config = config.replace(views=views_for_row(cmd.row_length_m, config.speed, config.fps))
+    out = generate_capture(config, cmd.out, progress=True)
     console.print(f"[green]wrote[/green] {out} in {time.perf_counter() - start:.1f} s")
     if cmd.preview:
         sheet = contact_sheet(out, cmd.preview_path or out / "preview.png", rows=cmd.preview_rows)

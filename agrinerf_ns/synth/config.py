@@ -188,6 +188,17 @@ class SynthConfig:
             raise SynthConfigError(f"min_box_pixels must be >= 1, got {self.min_box_pixels}")
 
 
+def views_for_row(length_m: float, speed: float, fps: float) -> int:
+    """The frames that drive ``length_m`` metres of row at ``speed`` m/s and ``fps`` frames/s (the first frame at the
+    row's start, the last at its end); raises SynthConfigError for a length under two frames."""
+    if not length_m > 0 or not speed > 0 or not fps > 0:
+        raise SynthConfigError(f"row length, speed and fps must be positive, got {length_m}, {speed}, {fps}")
+    views = int(round(length_m * fps / speed)) + 1
+    if views < 2:
+        raise SynthConfigError(f"a row of {length_m} m is under one frame step ({speed / fps:g} m) long")
+    return views
+
+
 def check_output_dir(out: Path) -> None:
     """Raise SynthConfigError when ``out`` cannot receive a new capture (a file, or a non-empty folder)."""
     out = Path(out)

@@ -1,0 +1,236 @@
+"""``agrinerf-row --data DATASET | --raw CAPTURE --out OUT [--ray local|auto|ADDRESS]``: a whole row's yield map.
+
+A long capture is cut into segments of ``--segment-frames`` frames, neighbours sharing ``--overlap-frames``, all in
+the capture's world frame (a raw capture is processed once, as a whole, first); each segment is trained and counted as
+a survey capture is (jobs with retries and resume, in this process or on Ray), then the driver joins the segments'
+fruit across their borders and writes the row folder ``OUT/row`` (:mod:`agrinerf_ns.row.report`).
+"""
+
+from __future__ import annotations
+
+import shlex
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional
+
+import tyro
+from rich.console import Console
+
+from agrinerf_ns.count.fruit_score import FRUITS_JSON
+from agrinerf_ns.count.pipeline import CountConfig
+from agrinerf_ns.orchestrate.executors import executor_for
+from agrinerf_ns.orchestrate.jobs import (
+    FolderInUse,
+    Job,
+    JobsReport,
+    Resources,
+    driver_lock,
+    failures_markdown,
+    run_jobs,
+    write_failures,
+)
+from agrinerf_ns.process.capture_to_dataset import ProcessConfig
+from agrinerf_ns.row import stages
+from agrinerf_ns.row.join import JOIN_DISTANCE
+from agrinerf_ns.row.report import RowSettings, assemble_row
+from agrinerf_ns.row.segments import RowInputError, Segment, plan_segments, read_transforms
+from agrinerf_ns.survey import stages as survey_stages
+
+CONSOLE = Console()
+
+
+@dataclass
+class RowArgs:
+    """Cut a long capture into overlapping segments, train and count each, and join them into one row's yield map."""
+
+    out: Path
+    """Row folder (outside --data and --raw, which are only read)."""
+    data: Optional[Path] = None
+    """A processed dataset of the whole capture (agrinerf-process), cut as it is."""
+    raw: Optional[Path] = None
+    """Instead of --data: a raw capture, processed once as a whole (one world frame for all segments) and then cut."""
+    truth: Optional[Path] = None
+    """A synthetic raw capture whose truth scores the row and its segments (default: --raw when it has a truth)."""
+    segment_frames: int = 48
+    """Frames per segment: 48, the views of the count profiles the count was measured on (docs/bench_profiles.md;
+    3.6 m of row at the synthetic rig's 0.75 m/s and 10 frames/s)."""
+    overlap_frames: int = 16
+    """Frames neighbouring segments share (at least; the segments are spread evenly): a fruit in the overlap is
+    seen by both from a third of a segment, and joined (--join-distance)."""
+    join_distance: float = JOIN_DISTANCE
+    """Two segments' fruit within this distance in their overlap are one fruit (metres; measured against the
+    placement error of the tuning seeds: agrinerf_ns/row/join.py, results/row/README.md)."""
+    bin_m: float = 1.0
+    """Length of the bins of row_yield.csv (metres along the driven path)."""
+    method: str = "agrinerf-lite"
+    """``ns-train`` method (preset) each segment is trained with."""
+    steps: int = 30000
+    """Training steps per segment."""
+    rays_per_batch: int = 4096
+    """Training rays per batch."""
+    train_args: str = ""
+    """Further ``ns-train`` method options in one string (as agrinerf-survey's)."""
+    ray: Optional[str] = None
+    """Run the jobs as Ray tasks: ``local``, ``auto`` or a cluster address (as agrinerf-survey's); None: one job after
+    another in this process."""
+    cpus_per_task: Optional[int] = None
+    """CPU cores (and threads) each job holds; None: one per job with --ray, threads unchanged without."""
+    gpus_per_train: float = 0.0
+    """GPUs a segment's training and counting hold with --ray."""
+    memory_gb_per_train: Optional[float] = None
+    """Memory Ray reserves for a segment's training and counting (GiB; None: none reserved)."""
+    retries: int = 1
+    """Further attempts of a step that fails or whose worker dies."""
+    ray_cpus: Optional[int] = None
+    """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
+    jackknife_groups: int = 10
+    """Interleaved groups of views of each segment's count interval."""
+    process: ProcessConfig = field(default_factory=lambda: ProcessConfig(show_progress=False))
+    """Processing options of --raw (as ``agrinerf-process``)."""
+    count: CountConfig = field(default_factory=CountConfig)
+    """Detection, clustering and scoring options of every segment's count (as ``agrinerf-count``; --count.max-range
+    keeps the row the rig drove)."""
+
+
+def _raw_frames(raw: Path) -> int:
+    path = Path(raw) / "rgb" / "timestamps.txt"
+    if not path.is_file():
+        raise RowInputError(f"{path}: missing; --raw must be a raw capture folder (docs/formats.md)")
+    return sum(1 for line in path.read_text().splitlines() if line.strip())
+
+
+def check_inputs(args: RowArgs) -> Path:
+    """The input folder (--data or --raw), checked before any work starts; raises :class:`RowInputError`."""
+    if (args.data is None) == (args.raw is None):
+        raise RowInputError("give exactly one of --data DATASET and --raw CAPTURE")
+    source = Path(args.data if args.data is not None else args.raw)  # type: ignore[arg-type]
+    if not source.is_dir():
+        raise RowInputError(f"{source}: folder does not exist")
+    if Path(args.out).resolve().is_relative_to(source.resolve()):
+        raise RowInputError(f"{args.out}: the row folder lies inside the input {source} (read only)")
+    if args.truth is not None and not (Path(args.truth) / FRUITS_JSON).is_file():
+        raise RowInputError(f"{Path(args.truth) / FRUITS_JSON}: missing; --truth must be a synthetic capture")
+    if not args.join_distance > 0 or not args.bin_m > 0:
+        raise RowInputError(f"--join-distance and --bin-m must be positive, got {args.join_distance}, {args.bin_m}")
+    frames = len(read_transforms(source)["frames"]) if args.data is not None else _raw_frames(source)
+    plan_segments(frames, args.segment_frames, args.overlap_frames)  # refuses a capture too short, before processing
+    return source
+
+
+def _resources(args: RowArgs) -> tuple:
+    cpus = args.cpus_per_task if args.cpus_per_task is not None or args.ray is None else 1
+    memory = None if args.memory_gb_per_train is None else int(args.memory_gb_per_train * 1024)
+    return Resources(cpus=cpus), Resources(cpus=cpus, gpus=args.gpus_per_train, memory_mb=memory)
+
+
+def segment_jobs(args: RowArgs, dataset: Path, truth: Path, segments: List[Segment],
+                 settings: survey_stages.SurveySettings) -> List[Job]:  # fmt: skip
+    """Per segment, the steps without a record (cut, train, count), each after the one before it."""
+    light, heavy = _resources(args)
+    jobs: List[Job] = []
+    for segment in segments:
+        folders = stages.segment_folders(args.out, segment)
+        steps: Dict[str, Any] = {
+            "cut": (stages.cut_step, (dataset, segment, folders), light, None),
+            "train": (survey_stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
+            "count": (survey_stages.count_step, (truth, folders, settings), heavy, None),
+        }
+        previous: tuple = ()
+        for stage in stages.SEGMENT_STAGES:
+            if survey_stages.read_record(folders, stage) is not None:
+                continue
+            fn, fn_args, resources, log = steps[stage]
+            key = f"{segment.name}:{stage}"
+            jobs.append(Job(key, fn, fn_args, folders.root, resources, previous, log, args.retries))
+            previous = (key,)
+    return jobs
+
+
+def _run(jobs: List[Job], executor: Any, label: str, report: JobsReport) -> None:
+    if not jobs:
+        return
+    part = run_jobs(jobs, executor, lambda job, result: None, label, CONSOLE)
+    report.done.update(part.done)
+    report.failed.update(part.failed)
+    report.skipped.update(part.skipped)
+
+
+def main(args: RowArgs) -> Optional[Dict[str, Any]]:
+    """Run the row; returns its summary (None when a segment failed: see OUT/failures.md)."""
+    source = check_inputs(args)
+    truth = args.truth if args.truth is not None else (args.raw if args.raw is not None else source)
+    settings = survey_stages.SurveySettings(args.method, args.steps, args.rays_per_batch,
+                                            tuple(shlex.split(args.train_args)), args.process, args.count,
+                                            args.jackknife_groups)  # fmt: skip
+    report = JobsReport()
+    start = time.perf_counter()
+    wall: Dict[str, float] = {}
+    with driver_lock(args.out), executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as ex:
+        dataset = source
+        if args.raw is not None:
+            whole = stages.capture_folders(args.out)
+            dataset = whole.data
+            if survey_stages.read_record(whole, "process") is None:
+                light, _ = _resources(args)
+                job = Job("capture:process", survey_stages.process_step, (args.raw, whole, settings), whole.root,
+                          light, (), None, args.retries)  # fmt: skip
+                _run([job], ex, "row: process", report)
+            record = survey_stages.read_record(whole, "process")
+            if record is None:
+                write_failures(args.out / "failures.md", failures_markdown(report, "Row steps that failed"))
+                return None
+            wall["process"] = record["wall_s"]
+        frames = len(read_transforms(dataset)["frames"])
+        segments = plan_segments(frames, args.segment_frames, args.overlap_frames)
+        stages.check_plan(args.out, stages.plan_record(dataset, frames, args.segment_frames, args.overlap_frames,
+                                                       segments))  # fmt: skip
+        jobs_start = time.perf_counter()
+        _run(segment_jobs(args, dataset, truth, segments, settings), ex, f"row: {len(segments)} segments", report)
+        wall["segment jobs, this session"] = time.perf_counter() - jobs_start
+        write_failures(args.out / "failures.md", failures_markdown(report, "Row steps that failed"))
+        if report.failed or report.skipped:
+            return None
+        for stage in stages.SEGMENT_STAGES:
+            times = [(survey_stages.read_record(stages.segment_folders(args.out, s), stage) or {}).get("wall_s")
+                     for s in segments]  # fmt: skip
+            wall[f"{stage} (sum)"] = float(sum(t for t in times if t is not None))
+        has_truth = (Path(truth) / FRUITS_JSON).is_file()
+        row_settings = RowSettings(args.join_distance, args.bin_m, args.count)
+        wall["driver before the join, this session"] = time.perf_counter() - start
+        summary = assemble_row(args.out, dataset, segments, row_settings, truth if has_truth else None,
+                               _header(args, len(segments)), wall)  # fmt: skip
+    CONSOLE.print(f"row: {summary['fruit']} fruit -> {args.out / 'row'}", soft_wrap=True)
+    return summary
+
+
+def _header(args: RowArgs, segments: int) -> str:
+    from agrinerf_ns.machine import machine_note
+
+    source = args.data if args.data is not None else args.raw
+    return (
+        f"# Row yield of {source}\n\nCommand: `agrinerf-row {' '.join(sys.argv[1:])}`\n\n{machine_note()}\n\n"
+        f"{segments} segments of {args.segment_frames} frames overlapping by at least {args.overlap_frames}; each "
+        f"`{args.method}`, {args.steps} steps, counted by `agrinerf-count` ({args.count.detect.detector} on "
+        f"{args.count.detect.source}); fruit joined across borders within {args.join_distance:g} m."
+    )
+
+
+def entrypoint() -> None:
+    """Console script ``agrinerf-row``."""
+    tyro.extras.set_accent_color("bright_yellow")
+    try:
+        summary = main(tyro.cli(RowArgs))
+    except RowInputError as err:
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
+        sys.exit(2)
+    except FolderInUse as err:
+        CONSOLE.print(f"[bold red]Error:[/bold red] {err}", soft_wrap=True)
+        sys.exit(1)
+    if summary is None:
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    entrypoint()
