@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import importlib.metadata as metadata
 import re
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -87,7 +88,14 @@ def test_ns_train_lists_agrinerf() -> None:
 
 @pytest.mark.slow
 def test_wheel_adds_no_generic_top_level_modules(tmp_path: Path) -> None:
-    """A non-editable build installs dataparsers/ and method_configs/ under agrinerf_ns only."""
+    """A non-editable build installs dataparsers/ and method_configs/ under agrinerf_ns only, and every module of the
+    package (built from a copy of the sources: a checkout's stale build/ folder would fill in what pyproject.toml
+    leaves out)."""
+    source = tmp_path / "source"
+    for name in ("agrinerf_ns", "dataparsers", "method_configs"):
+        shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy2(ROOT / name, source / name)
     subprocess.run(
         [
             sys.executable,
@@ -99,7 +107,7 @@ def test_wheel_adds_no_generic_top_level_modules(tmp_path: Path) -> None:
             "-q",
             "-w",
             str(tmp_path),
-            str(ROOT),
+            str(source),
         ],
         check=True,
     )
@@ -108,6 +116,9 @@ def test_wheel_adds_no_generic_top_level_modules(tmp_path: Path) -> None:
     top_level = {name.split("/")[0] for name in names}
     assert top_level <= {"agrinerf_ns", next(n.split("/")[0] for n in names if ".dist-info/" in n)}, top_level
     assert "agrinerf_ns/dataparsers/agrinerf_dataparser.py" in names
+    checkout = {str(path.relative_to(ROOT)) for path in (ROOT / "agrinerf_ns").rglob("*.py")}
+    missing = sorted(checkout - set(names))
+    assert not missing, f"modules the wheel leaves out (add their package to pyproject.toml's packages): {missing}"
     assert "agrinerf_ns/method_configs/agrinerf_methods.py" in names
     entry_points = next(n for n in names if n.endswith("entry_points.txt"))
     text = zipfile.ZipFile(wheel).read(entry_points).decode()

@@ -32,7 +32,7 @@ from agrinerf_ns.orchestrate.jobs import (
     write_failures,
 )
 from agrinerf_ns.process.capture_to_dataset import ProcessConfig
-from agrinerf_ns.row import stages
+from agrinerf_ns.row import segment_steps
 from agrinerf_ns.row.join import JOIN_DISTANCE
 from agrinerf_ns.row.report import RowSettings, assemble_row
 from agrinerf_ns.row.segments import RowInputError, Segment, plan_segments, read_transforms
@@ -131,14 +131,14 @@ def segment_jobs(args: RowArgs, dataset: Path, truth: Path, segments: List[Segme
     light, heavy = _resources(args)
     jobs: List[Job] = []
     for segment in segments:
-        folders = stages.segment_folders(args.out, segment)
+        folders = segment_steps.segment_folders(args.out, segment)
         steps: Dict[str, Any] = {
-            "cut": (stages.cut_step, (dataset, segment, folders), light, None),
+            "cut": (segment_steps.cut_step, (dataset, segment, folders), light, None),
             "train": (survey_stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
             "count": (survey_stages.count_step, (truth, folders, settings), heavy, None),
         }
         previous: tuple = ()
-        for stage in stages.SEGMENT_STAGES:
+        for stage in segment_steps.SEGMENT_STAGES:
             if survey_stages.read_record(folders, stage) is not None:
                 continue
             fn, fn_args, resources, log = steps[stage]
@@ -170,7 +170,7 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
     with driver_lock(args.out), executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as ex:
         dataset = source
         if args.raw is not None:
-            whole = stages.capture_folders(args.out)
+            whole = segment_steps.capture_folders(args.out)
             dataset = whole.data
             if survey_stages.read_record(whole, "process") is None:
                 light, _ = _resources(args)
@@ -184,7 +184,7 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
             wall["process"] = record["wall_s"]
         frames = len(read_transforms(dataset)["frames"])
         segments = plan_segments(frames, args.segment_frames, args.overlap_frames)
-        stages.check_plan(args.out, stages.plan_record(dataset, frames, args.segment_frames, args.overlap_frames,
+        segment_steps.check_plan(args.out, segment_steps.plan_record(dataset, frames, args.segment_frames, args.overlap_frames,
                                                        segments))  # fmt: skip
         jobs_start = time.perf_counter()
         _run(segment_jobs(args, dataset, truth, segments, settings), ex, f"row: {len(segments)} segments", report)
@@ -192,8 +192,8 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
         write_failures(args.out / "failures.md", failures_markdown(report, "Row steps that failed"))
         if report.failed or report.skipped:
             return None
-        for stage in stages.SEGMENT_STAGES:
-            times = [(survey_stages.read_record(stages.segment_folders(args.out, s), stage) or {}).get("wall_s")
+        for stage in segment_steps.SEGMENT_STAGES:
+            times = [(survey_stages.read_record(segment_steps.segment_folders(args.out, s), stage) or {}).get("wall_s")
                      for s in segments]  # fmt: skip
             wall[f"{stage} (sum)"] = float(sum(t for t in times if t is not None))
         has_truth = (Path(truth) / FRUITS_JSON).is_file()

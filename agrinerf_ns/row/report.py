@@ -28,8 +28,8 @@ from agrinerf_ns.count.fruit_score import match_fruit
 from agrinerf_ns.count.pipeline import CountConfig, CountResult, raw_training_frames, score_result
 from agrinerf_ns.count.write import read_csv, write_ply
 from agrinerf_ns.row.join import JoinResult, join_fruit
+from agrinerf_ns.row.segment_steps import segment_folders
 from agrinerf_ns.row.segments import Segment, camera_centres, read_transforms, trajectory_order
-from agrinerf_ns.row.stages import segment_folders
 from agrinerf_ns.row.yield_map import along_row, correlation, draw_row_map, path_length, write_yield_csv, yield_bins
 from agrinerf_ns.survey.intervals import mean_interval
 from agrinerf_ns.survey.stages import STAGES, read_record
