@@ -55,6 +55,37 @@ def _window(fraction: float) -> Tuple[str, ...]:
     return (f"{MODEL}event-window-min-fraction", str(fraction))
 
 
+LITE_MODEL_ON_EVDEBLURNERF = (
+    f"{MODEL}edi-prior", "False", f"{MODEL}event-crf", "False", f"{MODEL}blur-kernel", "trajectory",
+    f"{MODEL}blur-start-step", "0", f"{MODEL}num-fine-samples", "16", f"{MODEL}event-log-eps", "1e-4",
+)  # fmt: skip
+"""``evdeblurnerf-lite``'s model settings back to ``agrinerf-lite``'s (with a row's own options on top): only the
+optimizers then differ."""
+
+OURS_PLUS_PARTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
+    "gate-plus-edi": ("EvDeblurNeRF's EDI prior", (f"{MODEL}edi-prior", "True")),
+    "gate-plus-pairs": (
+        "EvDeblurNeRF's event-to-event pairs in place of windows",
+        (f"{MODEL}event-supervision", "pairs"),
+    ),
+    "gate-plus-pairs-crf": (
+        "event-to-event pairs with EvDeblurNeRF's learnt event response from step 0",
+        (f"{MODEL}event-supervision", "pairs", f"{MODEL}event-crf", "True", f"{MODEL}event-crf-start-step", "0"),
+    ),
+    "gate-plus-learnt-kernel": (
+        "EvDeblurNeRF's learnt rigid kernel (3 rays) from step 0 in place of the trajectory",
+        (f"{MODEL}blur-kernel", "learnt"),
+    ),
+    "gate-plus-evd-schedule": ("EvDeblurNeRF's learning-rate schedule", LITE_MODEL_ON_EVDEBLURNERF),
+}
+"""Ours' RGB module (``blur-events-gate``) with one of EvDeblurNeRF's parts added, as ``evdeblurnerf-lite`` has it
+(issue #63, item 1b), each paired with ``blur-events-gate``: key -> (the part, its options). The learnt event response
+works on event pairs only (``model/parts.py``), so it comes with them (paired with ``gate-plus-pairs`` as well). Its
+response and kernel start at step 1200 in ``evdeblurnerf-lite``, past these rows' 800 steps: they start where Ours'
+blur model does, at step 0. The kernel keeps Ours' 3 rays (EvDeblurNeRF: 10), the pairs Ours' 256 samples, noise
+balance and gate (EvDeblurNeRF: 4096 at weight 0.1), so that only the part changes. The schedule row trains with
+``evdeblurnerf-lite``'s optimizers (:data:`ROW_PRESETS`)."""
+
 ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     "rgb": ("RGB TensoRF", RGB),
     "blur": ("+ blur model (K=3)", (*RGB, *_blur(3))),
@@ -128,10 +159,19 @@ ROWS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
     "agrinerf": ("Ours: All + blur + gated noise-balanced events", (*_blur(3), *OURS_EVENTS)),
     "rgb-long": ("RGB TensoRF, 4x the steps", RGB),
     "rgb-seed": ("RGB TensoRF, another seed", (*RGB, "--machine.seed", "43")),
+    **{
+        key: (f"Ours (RGB module) + {label}", (*EVENTS, *_blur(3), *OURS_EVENTS, *options))
+        for key, (label, options) in OURS_PLUS_PARTS.items()
+    },
 }
-"""Row key -> (label, ``ns-train agrinerf-lite`` options). The event loss takes 256 event pixels per batch at weight
-0.1 (EvDeblurNeRF's) from the event stream at the event camera's pixels in random sub-windows (the model's
-defaults), the blur model 3 renders per blurred pixel, unless the key says otherwise."""
+"""Row key -> (label, ``ns-train`` options of its preset, :data:`ROW_PRESETS`, else ``agrinerf-lite``). The event loss
+takes 256 event pixels per batch at weight 0.1 (EvDeblurNeRF's) from the event stream at the event camera's pixels in
+random sub-windows (the model's defaults), the blur model 3 renders per blurred pixel, unless the key says
+otherwise."""
+
+ROW_PRESETS: Dict[str, str] = {"gate-plus-evd-schedule": "evdeblurnerf-lite"}
+"""Rows trained with another preset's optimizers: Ours' RGB module (its options, the same model) under
+``evdeblurnerf-lite``'s learning rates and schedule (Adam x 0.1^(step / 10k), not x0.1 at 1/3 and 2/3 of 2k steps)."""
 
 BASELINES: Dict[str, str] = {
     "nerfacto": "Nerfacto (RGB)",
@@ -202,6 +242,8 @@ PAIRS: Tuple[Tuple[str, str, str], ...] = (
     ("evdeblurnerf-lite", "learnt-kernel", "EvDeblurNeRF against its recipe without events (its paper's ordering)"),
     ("learnt-kernel", "recipe-rgb", "The learnt rigid kernel against the same recipe without it"),
     ("evdeblurnerf-lite", "evdeblurnerf-lite-no-edi", "The EDI prior's part of EvDeblurNeRF"),
+    *((key, "blur-events-gate", f"Ours (RGB) + {label}, against Ours") for key, (label, _) in OURS_PLUS_PARTS.items()),
+    ("gate-plus-pairs-crf", "gate-plus-pairs", "The learnt event response on Ours' event pairs, against none"),
 )
 """Paired per-view comparisons reported where both rows ran: (row, against, what it measures)."""
 
@@ -265,7 +307,7 @@ def _method(key: str) -> BenchMethod:
         label, options = PUBLISHED_VARIANTS[key]
         return BenchMethod(label, "evdeblurnerf-lite", "transforms.json", "rgb", train_args=options)
     label, options = ROWS[key]
-    return BenchMethod(label, "agrinerf-lite", "transforms.json", "rgb", train_args=options)
+    return BenchMethod(label, ROW_PRESETS.get(key, "agrinerf-lite"), "transforms.json", "rgb", train_args=options)
 
 
 def tables_i_ii(rows, scenes) -> str:

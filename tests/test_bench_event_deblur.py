@@ -65,3 +65,28 @@ def test_a_training_seed_reaches_every_row() -> None:
     for key in ("rgb", "blur-events-gate", "evdeblurnerf-lite-pdrf-lr"):
         method = BENCH.method(key, 43)
         assert _parsed_method(method).machine.seed == 43
+
+
+def _model_fields(key: str) -> dict:
+    return dict(vars(_parsed(key).pipeline.model))
+
+
+def test_each_part_row_is_ours_with_only_that_part_added() -> None:
+    ours = _model_fields("blur-events-gate")
+    changed = {
+        "gate-plus-edi": {"edi_prior": True},
+        "gate-plus-pairs": {"event_supervision": "pairs"},
+        "gate-plus-pairs-crf": {"event_supervision": "pairs", "event_crf": True, "event_crf_start_step": 0},
+        "gate-plus-learnt-kernel": {"blur_kernel": "learnt"},
+        "gate-plus-evd-schedule": {},
+    }
+    assert set(changed) == set(BENCH.OURS_PLUS_PARTS)
+    for key, part in changed.items():
+        fields = _model_fields(key)
+        assert {name: value for name, value in fields.items() if ours[name] != value} == part, key
+        assert BENCH.row_profile(BENCH.PROFILES["deblur"], key).steps[key] == 800
+        assert (key, "blur-events-gate") == next(p[:2] for p in BENCH.PAIRS if p[0] == key)
+    # the schedule row: the same model under evdeblurnerf-lite's optimizers, not agrinerf-lite's
+    schedule, gate = _parsed("gate-plus-evd-schedule").optimizers, _parsed("blur-events-gate").optimizers
+    assert schedule == evdeblurnerf_lite.config.optimizers
+    assert type(schedule["fields"]["scheduler"]) is not type(gate["fields"]["scheduler"])
