@@ -25,7 +25,6 @@ from agrinerf_ns.orchestrate.jobs import (
     FolderInUse,
     Job,
     JobsReport,
-    Resources,
     driver_lock,
     failures_markdown,
     run_jobs,
@@ -120,9 +119,7 @@ def check_inputs(args: RowArgs) -> Path:
 
 
 def _resources(args: RowArgs) -> tuple:
-    cpus = args.cpus_per_task if args.cpus_per_task is not None or args.ray is None else 1
-    memory = None if args.memory_gb_per_train is None else int(args.memory_gb_per_train * 1024)
-    return Resources(cpus=cpus), Resources(cpus=cpus, gpus=args.gpus_per_train, memory_mb=memory)
+    return survey_stages.step_resources(args.cpus_per_task, args.ray, args.gpus_per_train, args.memory_gb_per_train)
 
 
 def segment_jobs(args: RowArgs, dataset: Path, truth: Path, segments: List[Segment],
@@ -132,19 +129,12 @@ def segment_jobs(args: RowArgs, dataset: Path, truth: Path, segments: List[Segme
     jobs: List[Job] = []
     for segment in segments:
         folders = segment_steps.segment_folders(args.out, segment)
-        steps: Dict[str, Any] = {
+        steps: Dict[str, survey_stages.Step] = {
             "cut": (segment_steps.cut_step, (dataset, segment, folders), light, None),
             "train": (survey_stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
             "count": (survey_stages.count_step, (truth, folders, settings), heavy, None),
         }
-        previous: tuple = ()
-        for stage in segment_steps.SEGMENT_STAGES:
-            if survey_stages.read_record(folders, stage) is not None:
-                continue
-            fn, fn_args, resources, log = steps[stage]
-            key = f"{segment.name}:{stage}"
-            jobs.append(Job(key, fn, fn_args, folders.root, resources, previous, log, args.retries))
-            previous = (key,)
+        jobs += survey_stages.chained_jobs(segment.name, folders, steps, segment_steps.SEGMENT_STAGES, args.retries)
     return jobs
 
 

@@ -15,7 +15,7 @@ import shlex
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Optional
 
 import tyro
 from rich.console import Console
@@ -25,7 +25,6 @@ from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import (
     FolderInUse,
     Job,
-    Resources,
     driver_lock,
     failures_markdown,
     run_jobs,
@@ -95,25 +94,16 @@ def list_captures(captures: Path, out: Path) -> List[str]:
 
 def survey_jobs(args: SurveyArgs, names: List[str], settings: stages.SurveySettings) -> List[Job]:
     """Per capture, the steps without a record, each after the one before it."""
-    cpus = args.cpus_per_task if args.cpus_per_task is not None or args.ray is None else 1
-    memory = None if args.memory_gb_per_train is None else int(args.memory_gb_per_train * 1024)
-    heavy = Resources(cpus=cpus, gpus=args.gpus_per_train, memory_mb=memory)
+    light, heavy = stages.step_resources(args.cpus_per_task, args.ray, args.gpus_per_train, args.memory_gb_per_train)
     jobs: List[Job] = []
     for name in names:
         raw, folders = args.captures / name, stages.capture_folders(args.out, name)
-        steps: Dict[str, Tuple[Callable[..., Any], Tuple[Any, ...], Resources, Optional[Path]]] = {
-            "process": (stages.process_step, (raw, folders, settings), Resources(cpus=cpus), None),
+        steps: Dict[str, stages.Step] = {
+            "process": (stages.process_step, (raw, folders, settings), light, None),
             "train": (stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
             "count": (stages.count_step, (raw, folders, settings), heavy, None),
         }
-        previous: Tuple[str, ...] = ()
-        for stage in stages.STAGES:
-            if stages.read_record(folders, stage) is not None:
-                continue
-            fn, fn_args, resources, log = steps[stage]
-            key = f"{name}:{stage}"
-            jobs.append(Job(key, fn, fn_args, folders.root, resources, previous, log, args.retries))
-            previous = (key,)
+        jobs += stages.chained_jobs(name, folders, steps, stages.STAGES, args.retries)
     return jobs
 
 

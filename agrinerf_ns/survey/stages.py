@@ -20,15 +20,19 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
 from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.dataset_format import TRANSFORMS
+from agrinerf_ns.orchestrate.jobs import Job, Resources
 from agrinerf_ns.process.capture_to_dataset import ProcessConfig
 
 STAGES = ("process", "train", "count")
 CAPTURES_DIR = "captures"
 TRAIN_EXPERIMENT = "train"
+
+Step = Tuple[Callable[..., Any], Tuple[Any, ...], Resources, Optional[Path]]
+"""A step's function, its arguments, the resources it holds and its own log (None: none)."""
 
 
 @dataclass(frozen=True)
@@ -154,3 +158,29 @@ def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_:
         },  # fmt: skip
     }
     return write_record(folders, "count", record)
+
+
+def step_resources(
+    cpus_per_task: Optional[int], ray: Optional[str], gpus_per_train: float, memory_gb_per_train: Optional[float]
+) -> Tuple[Resources, Resources]:
+    """What a light step (processing, cutting) and a heavy one (training, counting) hold: ``cpus_per_task`` cores
+    each (one per job with ``ray``, the threads unchanged without), and the heavy ones the GPUs and memory asked."""
+    cpus = cpus_per_task if cpus_per_task is not None or ray is None else 1
+    memory = None if memory_gb_per_train is None else int(memory_gb_per_train * 1024)
+    return Resources(cpus=cpus), Resources(cpus=cpus, gpus=gpus_per_train, memory_mb=memory)
+
+
+def chained_jobs(
+    name: str, folders: CaptureFolders, steps: Dict[str, Step], order: Sequence[str], retries: int
+) -> List[Job]:
+    """The steps of ``order`` that have no record in ``folders``, each a job (``name:stage``) after the one before."""
+    jobs: List[Job] = []
+    previous: Tuple[str, ...] = ()
+    for stage in order:
+        if read_record(folders, stage) is not None:
+            continue
+        fn, fn_args, resources, log = steps[stage]
+        key = f"{name}:{stage}"
+        jobs.append(Job(key, fn, fn_args, folders.root, resources, previous, log, retries))
+        previous = (key,)
+    return jobs
