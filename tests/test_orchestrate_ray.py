@@ -233,11 +233,10 @@ def _alive(pid: int) -> bool:
 
 
 def _kill_worker_once_training(folder: Path, killed: Dict[str, int], stop: threading.Event) -> None:
-    """When the job of ``folder`` has started ``ns-train``, SIGKILL the worker process running it (not ns-train)."""
+    """When a job of ``folder`` has started ``ns-train``, SIGKILL the worker process running it (not ns-train)."""
     while not stop.is_set():
-        tried = attempts(folder)
-        if tried:
-            worker = tried[0]["pid"]
+        for attempt in attempts(folder):
+            worker = attempt["pid"]
             trainers = [k for k in _children(worker) if b"ns-train" in Path(f"/proc/{k}/cmdline").read_bytes()]
             if trainers:
                 time.sleep(3.0)  # well into ns-train's start-up

@@ -6,10 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import signal
 import threading
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Dict, List, Tuple
 
@@ -240,24 +237,6 @@ def test_a_tiny_row_from_a_raw_capture_through_the_jobs_and_resumed(
     assert not (tmp_path / "short").exists() and not (tiny_capture / "row").exists()
 
 
-def _kill_a_training_worker(folder: Path, killed: Dict[str, int], stop: threading.Event) -> None:
-    """Once a job of ``folder`` runs ``ns-train``, SIGKILL the Ray worker running it (not ns-train)."""
-    from test_orchestrate_ray import _children
-
-    from agrinerf_ns.orchestrate.jobs import attempts
-
-    while not stop.is_set():
-        for attempt in attempts(folder):
-            worker = attempt["pid"]
-            trainers = [k for k in _children(worker) if b"ns-train" in Path(f"/proc/{k}/cmdline").read_bytes()]
-            if trainers:
-                time.sleep(3.0)  # well into ns-train's start-up
-                killed.update(worker=worker, trainer=trainers[0])
-                os.kill(worker, signal.SIGKILL)
-                return
-        time.sleep(0.2)
-
-
 @pytest.mark.slow
 @pytest.mark.usefixtures("local_ray")
 def test_the_row_on_ray_with_a_worker_killed_mid_training_is_the_same_row(
@@ -266,7 +245,7 @@ def test_the_row_on_ray_with_a_worker_killed_mid_training_is_the_same_row(
     """The same row as Ray tasks on a local Ray of 2 CPUs; the worker training the second segment is killed once
     ns-train runs: the training is retried, the row finishes, and its fruits.csv is the one made in this process."""
     import ray
-    from test_orchestrate_ray import _alive
+    from test_orchestrate_ray import _alive, _kill_worker_once_training
 
     from agrinerf_ns.orchestrate.jobs import attempts
     from agrinerf_ns.row.cli import main
@@ -275,7 +254,7 @@ def test_the_row_on_ray_with_a_worker_killed_mid_training_is_the_same_row(
     victim = out / "segments" / "seg01"
     killed: Dict[str, int] = {}
     stop = threading.Event()
-    killer = threading.Thread(target=_kill_a_training_worker, args=(victim, killed, stop), daemon=True)
+    killer = threading.Thread(target=_kill_worker_once_training, args=(victim, killed, stop), daemon=True)
     killer.start()
     try:
         address = ray.get_runtime_context().gcs_address  # the local Ray of the fixture
