@@ -32,8 +32,8 @@ import tyro
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fruit_mask_quality as quality  # noqa: E402
 
-from agrinerf_ns.count.fruit_score import disc_views, read_truth_fruit, visible_fruit  # noqa: E402
-from agrinerf_ns.count.pipeline import raw_training_frames  # noqa: E402
+from agrinerf_ns.count.fruit_score import align_to_capture, read_truth_fruit  # noqa: E402
+from agrinerf_ns.count.pipeline import CountConfig, raw_training_frames, truth_tiers  # noqa: E402
 from agrinerf_ns.count.row_range import in_range  # noqa: E402
 from agrinerf_ns.fruit.thermal_blobs import thermal_blob_list  # noqa: E402
 from agrinerf_ns.fruit.thermal_bodies import decide_bodies  # noqa: E402
@@ -86,11 +86,9 @@ def fruit_stages(folder: Path) -> Dict[str, object]:
     meta = json.loads((dataset / "transforms.json").read_text())
     train = raw_training_frames(dataset, [f["file_path"] for f in meta["frames"]])
     cameras = np.array([np.asarray(f["transform_matrix"], np.float64)[:3, 3] for f in meta["frames"]])
-    from agrinerf_ns.count.fruit_score import align_to_capture
-
     to_capture = align_to_capture(dataset, raw)
     near = in_range(truth.centres, to_capture.apply(cameras), None if reach is None else reach * to_capture.scale)
-    countable = (disc_views(raw, train, truth, 0.25) >= 1) & visible_fruit(raw, train, truth) & near
+    countable = truth_tiers(raw, train, truth, CountConfig(), near)["countable"]
     with open(folder / "fruits.csv", newline="") as handle:
         counted = {int(row["truth_id"]) for row in csv.DictReader(handle)}
     compact = np.array([0.0 < b.region_ratio <= config.bodies.max_region_ratio for b in blobs], bool)

@@ -173,7 +173,7 @@ def score_result(
     capture ``raw`` (``train``: the raw frame stems of the run's training views; ``dataset``: its dataset folder;
     ``cameras``: the run's camera centres in the dataset's frame, which ``config.max_range`` measures from)."""
     truth = read_truth_fruit(raw)
-    result.truth, result.visible = truth, visible_fruit(raw, train, truth, config.min_visible_pixels)
+    result.truth = truth
     result.to_capture = align_to_capture(dataset, raw) if config.align == "poses" else Similarity.identity()
     near = np.ones(len(truth.ids), bool)
     if config.max_range is not None:
@@ -181,16 +181,26 @@ def score_result(
             raise ValueError("scoring with --max-range needs the run's camera centres")
         capture_range = config.max_range * result.to_capture.scale
         near = in_range(truth.centres, result.to_capture.apply(np.asarray(cameras, np.float64)), capture_range)
-        result.visible = result.visible & near
-    result.tiers = {"visible": result.visible}
-    if (Path(raw) / TRUE_DEPTH_DIR).is_dir():
-        views = disc_views(raw, train, truth, config.well_seen_share)
-        result.tiers["countable"] = (views >= 1) & result.visible
-        result.tiers["well_seen"] = (views >= config.well_seen_views) & result.visible
+    result.tiers = truth_tiers(raw, train, truth, config, near)
+    result.visible = result.tiers["visible"]
     result.score = score_fruit(
         result.to_capture.apply(_centres(result.fruit)), truth, result.visible, config.match_distance,
         _temperatures(result.fruit), result.tiers.get("well_seen"), result.tiers.get("countable"),
     )  # fmt: skip
+
+
+def truth_tiers(
+    raw: Path, train: Sequence[str], truth: TruthFruit, config: CountConfig, near: np.ndarray
+) -> Dict[str, np.ndarray]:
+    """The true fruit of each scoring tier among those ``near`` the cameras (the row the rig drove): visible in the
+    training frames ``train`` (raw stems), and where the capture has true depth countable and well seen."""
+    visible = visible_fruit(raw, train, truth, config.min_visible_pixels) & near
+    tiers = {"visible": visible}
+    if (Path(raw) / TRUE_DEPTH_DIR).is_dir():
+        views = disc_views(raw, train, truth, config.well_seen_share)
+        tiers["countable"] = (views >= 1) & visible
+        tiers["well_seen"] = (views >= config.well_seen_views) & visible
+    return tiers
 
 
 def _centres(fruit: Sequence[Fruit]) -> np.ndarray:
