@@ -35,10 +35,9 @@ import fruit_mask_quality as quality  # noqa: E402
 from agrinerf_ns.count.fruit_score import align_to_capture, read_truth_fruit  # noqa: E402
 from agrinerf_ns.count.pipeline import CountConfig, raw_training_frames, truth_tiers  # noqa: E402
 from agrinerf_ns.count.row_range import in_range  # noqa: E402
-from agrinerf_ns.fruit.thermal_blobs import thermal_blob_list  # noqa: E402
 from agrinerf_ns.fruit.thermal_bodies import decide_bodies  # noqa: E402
 from agrinerf_ns.process import align  # noqa: E402
-from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, as_float, thermal_frame  # noqa: E402
+from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig, frame_blobs, thermal_frame  # noqa: E402
 from agrinerf_ns.process.readers import read_calibration  # noqa: E402
 
 STAGES = ("counted", "no blob", "not placed", "not compact", "other test", "kept, not counted")
@@ -61,8 +60,7 @@ def blob_truth(raw: Path, dataset: Path, config: MaskMakerConfig):
     blobs, ids = [], []
     for k, frame in enumerate(meta["frames"]):
         thermal, seen = thermal_frame(dataset, frame, config)
-        found = thermal_blob_list(as_float(thermal), seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
-                                  min_canopy_offset=config.min_canopy_offset, frame=k)  # fmt: skip
+        found = frame_blobs(thermal, seen, config, k)
         under = quality.thermal_view_fruit(raw, frame, quality.truth_fruit(raw, Path(frame["raw_rgb"]).name, maps),
                                            maps, calib, warp)  # fmt: skip
         for b in found:

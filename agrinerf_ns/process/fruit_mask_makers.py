@@ -350,6 +350,13 @@ def thermal_body_masks(
     return masks, record, [replace(s, frame=posed[s.frame]) for s in sightings]
 
 
+def frame_blobs(thermal: Shaped[np.ndarray, "h w"], seen: Bool[np.ndarray, "h w"], config: MaskMakerConfig,
+                frame: int) -> List[Blob]:  # fmt: skip
+    """The blobs of thermal frame number ``frame`` at the maker's settings (both sides of the canopy)."""
+    return thermal_blob_list(as_float(thermal), seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
+                             min_canopy_offset=config.min_canopy_offset, frame=frame)  # fmt: skip
+
+
 def body_masks(
     images: List[Tuple[Shaped[np.ndarray, "h w"], Bool[np.ndarray, "h w"]]],
     views: List[FrameGeometry],
@@ -359,10 +366,7 @@ def body_masks(
     """The ``bodies`` rule on consecutive thermal frames (each its image, degrees C where ``radiometric`` else 8-bit,
     and where the thermal camera saw) and their views: a mask per frame, the decision's record and the fruit
     sightings placed in 3D (frames by their index in ``images``)."""
-    blobs: List[Blob] = []
-    for k, (thermal, seen) in enumerate(images):
-        blobs += thermal_blob_list(as_float(thermal), seen, sizes=config.thermal_sizes, threshold=config.blob_threshold,
-                                   min_canopy_offset=config.min_canopy_offset, frame=k)  # fmt: skip
+    blobs = [b for k, (thermal, seen) in enumerate(images) for b in frame_blobs(thermal, seen, config, k)]
     decision = decide_bodies(blobs, views, config.bodies, radiometric)
     sides = (1.0, -1.0) if decision.polarity is None else ((1.0,) if decision.polarity == "warm" else (-1.0,))
     by_frame: Dict[int, List[int]] = {}
