@@ -55,5 +55,5 @@ def test_a_dataset_without_bodies_is_named_before_any_output(tmp_path: Path, cap
     with pytest.raises(SystemExit) as exit_info:
         main(CountArgs(out=tmp_path / "count", path="bodies", data=data))
     assert exit_info.value.code == 2
-    assert f"{data / FRUIT_BODIES}: no thermal fruit bodies" in capsys.readouterr().out.replace("\n", "")
+    assert f"{data / FRUIT_BODIES}: no fruit bodies" in capsys.readouterr().out.replace("\n", "")
     assert not (tmp_path / "count").exists()

@@ -1,4 +1,4 @@
-"""Fruit placed where their detections' rays meet (`agrinerf_ns/count/triangulate.py`, `--triangulate`)."""
+"""Fruit placed where their detections' rays meet (`agrinerf_ns/rays.py`, `--triangulate`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 
 from agrinerf_ns.count.cluster import ClusterConfig, cluster_fruit
 from agrinerf_ns.count.lift import LiftedDetection
-from agrinerf_ns.count.triangulate import closest_point, miss_distances, triangulate
+from agrinerf_ns.rays import closest_point, miss_distances, triangulate
 
 FRUIT_D = 0.08
 TRIANGULATE = ClusterConfig(min_views=2, min_view_fraction=0.0, triangulate=True)

@@ -44,8 +44,8 @@ def read_sightings(dataset: Path) -> List[dict]:
     path = Path(dataset) / FRUIT_BODIES
     if not path.is_file():
         raise CountInputError(
-            f"{path}: no thermal fruit bodies in this dataset (made by `agrinerf-process --fruit-mask-maker auto` or "
-            "`thermal` with --mask-maker.thermal-rule bodies on dark frames with a thermal camera)"
+            f"{path}: no fruit bodies in this dataset (made by `agrinerf-process --fruit-mask-maker auto`, `colour` or "
+            "`yolo` with poses from the lit frames' masks, and by the thermal bodies rule on dark frames)"
         )
     try:
         rows = json.loads(path.read_text())["sightings"]
@@ -55,6 +55,13 @@ def read_sightings(dataset: Path) -> List[dict]:
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise CountInputError(f"{path}: not a fruit bodies file ({err})") from err
     return rows
+
+
+def sighting_cameras(sightings: Sequence[dict]) -> Dict[str, int]:
+    """The sightings per camera: ``rgb`` (the lit frames' masks) and ``thermal`` (the thermal bodies; files written
+    before the RGB sightings name no camera and hold thermal ones only)."""
+    cameras = [row.get("camera", "thermal") for row in sightings]
+    return {"rgb": cameras.count("rgb"), "thermal": cameras.count("thermal")}
 
 
 def body_detections(sightings: Sequence[dict], frames: Sequence[str]) -> List[LiftedDetection]:
@@ -120,9 +127,10 @@ def run_body_count(
             "max_range": config.max_range,
             "poses": {"source": dataset_pose_source(dataset), "views": "the thermal frames' poses in the dataset"},
             "detections": len(detections),
+            "sightings": sighting_cameras(sightings),
             "detections_per_view": per_frame,
         }
-        title = f"{len(fruit)} fruit counted from the thermal bodies of {len(frames)} frames"
+        title = f"{len(fruit)} fruit counted from the fruit bodies of {len(frames)} frames"
         write_count(tmp, result, frame or IDENTITY_FRAME, np.zeros((0, 3)), cameras, title, settings, config, truth,
-                    "thermal bodies (fruit_bodies.json)")  # fmt: skip
+                    f"fruit bodies (fruit_bodies.json: {settings['sightings']} sightings per camera)")  # fmt: skip
     return result

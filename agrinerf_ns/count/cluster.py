@@ -1,5 +1,5 @@
 """Detections in 3D to fruit: complete-linkage clustering with a distance from the fruit size (with `triangulate`,
-then placing by the detections' rays: `triangulate.py`), then a view count.
+then placing by the detections' rays: `rays.py`), then a view count.
 
 Complete linkage joins two groups only when every pair of their detections is within the merge distance, so a
 cluster never spans more than that distance and fruit do not chain together the way single-linkage or DBSCAN
@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from agrinerf_ns.count.lift import LiftedDetection
-from agrinerf_ns.count.triangulate import triangulate
+from agrinerf_ns.rays import triangulate
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,7 @@ class ClusterConfig:
     bodies 1.2, whose sightings scatter more along the thermal rays: chosen on tuning captures,
     results/fruit-count-dark)."""
     triangulate: bool = False
-    """Place each fruit where the rays of its detections meet (`triangulate.py`) rather than at the median of their
+    """Place each fruit where the rays of its detections meet (`rays.triangulate`) rather than at the median of their
     depth-lifted centres; the rendered depth then only groups them. Better where the field's depth at the fruit is
     off by more than a fruit (F1 doubled on CPU-trained `agrinerf-lite` runs), worse where it is right (the capture's
     true depth: a detection's centroid ray misses a partly hidden fruit's centre), and it counts fewer fruit

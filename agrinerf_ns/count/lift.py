@@ -43,7 +43,7 @@ class LiftedDetection:
     """Where the view's camera was (dataset frame), for `ray`."""
     ray: Optional[Float[np.ndarray, "3"]] = None
     """The unit mean ray of all the detection's pixels (dataset frame): it passes through the fruit's centre whatever
-    the rendered depth (`triangulate.py`)."""
+    the rendered depth (`rays.triangulate`)."""
     depth_confidence: float = 0.0
     """The share of the detection's pixels on an opaque surface (accumulation at least ``OPAQUE``) within one fruit
     radius of the median depth: near 1 where the field holds a solid fruit-sized body there, low where the depth

@@ -123,8 +123,16 @@ def place_blobs(
     """Each blob at the depth along its ray where blobs of its side and size show in the most neighbouring frames
     (see the module), placed where the rays of those blobs meet; NaN rows where fewer than ``min_views`` frames
     show it."""
+    return sweep_blobs(blobs, geometry, settings)[0]
+
+
+def sweep_blobs(
+    blobs: Sequence[Blob], geometry: Sequence[FrameGeometry], settings: BodySettings
+) -> Tuple[Float[np.ndarray, "n 3"], List[Tuple[int, int]]]:
+    """:func:`place_blobs`, with the pairs (blob, a neighbouring frame's blob that placed it)."""
     n = len(blobs)
     points = np.full((n, 3), np.nan)
+    links: List[Tuple[int, int]] = []
     by_frame: Dict[int, List[int]] = {}
     for k, b in enumerate(blobs):
         by_frame.setdefault(b.frame, []).append(k)
@@ -160,11 +168,12 @@ def place_blobs(
             for f, match in matched:
                 if match[best] >= 0:
                     j = by_frame[f][int(match[best])]
+                    links.append((k, j))
                     o, d = geometry[f].rays(np.array([blobs[j].row]), np.array([blobs[j].col]))
                     origins.append(o[0])
                     directions.append(d[0])
             points[k] = nearest_point(np.stack(origins), np.stack(directions))
-    return points
+    return points, links
 
 
 def camera_step(geometry: Sequence[FrameGeometry]) -> float:

@@ -28,7 +28,7 @@ from agrinerf_ns.process.dataset_writer import (
     write_transforms,
 )
 from agrinerf_ns.process.errors import RawInputError
-from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks, thermal_views
+from agrinerf_ns.process.fruit_mask_makers import check_mask_maker, make_fruit_masks, rgb_views_of, thermal_views
 from agrinerf_ns.process.raw_capture import Capture, inspect_capture
 from agrinerf_ns.process.readers import read_triggers
 from agrinerf_ns.process.step_events import write_event_frames
@@ -151,8 +151,10 @@ def _process(
     keep = np.array([i not in dropped for i in range(n)])
     c2w, pose_meta = estimate_poses(raw, tmp, cap, config, frames, keep, progress)
     if config.fruit_mask_maker != "none":  # after the poses: the thermal bodies rule places blobs in 3D
-        views = thermal_views(frames, c2w, np.asarray(pose_meta["has_pose"]) & keep, calib, config.plane_depth)
-        meta["fruit_masks"] = make_fruit_masks(tmp, frames, names, config.fruit_mask_maker, config.mask_maker, views)
+        posed = np.asarray(pose_meta["has_pose"]) & keep
+        views = thermal_views(frames, c2w, posed, calib, config.plane_depth)
+        meta["fruit_masks"] = make_fruit_masks(tmp, frames, names, config.fruit_mask_maker, config.mask_maker, views,
+                                               rgb_views_of(c2w, posed, calib))  # fmt: skip
     for i in range(n):
         if keep[i] and not pose_meta["has_pose"][i]:
             dropped[i] = "no pose" if pose_meta["source"] == "given" else "not registered by SfM"
