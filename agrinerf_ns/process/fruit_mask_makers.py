@@ -115,9 +115,10 @@ class MaskMakerConfig:
     dim_level: float = 0.25
     """A lit frame with a thermal frame whose mean is below this fraction of full scale is dim (dusk): its mask stays
     the colour rule's, but its fruit are placed in 3D from the thermal camera (the ``bodies`` rule) rather than from
-    that mask, whose fruit a dim frame's noise and blur break up (tuning seed 0 at dusk, the row's countable fruit: F1
-    0.50 from the thermal bodies against 0.34 from the masks; by day 0.43 against 0.53; results/fruit-count-lit).
-    The synthetic frames average 0.31-0.35 by day and in shade, 0.14-0.16 at dusk; 0: never."""
+    that mask, whose fruit a dim frame's noise and blur break up (the four dusk tuning captures, seeds 0 and 2, the
+    row's countable fruit: F1 0.43 from the thermal bodies against 0.38 from the masks, count error -24% against
+    +69%; by day 0.43 against 0.53; results/fruit-count-lit). The synthetic frames average 0.31-0.35 by day and in
+    shade, 0.14-0.16 at dusk; 0: never."""
     yolo_weights: Optional[Path] = None
     """``yolo``: the detector's weights (a ``.pt`` file; ``agrinerf-detect train`` writes one)."""
     box_confidence: float = 0.25
