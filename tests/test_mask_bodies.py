@@ -103,6 +103,7 @@ def test_a_lit_capture_is_counted_from_its_masks_without_a_run(tmp_path: Path) -
     from agrinerf_ns.dataset_format import FRUIT_BODIES
     from agrinerf_ns.process.capture_to_dataset import process_capture
     from agrinerf_ns.process.config import ProcessConfig
+    from agrinerf_ns.process.fruit_mask_makers import MaskMakerConfig
     from agrinerf_ns.synth.capture import generate_capture
     from agrinerf_ns.synth.config import SynthConfig
 
@@ -126,3 +127,12 @@ def test_a_lit_capture_is_counted_from_its_masks_without_a_run(tmp_path: Path) -
     assert result.score.mean_temperature_error < 1.0
     report = json.loads((tmp_path / "count" / "count.json").read_text())
     assert report["path"] == "bodies" and report["sightings"] == {"rgb": len(sightings), "thermal": 0}
+    # frames as dim as dusk keep their colour masks, and their fruit are placed from the thermal camera instead
+    dim = process_capture(raw, tmp_path / "dim", ProcessConfig(poses="given", show_progress=False,
+                                                               fruit_mask_maker="auto",
+                                                               mask_maker=MaskMakerConfig(dim_level=1.0)))  # fmt: skip
+    assert {s["camera"] for s in json.loads((dim / FRUIT_BODIES).read_text())["sightings"]} == {"thermal"}
+    for name in sorted(p.name for p in (data / "fruit_masks").iterdir()):
+        assert (dim / "fruit_masks" / name).read_bytes() == (data / "fruit_masks" / name).read_bytes()
+    record = json.loads((dim / "transforms.json").read_text())["agrinerf"]["fruit_masks"]
+    assert record["bodies"]["dim_frames"] == 16 and "rgb_bodies" not in record
