@@ -8,7 +8,8 @@ truth-mask oracle of each capture beside it::
     OUT/count-row/<scene>/oracle/row/             python -m agrinerf_ns.lab.count_oracle --raw RAW --data DS --out O
                                                   --fruit true, then counted as the row (O removed after)
     OUT/count-row/<scene>/bodies/row/             agrinerf-count --path bodies --data DS --max-range R --truth RAW
-                                                  (where the dataset holds thermal bodies: the dark path, no field)
+                                                  (where the dataset holds fruit bodies: the lit masks' and the
+                                                  thermal camera's, placed by the poses; no field)
 
 ``R`` is the profile's ``row_range`` of the scene kind. A count already written is kept (the bench resumes). The
 seeds-by-lightings table of every row count under ``OUT`` (and ``OUT/seed-<S>/``) is ``OUT/counts.md``
@@ -40,7 +41,7 @@ if TYPE_CHECKING:
 ROW_DIR = "count-row"
 ORACLE = "oracle"
 BODIES = "bodies"
-LABELS = {ORACLE: "oracle (truth masks, true depth)", BODIES: "thermal bodies (no field)"}
+LABELS = {ORACLE: "oracle (truth masks, true depth)", BODIES: "fruit bodies (no field)"}
 """Row labels of the counts that are not a bench method's."""
 CAPTURE, ROW = "capture", "row"
 SEED_PREFIX = "seed-"
@@ -76,7 +77,7 @@ def count_row_bench(
             CONSOLE.print(f"counting the truth-mask oracle: {scene}")
             _count_oracle(raw, data, root / ORACLE, max_range)
         if not (root / BODIES / ROW / "count.json").is_file() and (data / FRUIT_BODIES).is_file():
-            CONSOLE.print(f"counting the thermal bodies: {scene}")
+            CONSOLE.print(f"counting the fruit bodies: {scene}")
             from agrinerf_ns.count.body_count import run_body_count
 
             run_body_count(data, root / BODIES / ROW, _fruit_config(max_range), raw, overwrite=True)
