@@ -266,3 +266,39 @@ def test_the_row_on_ray_with_a_worker_killed_mid_training_is_the_same_row(
     assert len(attempts(victim)) == 4, "cut, train killed, train again, count"
     assert not _alive(killed["trainer"]), "the killed worker's ns-train is still running"
     assert (out / "row" / "fruits.csv").read_text() == (tiny_row[0] / "row" / "fruits.csv").read_text()
+
+
+def test_a_lit_row_counted_from_its_fruit_bodies_without_training(tmp_path: Path, tiny_dataset: Path) -> None:
+    """``--count-from bodies``: the segments are cut and their fruit bodies counted, no run trained; the row joins
+    them and scores them against the truth; a dataset without bodies is refused before any work."""
+    from agrinerf_ns.count.pipeline import CountConfig
+    from agrinerf_ns.process.capture_to_dataset import ProcessConfig
+    from agrinerf_ns.row.cli import RowArgs, main
+    from agrinerf_ns.synth import SynthConfig, generate_capture
+
+    raw = generate_capture(SynthConfig(scene="garden", lighting="bright", views=24, width=160, height=120, heldout=0,
+                                       rgb_hfov_deg=22.0, thermal_hfov_deg=20.0, event_substeps=1,
+                                       event_supersample=1), tmp_path / "raw")  # fmt: skip
+    out = tmp_path / "row"
+    settings = dict(
+        segment_frames=12, overlap_frames=4, bin_m=0.5, process=ProcessConfig(poses="given", show_progress=False)
+    )
+    summary = main(RowArgs(out=out, raw=raw, count_from="bodies", **settings))  # type: ignore[arg-type]
+    assert summary is not None
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["count_from"] == "bodies" and len(plan["segments"]) >= 2
+    records = sorted(p.name for p in out.glob("segments/*/*.json"))
+    assert records == sorted(["count.json", "cut.json"] * len(plan["segments"]))  # no training
+    assert not list(out.glob("segments/*/runs"))
+    fruit = _rows(out / "row" / "fruits.csv")
+    assert 0 < len(fruit) == summary["fruit"] <= summary["segments_alone"]
+    truth = summary["truth"]["row"]
+    assert truth["precision"] * truth["fruit"] >= 5 and truth["precision"] >= 0.4 and truth["f1_countable"] > 0.3
+    again = main(RowArgs(out=out, raw=raw, count_from="bodies", **settings))  # type: ignore[arg-type]
+    assert again is not None and _rows(out / "row" / "fruits.csv") == fruit
+    with pytest.raises(RowInputError, match="cut differently"):
+        main(RowArgs(out=out, raw=raw, **settings))  # type: ignore[arg-type]  # the same cut, counted otherwise
+    with pytest.raises(RowInputError, match="fruit_bodies.json: missing"):
+        main(RowArgs(out=tmp_path / "none", data=tiny_dataset, count_from="bodies", segment_frames=10,
+                     overlap_frames=4))  # fmt: skip
+    assert not (tmp_path / "none").exists()

@@ -11,15 +11,16 @@ from __future__ import annotations
 import shlex
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Literal, Optional
 
 import tyro
 from rich.console import Console
 
 from agrinerf_ns.count.fruit_score import FRUITS_JSON
 from agrinerf_ns.count.pipeline import CountConfig
+from agrinerf_ns.dataset_format import FRUIT_BODIES
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import (
     FolderInUse,
@@ -63,6 +64,11 @@ class RowArgs:
     placement error of the tuning seeds: agrinerf_ns/row/join.py, results/row/README.md)."""
     bin_m: float = 1.0
     """Length of the bins of row_yield.csv (metres along the driven path)."""
+    count_from: Literal["field", "bodies"] = "field"
+    """``field``: each segment is trained and its run counted (``agrinerf-count --path auto``); ``bodies``: each
+    segment's fruit bodies are counted with no training (``--path bodies``: the lit masks' fruit and the thermal
+    bodies the data stage placed with the poses; seconds per segment, results/fruit-count-lit). With --raw and
+    ``bodies`` the capture is processed with ``--fruit-mask-maker auto`` unless another maker is set."""
     method: str = "agrinerf-lite"
     """``ns-train`` method (preset) each segment is trained with."""
     steps: int = 30000
@@ -113,6 +119,11 @@ def check_inputs(args: RowArgs) -> Path:
         raise RowInputError(f"{Path(args.truth) / FRUITS_JSON}: missing; --truth must be a synthetic capture")
     if not args.join_distance > 0 or not args.bin_m > 0:
         raise RowInputError(f"--join-distance and --bin-m must be positive, got {args.join_distance}, {args.bin_m}")
+    if args.count_from == "bodies" and args.data is not None and not (source / FRUIT_BODIES).is_file():
+        raise RowInputError(
+            f"{source / FRUIT_BODIES}: missing; --count-from bodies counts the fruit bodies the data stage placed "
+            "(agrinerf-process --fruit-mask-maker auto), or give --raw"
+        )
     frames = len(read_transforms(source)["frames"]) if args.data is not None else _raw_frames(source)
     plan_segments(frames, args.segment_frames, args.overlap_frames)  # refuses a capture too short, before processing
     return source
@@ -130,11 +141,14 @@ def segment_jobs(args: RowArgs, dataset: Path, truth: Path, segments: List[Segme
     for segment in segments:
         folders = segment_steps.segment_folders(args.out, segment)
         steps: Dict[str, survey_stages.Step] = {
-            "cut": (segment_steps.cut_step, (dataset, segment, folders), light, None),
-            "train": (survey_stages.train_step, (folders, settings), heavy, folders.train_log(settings.method)),
-            "count": (survey_stages.count_step, (truth, folders, settings), heavy, None),
+            "cut": (segment_steps.cut_step, (dataset, segment, folders), light, None)
         }
-        jobs += survey_stages.chained_jobs(segment.name, folders, steps, segment_steps.SEGMENT_STAGES, args.retries)
+        if args.count_from == "bodies":
+            steps["count"] = (segment_steps.bodies_count_step, (truth, folders, settings), light, None)
+        else:
+            steps["train"] = (survey_stages.train_step, (folders, settings), heavy, folders.train_log(settings.method))
+            steps["count"] = (survey_stages.count_step, (truth, folders, settings), heavy, None)
+        jobs += survey_stages.chained_jobs(segment.name, folders, steps, tuple(steps), args.retries)
     return jobs
 
 
@@ -151,8 +165,11 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
     """Run the row; returns its summary (None when a segment failed: see OUT/failures.md)."""
     source = check_inputs(args)
     truth = args.truth if args.truth is not None else (args.raw if args.raw is not None else source)
+    process = args.process
+    if args.count_from == "bodies" and process.fruit_mask_maker == "none":
+        process = replace(process, fruit_mask_maker="auto")
     settings = survey_stages.SurveySettings(args.method, args.steps, args.rays_per_batch,
-                                            tuple(shlex.split(args.train_args)), args.process, args.count,
+                                            tuple(shlex.split(args.train_args)), process, args.count,
                                             args.jackknife_groups)  # fmt: skip
     report = JobsReport()
     start = time.perf_counter()
@@ -175,14 +192,14 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
         frames = len(read_transforms(dataset)["frames"])
         segments = plan_segments(frames, args.segment_frames, args.overlap_frames)
         segment_steps.check_plan(args.out, segment_steps.plan_record(dataset, frames, args.segment_frames, args.overlap_frames,
-                                                       segments))  # fmt: skip
+                                                       segments, args.count_from))  # fmt: skip
         jobs_start = time.perf_counter()
         _run(segment_jobs(args, dataset, truth, segments, settings), ex, f"row: {len(segments)} segments", report)
         wall["segment jobs, this session"] = time.perf_counter() - jobs_start
         write_failures(args.out / "failures.md", failures_markdown(report, "Row steps that failed"))
         if report.failed or report.skipped:
             return None
-        for stage in segment_steps.SEGMENT_STAGES:
+        for stage in segment_steps.SEGMENT_STAGES if args.count_from == "field" else ("cut", "count"):
             times = [(survey_stages.read_record(segment_steps.segment_folders(args.out, s), stage) or {}).get("wall_s")
                      for s in segments]  # fmt: skip
             wall[f"{stage} (sum)"] = float(sum(t for t in times if t is not None))

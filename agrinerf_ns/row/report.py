@@ -86,7 +86,8 @@ def _scored(result: CountResult, config: CountConfig) -> Dict[str, Any]:
     doubles = double_counts(capture, result.truth.centres, result.visible, config.match_distance)
     s = result.score
     return {"fruit": s.counted, "visible": s.visible, "precision": s.precision, "recall": s.recall, "f1": s.f1,
-            "count_error": s.count_error, "double_counts": doubles,
+            "count_error": s.count_error, "f1_countable": s.f1_countable, "recall_countable": s.recall_countable,
+            "count_error_countable": s.count_error_countable, "double_counts": doubles,
             "double_count_rate": doubles / s.counted if s.counted else math.nan}  # fmt: skip
 
 

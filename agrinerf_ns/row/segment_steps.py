@@ -64,6 +64,33 @@ def check_plan(out: Path, plan: Dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def plan_record(dataset: Path, frames: int, size: int, overlap: int, segments: List[Segment]) -> Dict[str, Any]:
+def plan_record(
+    dataset: Path, frames: int, size: int, overlap: int, segments: List[Segment], count_from: str = "field"
+) -> Dict[str, Any]:
     return {"dataset": str(Path(dataset).resolve()), "frames": frames, "segment_frames": size,
-            "overlap_frames": overlap, "segments": [[s.start, s.stop] for s in segments]}  # fmt: skip
+            "overlap_frames": overlap, "segments": [[s.start, s.stop] for s in segments],
+            "count_from": count_from}  # fmt: skip
+
+
+def bodies_count_step(raw: Path, folders: CaptureFolders, settings: Any, *_: Any) -> Dict[str, Any]:
+    """Job: count the segment's fruit bodies (``agrinerf-count --path bodies``: no training), scored against
+    ``raw``'s truth where it has one."""
+    from agrinerf_ns.count.body_count import run_body_count
+    from agrinerf_ns.count.fruit_score import FRUITS_JSON
+    from agrinerf_ns.survey.intervals import finite_or_none, mean_temperature
+
+    start = time.perf_counter()
+    truth = raw if (Path(raw) / FRUITS_JSON).is_file() else None
+    result = run_body_count(folders.data, folders.count, settings.count, truth, overwrite=True)
+    temperature, temperature_half = mean_temperature(result.fruit)
+    score = None if result.score is None else result.score.as_dict()
+    record: Dict[str, Any] = {
+        "wall_s": time.perf_counter() - start,
+        "fruit": len(result.fruit),
+        "fruit_interval": [None, None],
+        "temperature_c": finite_or_none(temperature),
+        "temperature_half_c": finite_or_none(temperature_half),
+        "score": None if score is None else {k: finite_or_none(v) if isinstance(v, float) else v
+                                             for k, v in score.items()},
+    }  # fmt: skip
+    return write_record(folders, "count", record)
