@@ -6,8 +6,10 @@ frame shows again at one place in its neighbours, which the thermal bodies' plan
 (:func:`agrinerf_ns.fruit.thermal_bodies.place_blobs`) finds along the fruit's ray, so the same sweep places the
 masks' fruit from the RGB camera. Each region of a mask is split into discs at the peaks of its distance to the
 background (:func:`mask_blobs`: fruit that touch in the image are two discs, as a watershed would cut them), a disc
-is a :class:`~agrinerf_ns.fruit.thermal_blobs.Blob` of the RGB frame, and its temperature is read where the thermal
-camera sees the placed point (:func:`disc_temperature`).
+is a :class:`~agrinerf_ns.fruit.thermal_blobs.Blob` of the RGB frame, the discs the sweep matched are one fruit's
+track, placed where the rays of all its frames meet (:func:`track_points`), and its temperature is read where the
+thermal camera sees the placed point (:func:`disc_temperature`). No field is trained: a capture is counted in seconds
+(``agrinerf-count --path bodies``; measured beside trained runs in results/fruit-count-lit).
 """
 
 from __future__ import annotations
