@@ -292,6 +292,7 @@ def test_a_lit_row_counted_from_its_fruit_bodies_without_training(tmp_path: Path
     assert not list(out.glob("segments/*/runs"))
     fruit = _rows(out / "row" / "fruits.csv")
     assert 0 < len(fruit) == summary["fruit"] <= summary["segments_alone"]
+    assert "counted from its fruit bodies with no training" in (out / "row" / "row.md").read_text()
     truth = summary["truth"]["row"]
     assert truth["precision"] * truth["fruit"] >= 5 and truth["precision"] >= 0.4 and truth["f1_countable"] > 0.3
     again = main(RowArgs(out=out, raw=raw, count_from="bodies", **settings))  # type: ignore[arg-type]

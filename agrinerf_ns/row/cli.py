@@ -216,11 +216,15 @@ def _header(args: RowArgs, segments: int) -> str:
     from agrinerf_ns.machine import machine_note
 
     source = args.data if args.data is not None else args.raw
+    if args.count_from == "bodies":
+        counted = "counted from its fruit bodies with no training (`agrinerf-count --path bodies`)"
+    else:
+        counted = (f"`{args.method}`, {args.steps} steps, counted by `agrinerf-count` ({args.count.detect.detector} "
+                   f"on {args.count.detect.source})")  # fmt: skip
     return (
         f"# Row yield of {source}\n\nCommand: `agrinerf-row {' '.join(sys.argv[1:])}`\n\n{machine_note()}\n\n"
         f"{segments} segments of {args.segment_frames} frames overlapping by at least {args.overlap_frames}; each "
-        f"`{args.method}`, {args.steps} steps, counted by `agrinerf-count` ({args.count.detect.detector} on "
-        f"{args.count.detect.source}); fruit joined across borders within {args.join_distance:g} m."
+        f"{counted}; fruit joined across borders within {args.join_distance:g} m."
     )
 
 
