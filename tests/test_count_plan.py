@@ -58,13 +58,13 @@ def test_a_run_with_a_fruit_head_is_counted_on_its_fruit_channel(rgb_level: floa
 
 
 @pytest.mark.parametrize(
-    ("rgb_level", "bodies", "path"), [(0.01, True, "bodies"), (0.4, True, "views"), (0.01, False, "views")]
+    ("rgb_level", "bodies", "path"), [(0.01, True, "bodies"), (0.4, True, "bodies"), (0.01, False, "views")]
 )
-def test_a_dark_run_whose_dataset_holds_thermal_bodies_is_counted_from_them(
+def test_a_run_whose_dataset_holds_fruit_bodies_is_counted_from_them(
     tmp_path: Path, rgb_level: float, bodies: bool, path: str
 ) -> None:
-    """The bodies path where the RGB frames are dark and the data stage placed thermal fruit bodies; a lit run, or a
-    dark one without them, keeps its fruit channel."""
+    """The bodies path wherever the data stage placed fruit bodies (thermal ones in the dark, the masks' in light); a
+    run whose dataset has none keeps its fruit channel."""
     box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
     metadata = {"modalities": ("rgb", "thermal"), "rgb_level": rgb_level, "fruit_mask_filenames": ["m.png"] * 4}
     model = AgriNeRFModelConfig(**SMALL_MODEL).setup(scene_box=box, num_train_data=4, metadata=metadata)

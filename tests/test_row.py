@@ -280,9 +280,8 @@ def test_a_lit_row_counted_from_its_fruit_bodies_without_training(tmp_path: Path
                                        rgb_hfov_deg=22.0, thermal_hfov_deg=20.0, event_substeps=1,
                                        event_supersample=1), tmp_path / "raw")  # fmt: skip
     out = tmp_path / "row"
-    settings = dict(
-        segment_frames=12, overlap_frames=4, bin_m=0.5, process=ProcessConfig(poses="given", show_progress=False)
-    )
+    settings = dict(segment_frames=12, overlap_frames=4, bin_m=0.5, count=CountConfig(max_range=2.4),
+                    process=ProcessConfig(poses="given", show_progress=False))  # fmt: skip
     summary = main(RowArgs(out=out, raw=raw, count_from="bodies", **settings))  # type: ignore[arg-type]
     assert summary is not None
     plan = json.loads((out / "plan.json").read_text())

@@ -8,8 +8,9 @@ orchard, four lightings, three seeds each: results/count-seeds), F1 at 0.05 m po
 - dark RGB frames (the model's low-light rule, ``low_light_level``): the field's temperature, 0.04 at a count error
   of -15%, against 0.02 at -91% from the RGB views;
 - no RGB head (trained on thermal frames alone): the field's thermal output, the only one it has;
-- dark RGB frames and a dataset with the thermal fruit bodies (``--path bodies``): since then, the bodies, which
-  counted the dark rows best (results/fruit-count-dark).
+- a dataset with fruit bodies (``--path bodies``): since then, the bodies, which counted the dark rows best
+  (results/fruit-count-dark) and, placed from the lit masks, the lit rows at least as well as the fruit head's views
+  on the bright tuning captures (results/fruit-count-lit).
 
 The plan picks the path; each path's source is resolved by :func:`agrinerf_ns.count.sources.resolve_source`, the same
 whether the path was chosen here or asked for by name.
@@ -40,12 +41,19 @@ def choose_plan(model: Any, dataset: Optional[Path] = None) -> CountPlan:
     ``dataset`` (its folder, where known)."""
     outputs = field_outputs(model)
     thermal_field = outputs.thermal_any
-    if outputs.dark and dataset is not None and (Path(dataset) / FRUIT_BODIES).is_file():
+    if dataset is not None and (Path(dataset) / FRUIT_BODIES).is_file():
+        if outputs.dark:
+            return CountPlan(
+                "bodies",
+                "the run's RGB frames are dark and its dataset holds the thermal fruit bodies: the bodies placed by "
+                "the poses, which counted best in the dark (the row's countable fruit, F1 0.63 and 0.35 against 0.31 "
+                "and 0.20 from the fruit head's views, two tuning gardens: results/fruit-count-dark)",
+            )
         return CountPlan(
             "bodies",
-            "the run's RGB frames are dark and its dataset holds the thermal fruit bodies: the bodies placed by the "
-            "poses, which counted best in the dark (the row's countable fruit, F1 0.63 and 0.35 against 0.31 and 0.20 "
-            "from the fruit head's views, two tuning gardens: results/fruit-count-dark)",
+            "the run's dataset holds the fruit bodies its masks placed (the thermal camera's in dim frames): they "
+            "counted the row's countable fruit at least as well as the fruit head's views on the bright tuning "
+            "captures, paired (results/fruit-count-lit), and need no render",
         )
     if outputs.fruit:
         return CountPlan(
