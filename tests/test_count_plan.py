@@ -4,6 +4,7 @@ dark (the model's low-light rule) or absent."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Sequence
 
@@ -68,7 +69,13 @@ def test_a_run_whose_dataset_holds_fruit_bodies_is_counted_from_them(
     box = SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]))
     metadata = {"modalities": ("rgb", "thermal"), "rgb_level": rgb_level, "fruit_mask_filenames": ["m.png"] * 4}
     model = AgriNeRFModelConfig(**SMALL_MODEL).setup(scene_box=box, num_train_data=4, metadata=metadata)
-    if bodies:
-        (tmp_path / FRUIT_BODIES).write_text('{"sightings": []}')
+    if bodies:  # the masks' fruit in light, the thermal bodies in the dark
+        row = {"frame": "images/000000.png", "camera": "rgb" if rgb_level > 0.1 else "thermal", "centre": [0, 0, 1],
+               "diameter": 0.07}  # fmt: skip
+        (tmp_path / FRUIT_BODIES).write_text(json.dumps({"sightings": [row]}))
     plan = choose_plan(model, tmp_path)
     assert plan.path == path, plan
+    if bodies and rgb_level > 0.1:  # a dusk run whose bodies are all thermal keeps its fruit head
+        row["camera"] = "thermal"
+        (tmp_path / FRUIT_BODIES).write_text(json.dumps({"sightings": [row]}))
+        assert choose_plan(model, tmp_path).path == "views"
