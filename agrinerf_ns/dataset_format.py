@@ -11,7 +11,7 @@ their readers and writers: fruit masks in :mod:`agrinerf_ns.fruit_mask_format`, 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Tuple
+from typing import Dict, Sequence, Tuple
 
 TRANSFORMS = "transforms.json"
 """The dataset's Nerfstudio file of the RGB camera (frames, intrinsics, split and the ``agrinerf`` block)."""
@@ -24,8 +24,18 @@ EVENT_STREAM = "events/stream.h5"
 the frames' clock (the event loss reads it: ``agrinerf_ns.dataparsers.event_stream``)."""
 
 FRUIT_BODIES = "fruit_bodies.json"
-"""Where the ``bodies`` rule placed the thermal fruit it decided, one sighting per frame that saw each (frame, centre
-in the poses' world frame, diameter, temperature): what ``agrinerf-count --path bodies`` counts."""
+"""Where the data stage placed the fruit in 3D, one sighting per frame that saw each (frame, camera, centre in the
+poses' world frame, diameter, temperature, ray): the thermal bodies of dark and dim frames and the lit masks' fruit;
+what ``agrinerf-count --path bodies`` counts (docs/formats.md)."""
+BODY_CAMERAS = ("rgb", "thermal")
+"""The cameras a fruit body's sighting names (``camera``); a sighting without one is the thermal camera's (the
+files written before the lit masks' bodies)."""
+
+
+def sighting_cameras(sightings: Sequence[dict]) -> Dict[str, int]:
+    """The sightings of a ``FRUIT_BODIES`` file per camera (:data:`BODY_CAMERAS`)."""
+    cameras = [row.get("camera", "thermal") for row in sightings]
+    return {camera: cameras.count(camera) for camera in BODY_CAMERAS}
 
 
 @dataclass(frozen=True)

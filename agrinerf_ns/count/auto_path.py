@@ -20,12 +20,14 @@ whether the path was chosen here or asked for by name.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, Literal, Optional
 
+from agrinerf_ns.count.errors import CountInputError
 from agrinerf_ns.count.sources import field_outputs
-from agrinerf_ns.dataset_format import FRUIT_BODIES
+from agrinerf_ns.dataset_format import FRUIT_BODIES, sighting_cameras
 
 
 @dataclass(frozen=True)
@@ -40,11 +42,13 @@ class CountPlan:
 
 def body_cameras(dataset: Optional[Path]) -> Dict[str, int]:
     """The fruit-body sightings per camera of ``dataset`` (empty where it holds none or is unknown)."""
-    if dataset is None or not (Path(dataset) / FRUIT_BODIES).is_file():
+    path = None if dataset is None else Path(dataset) / FRUIT_BODIES
+    if path is None or not path.is_file():
         return {}
-    from agrinerf_ns.count.body_count import read_sightings, sighting_cameras
-
-    return sighting_cameras(read_sightings(Path(dataset)))
+    try:
+        return sighting_cameras(json.loads(path.read_text())["sightings"])
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, AttributeError) as err:
+        raise CountInputError(f"{path}: not a fruit bodies file ({err})") from err
 
 
 def choose_plan(model: Any, dataset: Optional[Path] = None) -> CountPlan:

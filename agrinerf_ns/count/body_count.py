@@ -25,7 +25,7 @@ from agrinerf_ns.count.fruit_score import dataset_frames, read_truth_fruit
 from agrinerf_ns.count.lift import LiftedDetection
 from agrinerf_ns.count.render import WorldFrame, dataset_pose_source
 from agrinerf_ns.count.row_range import fruit_in_range
-from agrinerf_ns.dataset_format import FRUIT_BODIES
+from agrinerf_ns.dataset_format import FRUIT_BODIES, sighting_cameras
 
 if TYPE_CHECKING:
     from agrinerf_ns.count.pipeline import CountConfig, CountResult
@@ -55,13 +55,6 @@ def read_sightings(dataset: Path) -> List[dict]:
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
         raise CountInputError(f"{path}: not a fruit bodies file ({err})") from err
     return rows
-
-
-def sighting_cameras(sightings: Sequence[dict]) -> Dict[str, int]:
-    """The sightings per camera: ``rgb`` (the lit frames' masks) and ``thermal`` (the thermal bodies; files written
-    before the RGB sightings name no camera and hold thermal ones only)."""
-    cameras = [row.get("camera", "thermal") for row in sightings]
-    return {"rgb": cameras.count("rgb"), "thermal": cameras.count("thermal")}
 
 
 def body_detections(sightings: Sequence[dict], frames: Sequence[str]) -> List[LiftedDetection]:
