@@ -294,6 +294,9 @@ def test_a_lit_row_counted_from_its_fruit_bodies_without_training(tmp_path: Path
     assert "counted from its fruit bodies with no training" in (out / "row" / "row.md").read_text()
     truth = summary["truth"]["row"]
     assert truth["precision"] * truth["fruit"] >= 5 and truth["precision"] >= 0.4 and truth["f1_countable"] > 0.3
+    framed = summary["truth"]["row_in_segment_frames"]  # the same fruit and truth, each fruit aligned as its segment
+    assert framed["fruit"] == truth["fruit"] and framed["visible"] == truth["visible"] and framed["f1"] > 0.3
+    assert "each fruit aligned as its segment" in (out / "row" / "row.md").read_text()
     again = main(RowArgs(out=out, raw=raw, count_from="bodies", **settings))  # type: ignore[arg-type]
     assert again is not None and _rows(out / "row" / "fruits.csv") == fruit
     with pytest.raises(RowInputError, match="cut differently"):
