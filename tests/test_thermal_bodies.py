@@ -118,7 +118,7 @@ def test_the_bodies_count_the_fruit_in_3d_from_their_sightings(tmp_path: Path) -
     seen = np.ones((HEIGHT, WIDTH), bool)
     _, _, sightings = body_masks([(im, seen) for im in images], views, MaskMakerConfig(), radiometric=True)
     frames = [{"file_path": f"images/{k:06d}.png"} for k in range(len(views))]
-    write_sightings(tmp_path / FRUIT_BODIES, sightings, frames)
+    write_sightings(tmp_path / FRUIT_BODIES, [("thermal", s) for s in sightings], frames)
     detections = body_detections(read_sightings(tmp_path), [f["file_path"] for f in frames])
     assert len(detections) == len(sightings) > 2 * len(FRUIT_XZ)
     fruit = cluster_fruit(detections, ClusterConfig(min_views=2, merge_fraction=BODIES_MERGE_FRACTION))
@@ -137,7 +137,7 @@ def test_the_bodies_count_the_fruit_in_3d_from_their_sightings(tmp_path: Path) -
 
 
 def test_a_bad_bodies_file_is_named(tmp_path: Path) -> None:
-    with pytest.raises(CountInputError, match=f"{FRUIT_BODIES}: no thermal fruit bodies"):
+    with pytest.raises(CountInputError, match=f"{FRUIT_BODIES}: no fruit bodies"):
         read_sightings(tmp_path)
     (tmp_path / FRUIT_BODIES).write_text('{"sightings": [{"frame": "images/0.png", "centre": [0, 1], "diameter": 1}]}')
     with pytest.raises(CountInputError, match=f"{tmp_path / FRUIT_BODIES}: not a fruit bodies file"):
