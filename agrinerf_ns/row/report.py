@@ -24,7 +24,7 @@ from jaxtyping import Bool, Float
 
 from agrinerf_ns.atomic import atomic_output_dir
 from agrinerf_ns.count.cluster import Fruit
-from agrinerf_ns.count.fruit_score import Similarity, align_to_capture, match_fruit, score_fruit
+from agrinerf_ns.count.fruit_score import CountScore, Similarity, align_to_capture, match_fruit, score_fruit
 from agrinerf_ns.count.pipeline import CountConfig, CountResult, raw_training_frames, score_result
 from agrinerf_ns.count.write import read_csv, write_ply
 from agrinerf_ns.row.join import JoinResult, join_fruit
@@ -89,9 +89,13 @@ def _in_segment_frames(
     fits = [align_to_capture(f.data, raw) if config.align == "poses" else Similarity.identity() for f in folders]
     capture = np.array([fits[r.segment].apply(np.asarray(r.fruit.centre, np.float64)[None])[0]
                         for r in joined.fruit]).reshape(-1, 3)  # fmt: skip
-    temperatures = np.array([np.nan if r.fruit.temperature is None else r.fruit.temperature for r in joined.fruit])
-    s = score_fruit(capture, row.truth, row.visible, config.match_distance, temperatures,
-                    row.tiers.get("well_seen"), row.tiers.get("countable"))  # fmt: skip
+    score = score_fruit(capture, row.truth, row.visible, config.match_distance, None, row.tiers.get("well_seen"),
+                        row.tiers.get("countable"))  # fmt: skip
+    return _score_fields(score)
+
+
+def _score_fields(s: CountScore) -> Dict[str, Any]:
+    """The row table's fields of a count's score."""
     return {"fruit": s.counted, "visible": s.visible, "precision": s.precision, "recall": s.recall, "f1": s.f1,
             "count_error": s.count_error, "f1_countable": s.f1_countable, "recall_countable": s.recall_countable,
             "count_error_countable": s.count_error_countable}  # fmt: skip
@@ -102,11 +106,9 @@ def _scored(result: CountResult, config: CountConfig) -> Dict[str, Any]:
     capture = result.to_capture.apply(np.array([f.centre for f in result.fruit]).reshape(-1, 3))
     assert result.visible is not None
     doubles = double_counts(capture, result.truth.centres, result.visible, config.match_distance)
-    s = result.score
-    return {"fruit": s.counted, "visible": s.visible, "precision": s.precision, "recall": s.recall, "f1": s.f1,
-            "count_error": s.count_error, "f1_countable": s.f1_countable, "recall_countable": s.recall_countable,
-            "count_error_countable": s.count_error_countable, "double_counts": doubles,
-            "double_count_rate": doubles / s.counted if s.counted else math.nan}  # fmt: skip
+    counted = result.score.counted
+    return _score_fields(result.score) | {"double_counts": doubles,
+                                          "double_count_rate": doubles / counted if counted else math.nan}  # fmt: skip
 
 
 def assemble_row(
