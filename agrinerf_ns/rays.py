@@ -97,3 +97,35 @@ def triangulate(
     if len(set(view_of[keep].tolist())) < min_views:
         return None, keep
     return point, keep
+
+
+def enclosing_ball(
+    origins: Float[np.ndarray, "n 3"], rays: Float[np.ndarray, "n 3"], start: Float[np.ndarray, "3"]
+) -> Tuple[Optional[Float[np.ndarray, "3"]], float]:
+    """The centre and radius of the smallest ball that every line ``origin + t ray`` (unit rays) passes through,
+    searched from ``start`` (SLSQP on the convex problem: the largest of the lines' miss distances, least); None
+    where the search fails.
+
+    The rays through a fruit's outline in several frames all pass through the fruit, and a leaf or trunk in front
+    only removes some of them, so this ball stays on the fruit where the centre of each frame's visible part, pulled
+    towards the occluder's edge, does not (:func:`agrinerf_ns.fruit.mask_bodies.outline_points`)."""
+    from scipy.optimize import minimize
+
+    origins, rays = np.asarray(origins, np.float64), np.asarray(rays, np.float64)
+    start = np.asarray(start, np.float64)
+    if len(rays) < 2 or not np.isfinite(start).all():
+        return None, float("nan")
+    x0 = np.append(start, miss_distances(start, origins, rays).max())
+    result = minimize(
+        lambda x: x[3],
+        x0,
+        jac=lambda x: np.array([0.0, 0.0, 0.0, 1.0]),
+        method="SLSQP",
+        constraints=[{"type": "ineq", "fun": lambda x: x[3] - miss_distances(x[:3], origins, rays)}],
+        options={"maxiter": 200},
+    )
+    centre = result.x[:3]
+    radius = float(miss_distances(centre, origins, rays).max()) if np.isfinite(centre).all() else float("nan")
+    if not radius <= x0[3]:  # the search failed or went astray: no ball smaller than the start's
+        return None, float("nan")
+    return centre, radius

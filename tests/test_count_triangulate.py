@@ -9,7 +9,7 @@ import pytest
 
 from agrinerf_ns.count.cluster import ClusterConfig, cluster_fruit
 from agrinerf_ns.count.lift import LiftedDetection
-from agrinerf_ns.rays import closest_point, miss_distances, triangulate
+from agrinerf_ns.rays import closest_point, enclosing_ball, miss_distances, triangulate
 
 FRUIT_D = 0.08
 TRIANGULATE = ClusterConfig(min_views=2, min_view_fraction=0.0, triangulate=True)
@@ -102,3 +102,25 @@ def test_a_large_group_tries_a_fixed_sample_of_its_crossings() -> None:
     again = triangulate(origins, rays, list(range(200)), 0.5 * FRUIT_D, 2)
     assert first[0] is not None and again[0] is not None
     assert np.linalg.norm(first[0]) < 0.01 and np.array_equal(first[0], again[0]) and bool(first[1].all())
+
+
+def test_the_smallest_ball_the_rays_meet_is_the_sphere_they_graze() -> None:
+    centre, radius = np.array([0.2, 2.0, 0.1]), 0.04
+    origins, rays = [], []
+    for x in (-0.4, 0.0, 0.4):  # tangent rays from three cameras, on all four sides of the sphere
+        origin = np.array([x, 0.0, 0.0])
+        axis = (centre - origin) / np.linalg.norm(centre - origin)
+        side = np.cross(axis, [0.0, 0.0, 1.0])
+        side /= np.linalg.norm(side)
+        up = np.cross(side, axis)
+        for offset in (side, -side, up, -up):
+            ray = (centre + radius * offset) - origin
+            origins.append(origin)
+            rays.append(ray / np.linalg.norm(ray))
+    found, r = enclosing_ball(np.array(origins), np.array(rays), centre + np.array([0.05, -0.3, 0.02]))
+    assert found is not None
+    assert np.linalg.norm(found - centre) < 0.005 and r == pytest.approx(radius, abs=0.003)
+    assert enclosing_ball(np.array(origins[:1]), np.array(rays[:1]), centre) == (
+        None,
+        pytest.approx(float("nan"), nan_ok=True),
+    )

@@ -11,8 +11,15 @@ from typing import List
 import numpy as np
 import pytest
 
-from agrinerf_ns.fruit.mask_bodies import disc_temperature, mask_blobs, mask_sightings, rgb_geometry
-from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry
+from agrinerf_ns.fruit.mask_bodies import (
+    disc_temperature,
+    mask_blobs,
+    mask_sightings,
+    outline_points,
+    rgb_geometry,
+    track_points,
+)
+from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, sweep_blobs
 
 K = np.array([[800.0, 0.0, 160.0], [0.0, 800.0, 120.0], [0.0, 0.0, 1.0]])
 SIZE = (240, 320)
@@ -80,6 +87,37 @@ def test_fruit_are_placed_where_the_frames_agree_and_a_fruit_seen_twice_is_left_
         assert s.diameter == pytest.approx(2 * RADIUS, rel=0.25)
         assert s.temperature is None
     assert len(mask_sightings(masks, views, BodySettings(min_views=2))) > len(found)  # two frames place it
+
+
+def _sphere_hits(origins: np.ndarray, rays: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Where each ray first meets the sphere (inf where it misses)."""
+    offset = origins - centre
+    b = (offset * rays).sum(-1)
+    disc = b * b - ((offset * offset).sum(-1) - radius**2)
+    return np.where(disc > 0, -b - np.sqrt(np.maximum(disc, 0.0)), np.inf)
+
+
+def test_a_fruit_a_nearer_leaf_cuts_is_placed_by_its_outline() -> None:
+    fruit, leaf = np.array([0.3, 2.5, 0.0]), np.array([0.25, 1.8, 0.01])
+    views = [rgb_geometry(K, _camera(x)) for x in 0.3 + 0.075 * np.arange(-5, 6)]
+    rows, cols = np.mgrid[0 : SIZE[0], 0 : SIZE[1]]
+    masks = []
+    for view in views:  # the fruit's pixels where the leaf (not in the mask) does not hide it
+        origins, rays = view.rays(rows.ravel().astype(float), cols.ravel().astype(float))
+        on_fruit, on_leaf = _sphere_hits(origins, rays, fruit, 0.04), _sphere_hits(origins, rays, leaf, 0.03)
+        masks.append((np.isfinite(on_fruit) & ~(on_leaf < on_fruit)).reshape(SIZE))
+    assert min(m.sum() for m in masks) < 0.3 * max(m.sum() for m in masks)  # the leaf hides most of it somewhere
+    blobs = [b for k, mask in enumerate(masks) for b in mask_blobs(mask, k)]
+    points, links = sweep_blobs(blobs, views, BodySettings(min_views=3))
+    tracked = track_points(blobs, views, points, links)
+    placed = np.isfinite(tracked[:, 0])
+    assert placed.sum() >= 5
+    # the visible parts' centres follow the leaf, and their rays meet off the fruit; its outline's ball does not
+    assert np.linalg.norm(tracked[placed] - fruit, axis=1).max() > 0.02
+    outlined = outline_points(blobs, views, masks, tracked, links)
+    assert np.linalg.norm(outlined[placed] - fruit, axis=1).max() < 0.005
+    found = mask_sightings(masks, views, BodySettings(min_views=3))
+    assert found and max(np.linalg.norm(s.centre - fruit) for s in found) < 0.005
 
 
 def test_a_sighting_takes_the_temperature_where_the_thermal_camera_sees_it() -> None:
