@@ -49,8 +49,8 @@ taken from every such disc's centre: two touching fruit are two discs, one fruit
 
 MAX_OUTLINE_MOVE = 3.0
 """A track's outline ball moves its place by at most this many fruit diameters; farther, its outlines gather more
-than one fruit and the rays' meeting point stays (on the bright tuning captures, 3, 6 and 10 diameters lifted the
-countable F1 at 0.05 m by +0.038, +0.031 and +0.030 over no ball; results/fruit-count-lit)."""
+than one fruit and the rays' meeting point stays (chosen on the bright tuning captures among 3, 6 and 10:
+results/fruit-count-lit/README.md)."""
 
 
 def filled(fruit: Bool[np.ndarray, "h w"]) -> Bool[np.ndarray, "h w"]:
