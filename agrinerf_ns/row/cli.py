@@ -8,10 +8,9 @@ fruit across their borders and writes the row folder ``OUT/row`` (:mod:`agrinerf
 
 from __future__ import annotations
 
-import shlex
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Dict, List, Literal, Optional
 
@@ -19,7 +18,6 @@ import tyro
 from rich.console import Console
 
 from agrinerf_ns.count.fruit_score import FRUITS_JSON
-from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.dataset_format import FRUIT_BODIES
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import (
@@ -31,7 +29,6 @@ from agrinerf_ns.orchestrate.jobs import (
     run_jobs,
     write_failures,
 )
-from agrinerf_ns.process.capture_to_dataset import ProcessConfig
 from agrinerf_ns.row import segment_steps
 from agrinerf_ns.row.join import JOIN_DISTANCE
 from agrinerf_ns.row.report import RowSettings, assemble_row
@@ -42,7 +39,7 @@ CONSOLE = Console()
 
 
 @dataclass
-class RowArgs:
+class RowArgs(survey_stages.JobOptions):
     """Cut a long capture into overlapping segments, train and count each, and join them into one row's yield map."""
 
     out: Path
@@ -69,34 +66,6 @@ class RowArgs:
     segment's fruit bodies are counted with no training (``--path bodies``: the lit masks' fruit and the thermal
     bodies the data stage placed with the poses; seconds per segment, results/fruit-count-lit). With --raw and
     ``bodies`` the capture is processed with ``--fruit-mask-maker auto`` unless another maker is set."""
-    method: str = "agrinerf-lite"
-    """``ns-train`` method (preset) each segment is trained with."""
-    steps: int = 30000
-    """Training steps per segment."""
-    rays_per_batch: int = 4096
-    """Training rays per batch."""
-    train_args: str = ""
-    """Further ``ns-train`` method options in one string (as agrinerf-survey's)."""
-    ray: Optional[str] = None
-    """Run the jobs as Ray tasks: ``local``, ``auto`` or a cluster address (as agrinerf-survey's); None: one job after
-    another in this process."""
-    cpus_per_task: Optional[int] = None
-    """CPU cores (and threads) each job holds; None: one per job with --ray, threads unchanged without."""
-    gpus_per_train: float = 0.0
-    """GPUs a segment's training and counting hold with --ray."""
-    memory_gb_per_train: Optional[float] = None
-    """Memory Ray reserves for a segment's training and counting (GiB; None: none reserved)."""
-    retries: int = 1
-    """Further attempts of a step that fails or whose worker dies."""
-    ray_cpus: Optional[int] = None
-    """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
-    jackknife_groups: int = 10
-    """Interleaved groups of views of each segment's count interval."""
-    process: ProcessConfig = field(default_factory=lambda: ProcessConfig(show_progress=False))
-    """Processing options of --raw (as ``agrinerf-process``)."""
-    count: CountConfig = field(default_factory=CountConfig)
-    """Detection, clustering and scoring options of every segment's count (as ``agrinerf-count``; --count.max-range
-    keeps the row the rig drove)."""
 
 
 def _raw_frames(raw: Path) -> int:
@@ -129,14 +98,10 @@ def check_inputs(args: RowArgs) -> Path:
     return source
 
 
-def _resources(args: RowArgs) -> tuple:
-    return survey_stages.step_resources(args.cpus_per_task, args.ray, args.gpus_per_train, args.memory_gb_per_train)
-
-
 def segment_jobs(args: RowArgs, dataset: Path, truth: Path, segments: List[Segment],
                  settings: survey_stages.SurveySettings) -> List[Job]:  # fmt: skip
     """Per segment, the steps without a record (cut, train, count), each after the one before it."""
-    light, heavy = _resources(args)
+    light, heavy = args.resources()
     jobs: List[Job] = []
     for segment in segments:
         folders = segment_steps.segment_folders(args.out, segment)
@@ -168,19 +133,17 @@ def main(args: RowArgs) -> Optional[Dict[str, Any]]:
     process = args.process
     if args.count_from == "bodies" and process.fruit_mask_maker == "none":
         process = replace(process, fruit_mask_maker="auto")
-    settings = survey_stages.SurveySettings(args.method, args.steps, args.rays_per_batch,
-                                            tuple(shlex.split(args.train_args)), process, args.count,
-                                            args.jackknife_groups)  # fmt: skip
+    settings = args.settings(process)
     report = JobsReport()
     start = time.perf_counter()
     wall: Dict[str, float] = {}
-    with driver_lock(args.out), executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as ex:
+    with driver_lock(args.out), executor_for(args.ray, **args.executor_options()) as ex:
         dataset = source
         if args.raw is not None:
             whole = segment_steps.capture_folders(args.out)
             dataset = whole.data
             if survey_stages.read_record(whole, "process") is None:
-                light, _ = _resources(args)
+                light, _ = args.resources()
                 job = Job("capture:process", survey_stages.process_step, (args.raw, whole, settings), whole.root,
                           light, (), None, args.retries)  # fmt: skip
                 _run([job], ex, "row: process", report)

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any, Dict, List
 
 from agrinerf_ns.row.segments import RowInputError, Segment, cut_segment
-from agrinerf_ns.survey.stages import CaptureFolders, write_record
+from agrinerf_ns.survey.stages import CaptureFolders, count_record, write_record
 
 SEGMENT_STAGES = ("cut", "train", "count")
 PLAN = "plan.json"
@@ -77,20 +77,9 @@ def bodies_count_step(raw: Path, folders: CaptureFolders, settings: Any, *_: Any
     ``raw``'s truth where it has one."""
     from agrinerf_ns.count.body_count import run_body_count
     from agrinerf_ns.count.fruit_score import FRUITS_JSON
-    from agrinerf_ns.survey.intervals import finite_or_none, mean_temperature
 
     start = time.perf_counter()
     truth = raw if (Path(raw) / FRUITS_JSON).is_file() else None
     result = run_body_count(folders.data, folders.count, settings.count, truth, overwrite=True)
-    temperature, temperature_half = mean_temperature(result.fruit)
-    score = None if result.score is None else result.score.as_dict()
-    record: Dict[str, Any] = {
-        "wall_s": time.perf_counter() - start,
-        "fruit": len(result.fruit),
-        "fruit_interval": [None, None],
-        "temperature_c": finite_or_none(temperature),
-        "temperature_half_c": finite_or_none(temperature_half),
-        "score": None if score is None else {k: finite_or_none(v) if isinstance(v, float) else v
-                                             for k, v in score.items()},
-    }  # fmt: skip
+    record = count_record(result, start, (float("nan"), float("nan")))  # no jackknife: the bodies are not views
     return write_record(folders, "count", record)

@@ -11,16 +11,14 @@ status and wall time), ``OUT/failures.md`` and every capture's own outputs under
 
 from __future__ import annotations
 
-import shlex
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List
 
 import tyro
 from rich.console import Console
 
-from agrinerf_ns.count.pipeline import CountConfig
 from agrinerf_ns.orchestrate.executors import executor_for
 from agrinerf_ns.orchestrate.jobs import (
     FolderInUse,
@@ -30,48 +28,19 @@ from agrinerf_ns.orchestrate.jobs import (
     run_jobs,
     write_failures,
 )
-from agrinerf_ns.process.capture_to_dataset import ProcessConfig
 from agrinerf_ns.survey import stages, table
 
 CONSOLE = Console()
 
 
 @dataclass
-class SurveyArgs:
+class SurveyArgs(stages.JobOptions):
     """Process, train and count every raw capture of a folder; writes OUT/survey.md and OUT/survey.csv."""
 
     captures: Path
     """Folder of raw captures, one sub-folder each (read only)."""
     out: Path
     """Survey folder (outside --captures)."""
-    method: str = "agrinerf-lite"
-    """``ns-train`` method (preset) each capture is trained with."""
-    steps: int = 30000
-    """Training steps per capture."""
-    rays_per_batch: int = 4096
-    """Training rays per batch."""
-    train_args: str = ""
-    """Further ``ns-train`` method options in one string, e.g. ``--train-args="--pipeline.model.final-resolution 128"``."""
-    ray: Optional[str] = None
-    """Run the jobs as Ray tasks (the ``[ray]`` extra): ``local`` starts Ray on this machine, ``auto`` joins the
-    cluster this machine belongs to, or a cluster address. OUT and --captures must be on a filesystem every node
-    sees. None: one job after another in this process."""
-    cpus_per_task: Optional[int] = None
-    """CPU cores (and threads) each job holds; None: one per job with --ray, threads unchanged without."""
-    gpus_per_train: float = 0.0
-    """GPUs the training and the counting of a capture hold with --ray (1 on a GPU cluster)."""
-    memory_gb_per_train: Optional[float] = None
-    """Memory Ray reserves for a capture's training and counting (GiB; None: none reserved)."""
-    retries: int = 1
-    """Further attempts of a step that fails or whose worker dies, before its capture is reported failed."""
-    ray_cpus: Optional[int] = None
-    """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
-    jackknife_groups: int = 10
-    """Interleaved groups of views of the count's interval (a delete-a-group jackknife)."""
-    process: ProcessConfig = field(default_factory=lambda: ProcessConfig(show_progress=False))
-    """Processing options (as ``agrinerf-process``)."""
-    count: CountConfig = field(default_factory=CountConfig)
-    """Detection, clustering and scoring options (as ``agrinerf-count``)."""
 
 
 class SurveyInputError(ValueError):
@@ -94,7 +63,7 @@ def list_captures(captures: Path, out: Path) -> List[str]:
 
 def survey_jobs(args: SurveyArgs, names: List[str], settings: stages.SurveySettings) -> List[Job]:
     """Per capture, the steps without a record, each after the one before it."""
-    light, heavy = stages.step_resources(args.cpus_per_task, args.ray, args.gpus_per_train, args.memory_gb_per_train)
+    light, heavy = args.resources()
     jobs: List[Job] = []
     for name in names:
         raw, folders = args.captures / name, stages.capture_folders(args.out, name)
@@ -109,14 +78,13 @@ def survey_jobs(args: SurveyArgs, names: List[str], settings: stages.SurveySetti
 
 def main(args: SurveyArgs) -> List[Dict[str, Any]]:
     names = list_captures(args.captures, args.out)
-    settings = stages.SurveySettings(args.method, args.steps, args.rays_per_batch, tuple(shlex.split(args.train_args)),
-                                     args.process, args.count, args.jackknife_groups)  # fmt: skip
+    settings = args.settings()
     jobs = survey_jobs(args, names, settings)
     errors: Dict[str, str] = {}
     if jobs:
         with (
             driver_lock(args.out),
-            executor_for(args.ray, **({"num_cpus": args.ray_cpus} if args.ray else {})) as executor,
+            executor_for(args.ray, **args.executor_options()) as executor,
         ):
             report = run_jobs(jobs, executor, lambda job, result: None, "survey steps", CONSOLE)
         errors = {key.rsplit(":", 1)[0]: failure.error for key, failure in report.failed.items()}

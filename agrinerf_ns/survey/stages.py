@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shlex
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -51,6 +52,55 @@ class SurveySettings:
     count: CountConfig = field(default_factory=CountConfig)
     jackknife_groups: int = 10
     """Interleaved groups of views of the count's jackknife interval (:mod:`agrinerf_ns.survey.intervals`)."""
+
+
+@dataclass(kw_only=True)
+class JobOptions:
+    """The command-line options ``agrinerf-survey`` and ``agrinerf-row`` share: how each capture (or row segment) is
+    trained and counted, and how its jobs run."""
+
+    method: str = "agrinerf-lite"
+    """``ns-train`` method (preset) each capture or segment is trained with."""
+    steps: int = 30000
+    """Training steps per capture or segment."""
+    rays_per_batch: int = 4096
+    """Training rays per batch."""
+    train_args: str = ""
+    """Further ``ns-train`` method options in one string, e.g. ``--train-args="--pipeline.model.final-resolution 128"``."""
+    ray: Optional[str] = None
+    """Run the jobs as Ray tasks (the ``[ray]`` extra): ``local`` starts Ray on this machine, ``auto`` joins the
+    cluster this machine belongs to, or a cluster address. OUT and the inputs must be on a filesystem every node
+    sees. None: one job after another in this process."""
+    cpus_per_task: Optional[int] = None
+    """CPU cores (and threads) each job holds; None: one per job with --ray, threads unchanged without."""
+    gpus_per_train: float = 0.0
+    """GPUs each training and counting job holds with --ray (1 on a GPU cluster)."""
+    memory_gb_per_train: Optional[float] = None
+    """Memory Ray reserves for each training and counting job (GiB; None: none reserved)."""
+    retries: int = 1
+    """Further attempts of a step that fails or whose worker dies, before it is reported failed."""
+    ray_cpus: Optional[int] = None
+    """With --ray local: the CPUs Ray may use (None: all of this machine's)."""
+    jackknife_groups: int = 10
+    """Interleaved groups of views of each count's interval (a delete-a-group jackknife)."""
+    process: ProcessConfig = field(default_factory=lambda: ProcessConfig(show_progress=False))
+    """Processing options (as ``agrinerf-process``)."""
+    count: CountConfig = field(default_factory=CountConfig)
+    """Detection, clustering and scoring options of every count (as ``agrinerf-count``; --count.max-range keeps the
+    row the rig drove)."""
+
+    def settings(self, process: Optional[ProcessConfig] = None) -> "SurveySettings":
+        """The steps' settings (``process``: in place of :attr:`process`)."""
+        return SurveySettings(self.method, self.steps, self.rays_per_batch, tuple(shlex.split(self.train_args)),
+                              self.process if process is None else process, self.count, self.jackknife_groups)  # fmt: skip
+
+    def resources(self) -> Tuple[Resources, Resources]:
+        """What a light and a heavy step hold (:func:`step_resources`)."""
+        return step_resources(self.cpus_per_task, self.ray, self.gpus_per_train, self.memory_gb_per_train)
+
+    def executor_options(self) -> Dict[str, Any]:
+        """Keyword options of :func:`agrinerf_ns.orchestrate.executors.executor_for` beside the address."""
+        return {"num_cpus": self.ray_cpus} if self.ray else {}
 
 
 @dataclass(frozen=True)
@@ -133,7 +183,7 @@ def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_:
     from agrinerf_ns.count.fruit_score import FRUITS_JSON
     from agrinerf_ns.count.pipeline import run_count
     from agrinerf_ns.count.render import load_renders
-    from agrinerf_ns.survey.intervals import count_interval, finite_or_none, mean_temperature
+    from agrinerf_ns.survey.intervals import count_interval
 
     start = time.perf_counter()
     truth = raw if (raw / FRUITS_JSON).is_file() else None
@@ -142,22 +192,28 @@ def count_step(raw: Path, folders: CaptureFolders, settings: SurveySettings, *_:
     renders = load_renders(folders.count / "renders")
     low, high = count_interval(len(result.fruit), result.detections, renders, settings.count.cluster,
                                settings.jackknife_groups)  # fmt: skip
+    record = count_record(result, start, (low, high))
+    record["jackknife_groups"] = min(settings.jackknife_groups, len(renders.views))
+    record["views"] = len(renders.views)
+    return write_record(folders, "count", record)
+
+
+def count_record(result: Any, start: float, interval: Tuple[float, float]) -> Dict[str, Any]:
+    """A count step's record: wall time since ``start`` (``time.perf_counter``), the fruit and their ``interval``,
+    the mean temperature with its half-width, and the score against a truth (non-finite figures as None, for JSON)."""
+    from agrinerf_ns.survey.intervals import finite_or_none, mean_temperature
+
     temperature, temperature_half = mean_temperature(result.fruit)
-    record: Dict[str, Any] = {
+    score = None if result.score is None else result.score.as_dict()
+    return {
         "wall_s": time.perf_counter() - start,
         "fruit": len(result.fruit),
-        "fruit_interval": [finite_or_none(low), finite_or_none(high)],
-        "jackknife_groups": min(settings.jackknife_groups, len(renders.views)),
-        "views": len(renders.views),
+        "fruit_interval": [finite_or_none(interval[0]), finite_or_none(interval[1])],
         "temperature_c": finite_or_none(temperature),
         "temperature_half_c": finite_or_none(temperature_half),
-        "score": None
-        if result.score is None
-        else {
-            k: finite_or_none(v) if isinstance(v, float) else v for k, v in result.score.as_dict().items()
-        },  # fmt: skip
-    }
-    return write_record(folders, "count", record)
+        "score": None if score is None else {k: finite_or_none(v) if isinstance(v, float) else v
+                                             for k, v in score.items()},
+    }  # fmt: skip
 
 
 def step_resources(
