@@ -24,14 +24,7 @@ from jaxtyping import Bool, Float
 from scipy import ndimage
 
 from agrinerf_ns.fruit.thermal_blobs import Blob
-from agrinerf_ns.fruit.thermal_bodies import (
-    BodyDecision,
-    BodySettings,
-    FrameGeometry,
-    Sighting,
-    fruit_sightings,
-    sweep_blobs,
-)
+from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, Sighting, placed_sighting, sweep_blobs
 from agrinerf_ns.rays import enclosing_ball, triangulate
 
 MIN_DISC_RADIUS_PX = 2.0
@@ -224,7 +217,7 @@ def mask_sightings(
     points, links = sweep_blobs(blobs, views, settings)
     points = outline_points(blobs, views, masks, track_points(blobs, views, points, links), links)
     placed = np.isfinite(points[:, 0])
-    found = fruit_sightings(blobs, BodyDecision(placed, placed, "warm", {}, {}, points), views)
+    found = [placed_sighting(blobs[k], points[k], views) for k in np.flatnonzero(placed)]
     if thermal is None or celsius is None:
         return found
     out = []

@@ -263,17 +263,26 @@ def fruit_sightings(
 ) -> List[Sighting]:
     """The blobs decided fruit, each where it was placed; with the median temperature of its disc where ``celsius``
     (per frame) is given."""
-    found = []
-    for k in np.flatnonzero(decision.fruit):
-        b, centre = blobs[k], decision.points[k]
-        view = geometry[b.frame]
-        origin, ray = (a[0] for a in view.rays(np.array([b.row]), np.array([b.col])))
-        distance = float(np.linalg.norm(centre - origin))
-        diameter = 2.0 * np.sqrt(2.0) * b.sigma * distance / float(view.K[0, 0])
-        temperature = None
-        if celsius is not None:
-            image = celsius[b.frame]
-            values = image[blob_discs(image.shape, np.isfinite(image), [b])]
-            temperature = float(np.median(values)) if values.size else None
-        found.append(Sighting(b.frame, np.asarray(centre, np.float64), float(diameter), temperature, origin, ray))
-    return found
+    return [
+        placed_sighting(blobs[k], decision.points[k], geometry, None if celsius is None else celsius[blobs[k].frame])
+        for k in np.flatnonzero(decision.fruit)
+    ]
+
+
+def placed_sighting(
+    blob: Blob,
+    centre: Float[np.ndarray, "3"],
+    geometry: Sequence[FrameGeometry],
+    celsius: Optional[Float[np.ndarray, "h w"]] = None,
+) -> Sighting:
+    """``blob`` placed at ``centre``: its ray, its disc's diameter at that distance, and the median temperature of
+    its disc in its frame's radiometric image ``celsius`` where given."""
+    view = geometry[blob.frame]
+    origin, ray = (a[0] for a in view.rays(np.array([blob.row]), np.array([blob.col])))
+    distance = float(np.linalg.norm(centre - origin))
+    diameter = 2.0 * np.sqrt(2.0) * blob.sigma * distance / float(view.K[0, 0])
+    temperature = None
+    if celsius is not None:
+        values = celsius[blob_discs(celsius.shape, np.isfinite(celsius), [blob])]
+        temperature = float(np.median(values)) if values.size else None
+    return Sighting(blob.frame, np.asarray(centre, np.float64), float(diameter), temperature, origin, ray)
