@@ -205,11 +205,25 @@ PUBLISHED_VARIANTS: Dict[str, Tuple[str, Tuple[str, ...]]] = {
         (f"{MODEL}num-fine-samples", "32"),
     ),
     "evdeblurnerf-lite-no-edi": ("EvDeblurNeRF as published, without the EDI prior", (f"{MODEL}edi-prior", "False")),
+    "evdeblurnerf-lite-no-crf": (
+        "EvDeblurNeRF as published, without the learnt event response",
+        (f"{MODEL}event-crf", "False"),
+    ),
+    "evdeblurnerf-lite-trajectory": (
+        "EvDeblurNeRF as published, the trajectory kernel in place of the learnt one",
+        (f"{MODEL}blur-kernel", "trajectory"),
+    ),
+    "evdeblurnerf-lite-windows": (
+        "EvDeblurNeRF as published, windowed events in place of event-to-event pairs (no response: pairs only)",
+        (f"{MODEL}event-supervision", "stream", f"{MODEL}event-crf", "False"),
+    ),
 }
 """Rows that switch parts of ``evdeblurnerf-lite`` off (its steps, schedule and kernel), to attribute its gap:
 ``learnt-kernel`` is the frame-only deblurring its paper compares against (DP-NeRF's learnt kernel, no events);
 ``recipe-rgb`` the same recipe without the kernel, so that the kernel's part and the schedule's part separate;
-``evdeblurnerf-lite-pdrf-lr`` the recipe with the grids learnt at PDRF's published rate, not TensoRF's (the preset's)."""
+``evdeblurnerf-lite-pdrf-lr`` the recipe with the grids learnt at PDRF's published rate, not TensoRF's (the preset's);
+the ``-no-edi``, ``-no-crf``, ``-trajectory`` and ``-windows`` rows each take one of its parts away (issue #63, item
+1a; the learnt response reads event pairs only, so the windows row has none)."""
 
 TABLE_I: Tuple[Tuple[str, str], ...] = (
     ("rgb", "RGB TensoRF"),

@@ -44,6 +44,28 @@ def test_the_published_recipe_rows_switch_off_only_their_part() -> None:
         assert BENCH.row_profile(BENCH.PROFILES["deblur"], key).steps == BENCH.PROFILES["deblur"].steps  # 1600 steps
 
 
+def test_each_minus_part_row_is_evdeblurnerf_without_that_part_alone() -> None:
+    """Issue #63, item 1a: each row differs from the published recipe in its own model fields, nothing else."""
+    import dataclasses
+
+    published = evdeblurnerf_lite.config
+    expected = {
+        "evdeblurnerf-lite-no-edi": {"edi_prior": False},
+        "evdeblurnerf-lite-no-crf": {"event_crf": False},
+        "evdeblurnerf-lite-trajectory": {"blur_kernel": "trajectory"},
+        "evdeblurnerf-lite-windows": {"event_supervision": "stream", "event_crf": False},
+    }
+    assert published.pipeline.model.edi_prior and published.pipeline.model.event_crf
+    assert (published.pipeline.model.blur_kernel, published.pipeline.model.event_supervision) == ("learnt", "pairs")
+    for key, fields in expected.items():
+        config = _parsed(key)
+        model = config.pipeline.model
+        changed = {f.name: getattr(model, f.name) for f in dataclasses.fields(model)
+                   if getattr(model, f.name) != getattr(published.pipeline.model, f.name)}  # fmt: skip
+        assert changed == fields, key
+        assert config.optimizers == published.optimizers and config.max_num_iterations == published.max_num_iterations
+
+
 @pytest.mark.parametrize("key", sorted([*BENCH.ROWS, *BENCH.PUBLISHED_VARIANTS]))
 def test_every_row_parses(key: str) -> None:
     assert _parsed(key).method_name == BENCH.method(key).ns_method
