@@ -12,8 +12,9 @@ import pytest
 from helpers.bench_script import load_bench_script
 
 from agrinerf_ns.process import ProcessConfig, process_capture
+from agrinerf_ns.process.errors import RawInputError
 from agrinerf_ns.process.evaluate import pose_report
-from agrinerf_ns.process.poses import opencv_to_opengl, pose_errors, umeyama
+from agrinerf_ns.process.poses import apply_similarity, camera_similarity, opencv_to_opengl, pose_errors, umeyama
 from agrinerf_ns.synth import SynthConfig, generate_capture
 
 
@@ -36,6 +37,23 @@ def test_umeyama_and_pose_errors_recover_a_similarity():
     err = pose_errors(est, true)
     assert err["rotation_deg_max"] < 1e-5 and err["translation_max"] < 1e-6
     np.testing.assert_allclose(opencv_to_opengl(opencv_to_opengl(est)), est)
+
+
+def test_camera_similarity_recovers_the_roll_about_a_straight_path():
+    """Cameras on an exact line: their centres leave the rotation about the line free, their orientations do not."""
+    rng = np.random.default_rng(1)
+    true = np.tile(np.eye(4), (8, 1, 1))
+    true[:, :3, 3] = np.c_[np.linspace(0, 2, 8), np.zeros(8), np.zeros(8)]
+    for i in range(8):
+        q = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        true[i, :3, :3] = q * np.sign(np.linalg.det(q))
+    roll = np.radians(20.0)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(roll), -np.sin(roll)], [0.0, np.sin(roll), np.cos(roll)]])
+    est = apply_similarity(true, 0.4, R, np.array([0.3, -1.0, 2.0]))
+    scale, rot, t, rms = camera_similarity(est, true)
+    back = apply_similarity(est, scale, rot, t)
+    assert scale == pytest.approx(2.5, rel=1e-9) and rms < 1e-9
+    np.testing.assert_allclose(back, true, atol=1e-9)
 
 
 @pytest.mark.slow
@@ -100,3 +118,23 @@ def test_sfm_scaling_benchmark_with_sequential_matching(tmp_path: Path):
     glob = bench.main(dataclasses.replace(args, out=tmp_path / "out_global", sizes=(12,), mapper="global"))
     assert glob[0]["mapper"] == "global" and glob[0]["registered_frac"] >= 0.9, glob
     assert glob[0]["rotation_deg_mean"] < 3.0 and glob[0]["translation_mean_frac"] < 0.05, glob
+
+
+@pytest.mark.slow
+def test_sfm_on_odometry_keeps_the_odometry_frame_and_metres(tmp_path: Path):
+    raw = tmp_path / "raw"
+    generate_capture(SynthConfig.tiny(lighting="bright", views=12, width=96, height=72), raw)
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="sfm-on-odometry", show_progress=False))
+    meta = json.loads((out / "transforms.json").read_text())
+    poses = meta["agrinerf"]["poses"]
+    assert poses["source"] == "sfm-on-odometry" and poses["odometry"]["frames"] >= 11
+    assert meta["agrinerf"]["trajectory"]["source"] == "odometry.txt"  # the odometry shares the poses' frame
+    odometry = {round(float(line.split()[0]), 4): np.array(line.split()[1:4], float)
+                for line in (raw / "odometry.txt").read_text().splitlines() if line.strip()}  # fmt: skip
+    centres = np.array([np.asarray(f["transform_matrix"])[:3, 3] for f in meta["frames"]])
+    near = np.array([odometry[round(f["timestamp"], 4)] for f in meta["frames"]])
+    assert np.sqrt(np.mean(np.sum((centres - near) ** 2, axis=1))) < 0.03  # metres, in the odometry's frame
+    (raw / "odometry.txt").unlink()
+    with pytest.raises(RawInputError, match="odometry.txt: missing; --poses sfm-on-odometry"):
+        process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="sfm-on-odometry", show_progress=False))
+    assert not (tmp_path / "ds2").exists()

@@ -365,28 +365,23 @@ def align_to_capture(dataset: Path, raw: Path, tolerance_s: float = 1e-3) -> Sim
         times, poses = read_tum(Path(raw) / TRUE_POSES)
     except TrajectoryError as err:
         raise CountInputError(str(err)) from err
-    src, dst, relative = [], [], []
-    opengl_to_opencv = np.diag([1.0, -1.0, -1.0])
+    from agrinerf_ns.process.poses import camera_similarity
+
+    src, dst = [], []
+    opengl_to_opencv = np.diag([1.0, -1.0, -1.0, 1.0])
     for frame in read_frames(dataset):
         if "timestamp" not in frame:
             continue
         k = int(np.argmin(np.abs(times - float(frame["timestamp"]))))
         if abs(times[k] - float(frame["timestamp"])) <= tolerance_s:
-            c2w = np.asarray(frame["transform_matrix"], np.float64)
-            src.append(c2w[:3, 3])
-            dst.append(poses[k][:3, 3])
-            relative.append(poses[k][:3, :3] @ opengl_to_opencv @ c2w[:3, :3].T)
+            c2w = np.eye(4)
+            c2w[:3, :4] = np.asarray(frame["transform_matrix"], np.float64)[:3, :4]
+            src.append(c2w @ opengl_to_opencv)
+            dst.append(poses[k])
     if len(src) < 3:
         raise CountInputError(
             f"{Path(dataset) / TRANSFORMS}: {len(src)} frames have a timestamp matching "
             f"{Path(raw) / TRUE_POSES}; aligning the dataset to the capture needs 3 (or pass --align none)"
         )
-    u, _, vt = np.linalg.svd(np.mean(relative, axis=0))
-    rot = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-    a, b = np.stack(src), np.stack(dst)
-    a0, b0 = a - a.mean(0), b - b.mean(0)
-    scale = float(np.sum(b0 * (a0 @ rot.T)) / max(float(np.sum(a0**2)), 1e-12))
-    t = b.mean(0) - scale * rot @ a.mean(0)
-    fitted = scale * a @ rot.T + t
-    rms = float(np.sqrt(np.mean(np.sum((fitted - b) ** 2, axis=1))))
+    scale, rot, t, rms = camera_similarity(np.stack(src), np.stack(dst))
     return Similarity(scale, rot, t, rms)

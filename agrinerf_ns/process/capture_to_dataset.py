@@ -67,9 +67,9 @@ def process_capture(raw: Path, out: Path, config: ProcessConfig) -> Path:
         CONSOLE.log(f"[yellow]Warning: {w}")
     if config.poses == "sfm-thermal" and cap.thermal is None:
         raise RawInputError(f"{raw}: --poses sfm-thermal needs thermal frames")
-    if config.poses == "given":
+    if config.poses in ("given", "sfm-on-odometry"):
         if not (raw / "odometry.txt").is_file():
-            raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses given needs the odometry file")
+            raise RawInputError(f"{raw / 'odometry.txt'}: missing; --poses {config.poses} needs the odometry file")
         try:  # every line checked (8 finite numbers) before any output is written
             read_tum(raw / "odometry.txt")
         except TrajectoryError as err:
@@ -159,7 +159,7 @@ def _process(
         if keep[i] and not pose_meta["has_pose"][i]:
             dropped[i] = "no pose" if pose_meta["source"] == "given" else "not registered by SfM"
     del pose_meta["has_pose"]
-    if pose_meta["source"] == "given":
+    if pose_meta["source"] in ("given", "sfm-on-odometry"):  # the odometry shares the poses' frame
         meta["trajectory"] = write_odometry_trajectory(raw, tmp)
     kept_frames = _keep_posed_frames(raw, tmp, cap, frames, pose_utils.opencv_to_opengl(c2w), dropped)
     pose_meta["dropped_frames"] = [

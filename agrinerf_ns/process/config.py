@@ -17,9 +17,11 @@ from agrinerf_ns.process.thermal_rescale import ThermalRescaleConfig
 class ProcessConfig:
     """Options of ``agrinerf-process`` (and :func:`process_capture`)."""
 
-    poses: Literal["auto", "sfm-rgb", "sfm-thermal", "given"] = "auto"
+    poses: Literal["auto", "sfm-rgb", "sfm-thermal", "given", "sfm-on-odometry"] = "auto"
     """Pose source: SfM on RGB, on the rescaled aligned thermal frames, auto (RGB first; thermal too unless RGB
-    registered every frame; keep whichever registers more, RGB on a tie), or the capture's odometry.txt."""
+    registered every frame; keep whichever registers more, RGB on a tie), the capture's odometry.txt, or SfM on RGB
+    placed in the odometry's frame and scale (``sfm-on-odometry``: a similarity fitted to the odometry's cameras;
+    SfM's local geometry, the odometry's world frame and metres)."""
     thermal: ThermalRescaleConfig = field(default_factory=ThermalRescaleConfig)
     """Thermal rescaling."""
     events: EventFrameConfig = field(default_factory=EventFrameConfig)

@@ -61,6 +61,35 @@ def poses_from_odometry(
 # similarity alignment and pose errors
 
 
+def camera_similarity(
+    src_c2w: Float[np.ndarray, "n 4 4"], dst_c2w: Float[np.ndarray, "n 4 4"]
+) -> Tuple[float, Float[np.ndarray, "3 3"], Float[np.ndarray, "3"], float]:
+    """The similarity ``p_dst = s R p_src + t`` between two estimates of the same cameras (camera-to-world, the same
+    camera axes): the rotation from their orientations (the mean relative rotation, projected onto SO(3); the
+    centres alone leave the rotation about a straight path undetermined, and a rig drives straight along a row),
+    then scale and translation from the centres by least squares; with the RMS distance of the fitted centres."""
+    src_c2w, dst_c2w = np.asarray(src_c2w, np.float64), np.asarray(dst_c2w, np.float64)
+    relative = dst_c2w[:, :3, :3] @ np.transpose(src_c2w[:, :3, :3], (0, 2, 1))
+    u, _, vt = np.linalg.svd(relative.mean(0))
+    rot = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    a, b = src_c2w[:, :3, 3], dst_c2w[:, :3, 3]
+    a0, b0 = a - a.mean(0), b - b.mean(0)
+    scale = float(np.sum(b0 * (a0 @ rot.T)) / max(float(np.sum(a0**2)), 1e-12))
+    t = b.mean(0) - scale * rot @ a.mean(0)
+    rms = float(np.sqrt(np.mean(np.sum((scale * a @ rot.T + t - b) ** 2, axis=1))))
+    return scale, rot, t, rms
+
+
+def apply_similarity(
+    c2w: Float[np.ndarray, "n 4 4"], scale: float, rot: Float[np.ndarray, "3 3"], t: Float[np.ndarray, "3"]
+) -> Float[np.ndarray, "n 4 4"]:
+    """Camera-to-world poses moved by the similarity ``p -> scale rot p + t`` (orientations rotated, centres moved)."""
+    out = np.array(c2w, np.float64)
+    out[:, :3, :3] = rot @ out[:, :3, :3]
+    out[:, :3, 3] = scale * out[:, :3, 3] @ rot.T + t
+    return out
+
+
 def umeyama(src: Float[np.ndarray, "n 3"], dst: Float[np.ndarray, "n 3"]) -> Tuple[float, np.ndarray, np.ndarray]:
     """Similarity (s, R, t) minimising sum ||dst - (s R src + t)||^2 (Umeyama 1991)."""
     mu_s, mu_d = src.mean(0), dst.mean(0)

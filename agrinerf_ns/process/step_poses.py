@@ -32,7 +32,9 @@ def estimate_poses(
         return c2w, {"source": "given", "requested": "given", "file": "odometry.txt", "has_pose": ok.tolist()}
     idx = np.flatnonzero(keep)
     runs: Dict[str, pose_utils.SfmResult] = {}
-    wanted = {"sfm-rgb": ["rgb"], "sfm-thermal": ["thermal"], "auto": ["rgb", "thermal"]}[config.poses]
+    wanted = {"sfm-rgb": ["rgb"], "sfm-thermal": ["thermal"], "auto": ["rgb", "thermal"], "sfm-on-odometry": ["rgb"]}[
+        config.poses
+    ]
     if cap.thermal is None:
         wanted = [w for w in wanted if w != "thermal"]
     for source in wanted:
@@ -65,11 +67,44 @@ def estimate_poses(
     has = np.zeros(n, dtype=bool)
     c2w[idx] = res.c2w
     has[idx] = res.registered
+    if config.poses == "sfm-on-odometry":
+        return on_odometry(raw, cap, config, c2w, has, runs, len(idx))
     return c2w, {
         "source": res.source,
         "requested": config.poses,
         "registered": {f"sfm-{k}": v.num_registered for k, v in runs.items()},
         "frames_tried": int(len(idx)),
+        "has_pose": has.tolist(),
+    }
+
+
+def on_odometry(
+    raw: Path,
+    cap: Capture,
+    config: ProcessConfig,
+    c2w: np.ndarray,
+    has: np.ndarray,
+    runs: Dict[str, pose_utils.SfmResult],
+    tried: int,
+):
+    """The SfM poses ``c2w`` (frames ``has``) moved into the odometry's frame and scale by the similarity fitted to
+    the frames both posed (:func:`~agrinerf_ns.process.poses.camera_similarity`); with the poses metadata."""
+    tol = config.max_time_offset_s if config.max_time_offset_s is not None else 0.5 * frame_interval(cap.rgb.times)
+    odometry, ok = pose_utils.poses_from_odometry(raw / "odometry.txt", cap.rgb.times, max(tol, 1e-6))
+    both = has & ok
+    if both.sum() < 3:
+        raise RawInputError(
+            f"{raw / 'odometry.txt'}: {int(both.sum())} frames have both an odometry pose and an SfM pose; "
+            "--poses sfm-on-odometry needs 3"
+        )
+    scale, rot, t, rms = pose_utils.camera_similarity(c2w[both], odometry[both])
+    CONSOLE.log(f"SfM placed on the odometry: scale {scale:.4f}, camera centres {rms:.4f} off the odometry's (RMS)")
+    return pose_utils.apply_similarity(c2w, scale, rot, t), {
+        "source": "sfm-on-odometry",
+        "requested": config.poses,
+        "registered": {f"sfm-{k}": v.num_registered for k, v in runs.items()},
+        "frames_tried": tried,
+        "odometry": {"file": "odometry.txt", "frames": int(both.sum()), "scale": scale, "centre_rms": rms},
         "has_pose": has.tolist(),
     }
 
