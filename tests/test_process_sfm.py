@@ -121,19 +121,23 @@ def test_sfm_scaling_benchmark_with_sequential_matching(tmp_path: Path):
 
 
 @pytest.mark.slow
-def test_sfm_on_odometry_keeps_the_odometry_frame_and_metres(tmp_path: Path):
+def test_sfm_on_odometry_keeps_the_odometry_frame_and_metres_and_falls_back_when_sfm_drifts(tmp_path: Path):
     raw = tmp_path / "raw"
     generate_capture(SynthConfig.tiny(lighting="bright", views=12, width=96, height=72), raw)
-    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="sfm-on-odometry", show_progress=False))
-    meta = json.loads((out / "transforms.json").read_text())
-    poses = meta["agrinerf"]["poses"]
-    assert poses["source"] == "sfm-on-odometry" and poses["odometry"]["frames"] >= 11
-    assert meta["agrinerf"]["trajectory"]["source"] == "odometry.txt"  # the odometry shares the poses' frame
     odometry = {round(float(line.split()[0]), 4): np.array(line.split()[1:4], float)
                 for line in (raw / "odometry.txt").read_text().splitlines() if line.strip()}  # fmt: skip
-    centres = np.array([np.asarray(f["transform_matrix"])[:3, 3] for f in meta["frames"]])
-    near = np.array([odometry[round(f["timestamp"], 4)] for f in meta["frames"]])
-    assert np.sqrt(np.mean(np.sum((centres - near) ** 2, axis=1))) < 0.03  # metres, in the odometry's frame
+    for limit, kept in ((1e9, "sfm"), (0.0, "odometry")):  # any disagreement allowed; none
+        config = ProcessConfig(poses="sfm-on-odometry", sfm_max_disagreement_deg=limit, show_progress=False)
+        out = process_capture(raw, tmp_path / f"ds_{kept}", config)
+        meta = json.loads((out / "transforms.json").read_text())
+        poses = meta["agrinerf"]["poses"]
+        assert poses["odometry"]["kept"] == kept and poses["odometry"]["frames"] >= 11
+        assert poses["source"] == ("sfm-on-odometry" if kept == "sfm" else "given")
+        assert meta["agrinerf"]["trajectory"]["source"] == "odometry.txt"  # the odometry shares the poses' frame
+        centres = np.array([np.asarray(f["transform_matrix"])[:3, 3] for f in meta["frames"]])
+        near = np.array([odometry[round(f["timestamp"], 4)] for f in meta["frames"]])
+        off = np.sqrt(np.mean(np.sum((centres - near) ** 2, axis=1)))
+        assert off < (0.03 if kept == "sfm" else 1e-5)  # metres, in the odometry's frame; its very poses
     (raw / "odometry.txt").unlink()
     with pytest.raises(RawInputError, match="odometry.txt: missing; --poses sfm-on-odometry"):
         process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="sfm-on-odometry", show_progress=False))

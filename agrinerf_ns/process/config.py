@@ -22,6 +22,10 @@ class ProcessConfig:
     registered every frame; keep whichever registers more, RGB on a tie), the capture's odometry.txt, or SfM on RGB
     placed in the odometry's frame and scale (``sfm-on-odometry``: a similarity fitted to the odometry's cameras;
     SfM's local geometry, the odometry's world frame and metres)."""
+    sfm_max_disagreement_deg: float = 0.5
+    """``sfm-on-odometry``: SfM's poses are kept where their orientations, once on the odometry, differ from the
+    odometry's by at most this many degrees on average; above it SfM has drifted (it did on low-texture gardens)
+    and the odometry's poses are kept (chosen on tuning captures: results/fruit-count-lit/README.md)."""
     thermal: ThermalRescaleConfig = field(default_factory=ThermalRescaleConfig)
     """Thermal rescaling."""
     events: EventFrameConfig = field(default_factory=EventFrameConfig)

@@ -122,10 +122,10 @@ def pose_errors(est_c2w: Float[np.ndarray, "n 4 4"], true_c2w: Float[np.ndarray,
     M = np.einsum("nij,nkj->ik", true_c2w[:, :3, :3], est_c2w[:, :3, :3])
     U, _, Vt = np.linalg.svd(M)
     R_rot = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    rot_err = _angle_deg(np.einsum("ij,njk->nik", R_rot, est_c2w[:, :3, :3]), true_c2w[:, :3, :3])
+    rot_err = rotation_angles_deg(np.einsum("ij,njk->nik", R_rot, est_c2w[:, :3, :3]), true_c2w[:, :3, :3])
     rel_est = np.einsum("nji,njk->nik", est_c2w[:-1, :3, :3], est_c2w[1:, :3, :3])
     rel_true = np.einsum("nji,njk->nik", true_c2w[:-1, :3, :3], true_c2w[1:, :3, :3])
-    rel_err = _angle_deg(rel_est, rel_true) if len(est_c2w) > 1 else np.zeros(1)
+    rel_err = rotation_angles_deg(rel_est, rel_true) if len(est_c2w) > 1 else np.zeros(1)
     return {
         "rotation_deg_mean": float(rot_err.mean()),
         "rotation_deg_max": float(rot_err.max()),
@@ -136,7 +136,8 @@ def pose_errors(est_c2w: Float[np.ndarray, "n 4 4"], true_c2w: Float[np.ndarray,
     }
 
 
-def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+def rotation_angles_deg(Ra: Float[np.ndarray, "n 3 3"], Rb: Float[np.ndarray, "n 3 3"]) -> Float[np.ndarray, " n"]:
+    """The angle (degrees) between each pair of rotations."""
     rel = np.einsum("nji,njk->nik", Ra, Rb)
     return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
 

@@ -98,13 +98,25 @@ def on_odometry(
             "--poses sfm-on-odometry needs 3"
         )
     scale, rot, t, rms = pose_utils.camera_similarity(c2w[both], odometry[both])
-    CONSOLE.log(f"SfM placed on the odometry: scale {scale:.4f}, camera centres {rms:.4f} off the odometry's (RMS)")
-    return pose_utils.apply_similarity(c2w, scale, rot, t), {
+    placed = pose_utils.apply_similarity(c2w, scale, rot, t)
+    disagreement = float(np.mean(pose_utils.rotation_angles_deg(placed[both][:, :3, :3], odometry[both][:, :3, :3])))
+    fit = {"file": "odometry.txt", "frames": int(both.sum()), "scale": scale, "centre_rms": rms,
+           "rotation_disagreement_deg": disagreement, "max_rotation_disagreement_deg": config.sfm_max_disagreement_deg}  # fmt: skip
+    registered = {f"sfm-{k}": v.num_registered for k, v in runs.items()}
+    if disagreement > config.sfm_max_disagreement_deg:  # SfM drifted: the odometry is the better of the two
+        CONSOLE.log(f"[yellow]SfM's orientations differ from the odometry's by {disagreement:.2f} degrees on average "
+                    f"(more than {config.sfm_max_disagreement_deg}): the odometry's poses are kept")  # fmt: skip
+        meta = {"source": "given", "requested": config.poses, "registered": registered, "frames_tried": tried,
+                "odometry": {**fit, "kept": "odometry"}, "has_pose": ok.tolist()}  # fmt: skip
+        return odometry, meta
+    CONSOLE.log(f"SfM placed on the odometry: scale {scale:.4f}, centres {rms:.4f} and orientations "
+                f"{disagreement:.2f} degrees off the odometry's")  # fmt: skip
+    return placed, {
         "source": "sfm-on-odometry",
         "requested": config.poses,
-        "registered": {f"sfm-{k}": v.num_registered for k, v in runs.items()},
+        "registered": registered,
         "frames_tried": tried,
-        "odometry": {"file": "odometry.txt", "frames": int(both.sum()), "scale": scale, "centre_rms": rms},
+        "odometry": {**fit, "kept": "sfm"},
         "has_pose": has.tolist(),
     }
 
