@@ -142,3 +142,23 @@ def test_sfm_on_odometry_keeps_the_odometry_frame_and_metres_and_falls_back_when
     with pytest.raises(RawInputError, match="odometry.txt: missing; --poses sfm-on-odometry"):
         process_capture(raw, tmp_path / "ds2", ProcessConfig(poses="sfm-on-odometry", show_progress=False))
     assert not (tmp_path / "ds2").exists()
+
+
+@pytest.mark.slow
+def test_sfm_on_odometry_keeps_the_odometry_where_sfm_cannot_place_dark_frames(tmp_path: Path):
+    raw = tmp_path / "raw"
+    generate_capture(SynthConfig.tiny(lighting="dark", views=12, width=96, height=72), raw)
+    out = process_capture(raw, tmp_path / "ds", ProcessConfig(poses="sfm-on-odometry", show_progress=False))
+    meta = json.loads((out / "transforms.json").read_text())["agrinerf"]
+    poses = meta["poses"]
+    assert poses["source"] == "given" and poses["odometry"]["kept"] == "odometry"
+    assert poses["odometry"]["why"].startswith("SfM registered") and poses["registered"]["sfm-rgb"] < 6, poses
+    given = json.loads(
+        (
+            process_capture(raw, tmp_path / "given", ProcessConfig(poses="given", show_progress=False))
+            / "transforms.json"
+        ).read_text()
+    )
+    assert [f["transform_matrix"] for f in json.loads((out / "transforms.json").read_text())["frames"]] == [
+        f["transform_matrix"] for f in given["frames"]
+    ]

@@ -21,7 +21,8 @@ class ProcessConfig:
     """Pose source: SfM on RGB, on the rescaled aligned thermal frames, auto (RGB first; thermal too unless RGB
     registered every frame; keep whichever registers more, RGB on a tie), the capture's odometry.txt, or SfM on RGB
     placed in the odometry's frame and scale (``sfm-on-odometry``: a similarity fitted to the odometry's cameras;
-    SfM's local geometry, the odometry's world frame and metres)."""
+    SfM's local geometry, the odometry's world frame and metres; where SfM places fewer than ``min_registered_frac``
+    of the frames, as on dark RGB frames, the odometry's poses are kept)."""
     sfm_max_disagreement_deg: float = 0.5
     """``sfm-on-odometry``: SfM's poses are kept where their orientations, once on the odometry, differ from the
     odometry's by at most this many degrees on average; above it SfM has drifted (it did on low-texture gardens)

@@ -27,8 +27,7 @@ def estimate_poses(
     """Camera-to-world (OpenCV axes) for every RGB frame, and the poses metadata (with a has_pose list)."""
     n = len(frames)
     if config.poses == "given":
-        tol = config.max_time_offset_s if config.max_time_offset_s is not None else 0.5 * frame_interval(cap.rgb.times)
-        c2w, ok = pose_utils.poses_from_odometry(raw / "odometry.txt", cap.rgb.times, max(tol, 1e-6))
+        c2w, ok = read_odometry(raw, cap, config)
         return c2w, {"source": "given", "requested": "given", "file": "odometry.txt", "has_pose": ok.tolist()}
     idx = np.flatnonzero(keep)
     runs: Dict[str, pose_utils.SfmResult] = {}
@@ -58,6 +57,10 @@ def estimate_poses(
         CONSOLE.log(f"SfM on {source}: registered {res.num_registered} of {len(idx)} frames")
     best = max(runs, key=lambda s: (runs[s].num_registered, s == "rgb"))
     res = runs[best]
+    if config.poses == "sfm-on-odometry" and res.num_registered < config.min_registered_frac * len(idx):
+        return odometry_kept(
+            raw, cap, config, runs, len(idx), f"SfM registered {res.num_registered} of {len(idx)} frames"
+        )
     if res.num_registered < config.min_registered_frac * len(idx):
         raise RawInputError(
             f"{raw}: SfM registered only {res.num_registered} of {len(idx)} frames "
@@ -89,8 +92,7 @@ def on_odometry(
 ):
     """The SfM poses ``c2w`` (frames ``has``) moved into the odometry's frame and scale by the similarity fitted to
     the frames both posed (:func:`~agrinerf_ns.process.poses.camera_similarity`); with the poses metadata."""
-    tol = config.max_time_offset_s if config.max_time_offset_s is not None else 0.5 * frame_interval(cap.rgb.times)
-    odometry, ok = pose_utils.poses_from_odometry(raw / "odometry.txt", cap.rgb.times, max(tol, 1e-6))
+    odometry, ok = read_odometry(raw, cap, config)
     both = has & ok
     if both.sum() < 3:
         raise RawInputError(
@@ -107,7 +109,7 @@ def on_odometry(
         CONSOLE.log(f"[yellow]SfM's orientations differ from the odometry's by {disagreement:.2f} degrees on average "
                     f"(more than {config.sfm_max_disagreement_deg}): the odometry's poses are kept")  # fmt: skip
         meta = {"source": "given", "requested": config.poses, "registered": registered, "frames_tried": tried,
-                "odometry": {**fit, "kept": "odometry"}, "has_pose": ok.tolist()}  # fmt: skip
+                "odometry": {**fit, "kept": "odometry", "why": "SfM's orientations drift"}, "has_pose": ok.tolist()}  # fmt: skip
         return odometry, meta
     CONSOLE.log(f"SfM placed on the odometry: scale {scale:.4f}, centres {rms:.4f} and orientations "
                 f"{disagreement:.2f} degrees off the odometry's")  # fmt: skip
@@ -119,6 +121,24 @@ def on_odometry(
         "odometry": {**fit, "kept": "sfm"},
         "has_pose": has.tolist(),
     }
+
+
+def read_odometry(raw: Path, cap: Capture, config: ProcessConfig):
+    """The odometry's camera-to-world pose at each RGB frame's time, and which frames it covers."""
+    tol = config.max_time_offset_s if config.max_time_offset_s is not None else 0.5 * frame_interval(cap.rgb.times)
+    return pose_utils.poses_from_odometry(raw / "odometry.txt", cap.rgb.times, max(tol, 1e-6))
+
+
+def odometry_kept(
+    raw: Path, cap: Capture, config: ProcessConfig, runs: Dict[str, pose_utils.SfmResult], tried: int, why: str
+):
+    """``sfm-on-odometry`` where SfM could not place the frames (dark RGB frames): the odometry's poses, and why."""
+    odometry, ok = read_odometry(raw, cap, config)
+    CONSOLE.log(f"[yellow]{why} (fewer than {config.min_registered_frac:.0%}): the odometry's poses are kept")
+    registered = {f"sfm-{k}": v.num_registered for k, v in runs.items()}
+    meta = {"source": "given", "requested": config.poses, "registered": registered, "frames_tried": tried,
+            "odometry": {"file": "odometry.txt", "kept": "odometry", "why": why}, "has_pose": ok.tolist()}  # fmt: skip
+    return odometry, meta
 
 
 def write_odometry_trajectory(raw: Path, tmp: Path) -> Dict:
