@@ -24,7 +24,14 @@ from jaxtyping import Bool, Float
 from scipy import ndimage
 
 from agrinerf_ns.fruit.thermal_blobs import Blob
-from agrinerf_ns.fruit.thermal_bodies import BodySettings, FrameGeometry, Sighting, placed_sighting, sweep_blobs
+from agrinerf_ns.fruit.thermal_bodies import (
+    BodySettings,
+    FrameGeometry,
+    Sighting,
+    disc_diameter,
+    placed_sighting,
+    sweep_blobs,
+)
 from agrinerf_ns.rays import enclosing_ball, triangulate
 
 MIN_DISC_RADIUS_PX = 2.0
@@ -172,8 +179,12 @@ def outline_points(
         if centre is None:
             continue
         origins, _ = blob_rays([blobs[k] for k in track], views)
-        pixels = np.array([np.sqrt(2.0) * blobs[k].sigma / float(views[blobs[k].frame].K[0, 0]) for k in track])
-        diameter = float(np.median(2.0 * pixels * np.linalg.norm(start - origins, axis=1)))
+        distances = np.linalg.norm(start - origins, axis=1)
+        diameter = float(
+            np.median(
+                [disc_diameter(blobs[k], views[blobs[k].frame], d) for k, d in zip(track, distances, strict=True)]
+            )
+        )
         if np.linalg.norm(centre - start) <= MAX_OUTLINE_MOVE * diameter:
             out[track] = centre
     return out

@@ -269,6 +269,11 @@ def fruit_sightings(
     ]
 
 
+def disc_diameter(blob: Blob, view: FrameGeometry, distance: float) -> float:
+    """The width (world units) of ``blob``'s disc (radius sqrt(2) sigma pixels) at ``distance`` from ``view``."""
+    return 2.0 * np.sqrt(2.0) * blob.sigma * distance / float(view.K[0, 0])
+
+
 def placed_sighting(
     blob: Blob,
     centre: Float[np.ndarray, "3"],
@@ -279,8 +284,7 @@ def placed_sighting(
     its disc in its frame's radiometric image ``celsius`` where given."""
     view = geometry[blob.frame]
     origin, ray = (a[0] for a in view.rays(np.array([blob.row]), np.array([blob.col])))
-    distance = float(np.linalg.norm(centre - origin))
-    diameter = 2.0 * np.sqrt(2.0) * blob.sigma * distance / float(view.K[0, 0])
+    diameter = disc_diameter(blob, view, float(np.linalg.norm(centre - origin)))
     temperature = None
     if celsius is not None:
         values = celsius[blob_discs(celsius.shape, np.isfinite(celsius), [blob])]

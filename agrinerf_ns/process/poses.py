@@ -69,15 +69,20 @@ def camera_similarity(
     centres alone leave the rotation about a straight path undetermined, and a rig drives straight along a row),
     then scale and translation from the centres by least squares; with the RMS distance of the fitted centres."""
     src_c2w, dst_c2w = np.asarray(src_c2w, np.float64), np.asarray(dst_c2w, np.float64)
-    relative = dst_c2w[:, :3, :3] @ np.transpose(src_c2w[:, :3, :3], (0, 2, 1))
-    u, _, vt = np.linalg.svd(relative.mean(0))
-    rot = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    rot = common_rotation(src_c2w[:, :3, :3], dst_c2w[:, :3, :3])
     a, b = src_c2w[:, :3, 3], dst_c2w[:, :3, 3]
     a0, b0 = a - a.mean(0), b - b.mean(0)
     scale = float(np.sum(b0 * (a0 @ rot.T)) / max(float(np.sum(a0**2)), 1e-12))
     t = b.mean(0) - scale * rot @ a.mean(0)
     rms = float(np.sqrt(np.mean(np.sum((scale * a @ rot.T + t - b) ** 2, axis=1))))
     return scale, rot, t, rms
+
+
+def common_rotation(src: Float[np.ndarray, "n 3 3"], dst: Float[np.ndarray, "n 3 3"]) -> Float[np.ndarray, "3 3"]:
+    """The one rotation R that best carries the orientations ``src`` onto ``dst`` (R src_i ~ dst_i): the chordal
+    mean of dst_i src_i^T, projected onto SO(3)."""
+    u, _, vt = np.linalg.svd(np.einsum("nij,nkj->ik", dst, src))
+    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
 
 
 def apply_similarity(
@@ -119,9 +124,7 @@ def pose_errors(est_c2w: Float[np.ndarray, "n 4 4"], true_c2w: Float[np.ndarray,
     s, R, t = umeyama(est_c2w[:, :3, 3], true_c2w[:, :3, 3])
     centres = (s * (R @ est_c2w[:, :3, 3].T)).T + t
     trans_err = np.linalg.norm(centres - true_c2w[:, :3, 3], axis=1)
-    M = np.einsum("nij,nkj->ik", true_c2w[:, :3, :3], est_c2w[:, :3, :3])
-    U, _, Vt = np.linalg.svd(M)
-    R_rot = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    R_rot = common_rotation(est_c2w[:, :3, :3], true_c2w[:, :3, :3])
     rot_err = rotation_angles_deg(np.einsum("ij,njk->nik", R_rot, est_c2w[:, :3, :3]), true_c2w[:, :3, :3])
     rel_est = np.einsum("nji,njk->nik", est_c2w[:-1, :3, :3], est_c2w[1:, :3, :3])
     rel_true = np.einsum("nji,njk->nik", true_c2w[:-1, :3, :3], true_c2w[1:, :3, :3])

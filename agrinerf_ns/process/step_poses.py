@@ -57,21 +57,17 @@ def estimate_poses(
         CONSOLE.log(f"SfM on {source}: registered {res.num_registered} of {len(idx)} frames")
     best = max(runs, key=lambda s: (runs[s].num_registered, s == "rgb"))
     res = runs[best]
-    if config.poses == "sfm-on-odometry" and res.num_registered < config.min_registered_frac * len(idx):
-        return odometry_kept(
-            raw, cap, config, runs, len(idx), f"SfM registered {res.num_registered} of {len(idx)} frames"
-        )
+    c2w = np.tile(np.eye(4), (n, 1, 1))
+    has = np.zeros(n, dtype=bool)
+    c2w[idx] = res.c2w
+    has[idx] = res.registered
+    if config.poses == "sfm-on-odometry":  # too few registered is no error: the odometry's poses stand in
+        return on_odometry(raw, cap, config, c2w, has, runs, len(idx))
     if res.num_registered < config.min_registered_frac * len(idx):
         raise RawInputError(
             f"{raw}: SfM registered only {res.num_registered} of {len(idx)} frames "
             f"({', '.join(f'{k}: {v.num_registered}' for k, v in runs.items())})"
         )
-    c2w = np.tile(np.eye(4), (n, 1, 1))
-    has = np.zeros(n, dtype=bool)
-    c2w[idx] = res.c2w
-    has[idx] = res.registered
-    if config.poses == "sfm-on-odometry":
-        return on_odometry(raw, cap, config, c2w, has, runs, len(idx))
     return c2w, {
         "source": res.source,
         "requested": config.poses,
@@ -91,8 +87,21 @@ def on_odometry(
     tried: int,
 ):
     """The SfM poses ``c2w`` (frames ``has``) moved into the odometry's frame and scale by the similarity fitted to
-    the frames both posed (:func:`~agrinerf_ns.process.poses.camera_similarity`); with the poses metadata."""
+    the frames both posed (:func:`~agrinerf_ns.process.poses.camera_similarity`); with the poses metadata. Where
+    SfM registered fewer than ``min_registered_frac`` of the frames (dark RGB frames) or its orientations drifted
+    from the odometry's, the odometry's poses, and why."""
     odometry, ok = read_odometry(raw, cap, config)
+    registered = {f"sfm-{k}": v.num_registered for k, v in runs.items()}
+
+    def kept(why: str, detail: str, fit: Dict) -> tuple:
+        CONSOLE.log(f"[yellow]{why} ({detail}): the odometry's poses are kept")
+        meta = {"source": "given", "requested": config.poses, "registered": registered, "frames_tried": tried,
+                "odometry": {**fit, "kept": "odometry", "why": why}, "has_pose": ok.tolist()}  # fmt: skip
+        return odometry, meta
+
+    if has.sum() < config.min_registered_frac * tried:
+        why = f"SfM registered {int(has.sum())} of {tried} frames"
+        return kept(why, f"fewer than {config.min_registered_frac:.0%}", {"file": "odometry.txt"})
     both = has & ok
     if both.sum() < 3:
         raise RawInputError(
@@ -104,13 +113,11 @@ def on_odometry(
     disagreement = float(np.mean(pose_utils.rotation_angles_deg(placed[both][:, :3, :3], odometry[both][:, :3, :3])))
     fit = {"file": "odometry.txt", "frames": int(both.sum()), "scale": scale, "centre_rms": rms,
            "rotation_disagreement_deg": disagreement, "max_rotation_disagreement_deg": config.sfm_max_disagreement_deg}  # fmt: skip
-    registered = {f"sfm-{k}": v.num_registered for k, v in runs.items()}
     if disagreement > config.sfm_max_disagreement_deg:  # SfM drifted: the odometry is the better of the two
-        CONSOLE.log(f"[yellow]SfM's orientations differ from the odometry's by {disagreement:.2f} degrees on average "
-                    f"(more than {config.sfm_max_disagreement_deg}): the odometry's poses are kept")  # fmt: skip
-        meta = {"source": "given", "requested": config.poses, "registered": registered, "frames_tried": tried,
-                "odometry": {**fit, "kept": "odometry", "why": "SfM's orientations drift"}, "has_pose": ok.tolist()}  # fmt: skip
-        return odometry, meta
+        detail = (
+            f"{disagreement:.2f} degrees from the odometry's on average, more than {config.sfm_max_disagreement_deg}"
+        )
+        return kept("SfM's orientations drift", detail, fit)
     CONSOLE.log(f"SfM placed on the odometry: scale {scale:.4f}, centres {rms:.4f} and orientations "
                 f"{disagreement:.2f} degrees off the odometry's")  # fmt: skip
     return placed, {
@@ -127,18 +134,6 @@ def read_odometry(raw: Path, cap: Capture, config: ProcessConfig):
     """The odometry's camera-to-world pose at each RGB frame's time, and which frames it covers."""
     tol = config.max_time_offset_s if config.max_time_offset_s is not None else 0.5 * frame_interval(cap.rgb.times)
     return pose_utils.poses_from_odometry(raw / "odometry.txt", cap.rgb.times, max(tol, 1e-6))
-
-
-def odometry_kept(
-    raw: Path, cap: Capture, config: ProcessConfig, runs: Dict[str, pose_utils.SfmResult], tried: int, why: str
-):
-    """``sfm-on-odometry`` where SfM could not place the frames (dark RGB frames): the odometry's poses, and why."""
-    odometry, ok = read_odometry(raw, cap, config)
-    CONSOLE.log(f"[yellow]{why} (fewer than {config.min_registered_frac:.0%}): the odometry's poses are kept")
-    registered = {f"sfm-{k}": v.num_registered for k, v in runs.items()}
-    meta = {"source": "given", "requested": config.poses, "registered": registered, "frames_tried": tried,
-            "odometry": {"file": "odometry.txt", "kept": "odometry", "why": why}, "has_pose": ok.tolist()}  # fmt: skip
-    return odometry, meta
 
 
 def write_odometry_trajectory(raw: Path, tmp: Path) -> Dict:
